@@ -1,0 +1,151 @@
+// JumpMap: the B-derivative B of the flow across a point rho where n switching surfaces meet
+// ([B] Sections 2.3, 5, 6).
+//
+// Inputs at rho: normals eta (n x d, rows eta_j, full row rank), oriented so that
+// eta_j . Gamma(b) > 0 for every surface j and every word b, and the field limits
+// Gamma(b) = F_b(rho) (see field_limits.h). The tangent dx = delta rho^- is a perturbation
+// before the event; B(dx) = delta rho^+ is the perturbation after it, both at time 0.
+//
+// Worked example, the piecewise-constant field of [B] (3.1)-(3.2) with d = n = 2 and
+// Delta(b) = -delta * b: every Gamma(b) = 1 - delta * b, eta = I, and B = (1-delta)/(1+delta) I.
+//
+//   Eigen::MatrixXd eta = Eigen::MatrixXd::Identity(2, 2);
+//   Eigen::MatrixXd limits(2, 4);                     // column b.bits() is Gamma(b)
+//   for (int w = 0; w < 4; ++w)
+//     for (int i = 0; i < 2; ++i) limits(i, w) = ((w >> i) & 1) ? 1 - delta : 1 + delta;
+//   bflow::JumpMap jump(eta, limits);
+//   Eigen::VectorXd image = jump.apply(dx);           // == (1-delta)/(1+delta) * dx
+//   bflow::CrossingOrder o = jump.order(dx);          // which surface is crossed first
+//   Eigen::MatrixXd m = jump.active_jacobian(dx);     // M_sigma for that order
+//
+// Exact ties. When two surfaces would be crossed at the same time, the lower index is taken
+// first. B is continuous, so the value of apply() is the same either way; only the reported
+// order (and so active_jacobian) depends on the rule.
+//
+// Threads. apply(), order(), ... are const but a lazily evaluated Gamma is cached inside the
+// object; use one JumpMap per thread (copies are independent).
+#ifndef BFLOW_CORE_JUMP_MAP_H_
+#define BFLOW_CORE_JUMP_MAP_H_
+
+#include <cstdint>
+#include <memory>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "bflow/core/field_limits.h"
+#include "bflow/core/signs.h"
+
+namespace bflow {
+
+class Triangulation;
+
+/** Crossing order sigma and cumulative crossing times of [B] (6.8)-(6.9). */
+struct CrossingOrder {
+  /** Surface indices, first crossed first. */
+  std::vector<int> order;
+  /** times[k] is when surface order[k] is crossed; time 0 is dx itself on the F_{-...-} line.
+      Non-decreasing; may be negative (dx already past some surfaces). */
+  std::vector<double> times;
+};
+
+/** One linear piece of B: the saltation matrix M_sigma active on the cone of order sigma. */
+struct Piece {
+  std::vector<int> order;
+  Eigen::MatrixXd matrix;
+};
+
+struct JumpMapOptions {
+  /** Capacity of the cache of a lazily evaluated Gamma, in words; 0 chooses 8 (n + 1).
+      The cache never allocates after construction: when full it is cleared. */
+  int cache_words = 0;
+};
+
+class JumpMap {
+ public:
+  /** Largest n for which pieces() and triangulation() enumerate (n! pieces). */
+  static constexpr int kMaxEnumeratedSurfaces = 10;
+  /** Largest memory, in bytes, pieces() may return (n! d^2 doubles). */
+  static constexpr std::int64_t kMaxPiecesBytes = std::int64_t{4} << 30;
+  /** Normals count as rank deficient when, after scaling each row to unit length, the
+      smallest singular value is at most this times the largest. */
+  static constexpr double kRankTolerance = 1e-10;
+
+  /** Gamma given as a table: `limits` is d x 2^n, column b.bits() is Gamma(b). Checks every
+      word for transversality.
+      @throws InvalidArgument on empty or mismatched sizes, n > d, n > 64 (or > 24 for a
+      table), rank-deficient normals (quoting the singular values), non-finite numbers, or
+      eta_j . Gamma(b) <= 0 (quoting j, b and the value). */
+  JumpMap(const Eigen::Ref<const Eigen::MatrixXd>& normals,
+          const Eigen::Ref<const Eigen::MatrixXd>& limits);
+
+  /** Gamma evaluated lazily: n + 1 words per apply(), cached. Each word is checked when it is
+      first evaluated; a violation throws from the call that needed it.
+      @throws InvalidArgument as above (for the words evaluated). */
+  template <
+      typename Function,
+      typename = std::enable_if_t<
+          !std::is_base_of_v<Eigen::EigenBase<std::decay_t<Function>>, std::decay_t<Function>> &&
+          std::is_invocable_v<Function&, Signs, Eigen::Ref<Eigen::VectorXd>>>>
+  JumpMap(const Eigen::Ref<const Eigen::MatrixXd>& normals, Function&& limits,
+          JumpMapOptions options = {})
+      : JumpMap(normals, FieldLimitFunction(std::forward<Function>(limits)), options, LazyTag{}) {}
+
+  JumpMap(const JumpMap&);
+  JumpMap& operator=(const JumpMap&);
+  JumpMap(JumpMap&&) noexcept;
+  JumpMap& operator=(JumpMap&&) noexcept;
+  ~JumpMap();
+
+  int surfaces() const;
+  int dim() const;
+  const Eigen::MatrixXd& normals() const;
+  /** Gamma(b) = F_b(rho). */
+  Eigen::VectorXd limit(Signs b) const;
+  /** eta . Gamma(b) (n numbers, all > 0). */
+  Eigen::VectorXd transversality(Signs b) const;
+
+  /** B(dx) by Algorithm 2.1. O(n d + n^2) time with Gamma cached (O(n^2 d) when each of the
+      n + 1 words is evaluated afresh), O(1) extra space, no heap allocation. `out` may alias
+      `dx`. @throws InvalidArgument on a size mismatch or non-finite dx. */
+  void apply(const Eigen::Ref<const Eigen::VectorXd>& dx, Eigen::Ref<Eigen::VectorXd> out) const;
+  Eigen::VectorXd apply(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
+  /** B applied to each column of a d x k block; no heap allocation. */
+  void apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx,
+                   Eigen::Ref<Eigen::MatrixXd> out) const;
+  Eigen::MatrixXd apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx) const;
+
+  /** The order in which dx crosses the surfaces, and when ([B] (6.8)-(6.9)). */
+  CrossingOrder order(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
+
+  /** M_sigma of [B] (6.4) by n rank-1 updates, O(n d^2); the first crossing is the right-most
+      factor. @throws InvalidArgument unless sigma is a permutation of 0..n-1. */
+  Eigen::MatrixXd saltation(const std::vector<int>& sigma) const;
+  /** M_sigma for sigma = order(dx): the linear piece active at dx. */
+  Eigen::MatrixXd active_jacobian(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
+
+  /** All n! pieces (sigma, M_sigma), sigma in lexicographic order; a common prefix of sigma is
+      multiplied once. @throws InvalidArgument for n > kMaxEnumeratedSurfaces or when the
+      result would exceed kMaxPiecesBytes (the message gives n!, d and the bytes). */
+  std::vector<Piece> pieces() const;
+
+  /** The triangulation of [B] Section 5: an independent representation of B.
+      @throws InvalidArgument for n > kMaxEnumeratedSurfaces. */
+  Triangulation triangulation() const;
+
+ private:
+  struct Impl;
+  struct LazyTag {};
+  JumpMap(const Eigen::Ref<const Eigen::MatrixXd>& normals, FieldLimitFunction limits,
+          JumpMapOptions options, LazyTag);
+  // Runs Algorithm 2.1. Writes the image to `out` (if not null) and the order and times (if
+  // not null). No allocation.
+  void walk(const double* dx, double* out, int* order, double* times) const;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace bflow
+
+#endif  // BFLOW_CORE_JUMP_MAP_H_

@@ -1,0 +1,494 @@
+#include "bflow/core/jump_map.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <random>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <Eigen/SVD>
+
+#include "bflow/core/errors.h"
+#include "bflow/core/triangulation.h"
+#include "support/random_jump.h"
+
+namespace bflow {
+namespace {
+
+using testing::gaussian_vector;
+using ::testing::HasSubstr;
+using testing::JumpCaseOptions;
+
+constexpr double kEps = 2.220446049250313e-16;
+
+// Gamma(b) = 1 - delta * b for the piecewise-constant field of [B] (3.1), eta = I.
+Eigen::MatrixXd linear_pwconst_limits(int d, double delta) {
+  Eigen::MatrixXd limits(d, Eigen::Index{1} << d);
+  for (Eigen::Index w = 0; w < limits.cols(); ++w) {
+    for (int i = 0; i < d; ++i) limits(i, w) = ((w >> i) & 1) ? 1.0 - delta : 1.0 + delta;
+  }
+  return limits;
+}
+
+// A tangent that crosses surfaces in the order `sigma` at the non-decreasing `times`, plus
+// kernel part `xi`; writes the image that the sampled flow gives by construction.
+Eigen::VectorXd tangent_for_order(const JumpMap& jump, const std::vector<int>& sigma,
+                                  const std::vector<double>& times, const Eigen::VectorXd& xi,
+                                  Eigen::VectorXd* image) {
+  const int n = jump.surfaces();
+  const Eigen::MatrixXd& eta = jump.normals();
+  // p1 is the position at time t_1; p(t_k) = p1 + sum_{i<k} (t_{i+1} - t_i) Gamma(b_i).
+  Eigen::MatrixXd rows(n, jump.dim());
+  Eigen::VectorXd rhs = Eigen::VectorXd::Zero(n);
+  Eigen::VectorXd drift = Eigen::VectorXd::Zero(jump.dim());
+  Signs b(n);
+  for (int k = 0; k < n; ++k) {
+    const int j = sigma[static_cast<std::size_t>(k)];
+    rows.row(k) = eta.row(j);
+    rhs[k] = -eta.row(j).dot(drift);
+    b = b.with_plus(j);
+    if (k + 1 < n) {
+      drift += (times[static_cast<std::size_t>(k) + 1] - times[static_cast<std::size_t>(k)]) *
+               jump.limit(b);
+    }
+  }
+  // Rows equilibrated: normals scaled by 1e+-3 must not cost accuracy here.
+  const Eigen::VectorXd row_norms = rows.rowwise().norm();
+  const Eigen::MatrixXd unit_rows = row_norms.cwiseInverse().asDiagonal() * rows;
+  const Eigen::VectorXd p1 =
+      unit_rows.completeOrthogonalDecomposition().solve(rhs.cwiseQuotient(row_norms)) + xi;
+  *image = p1 + drift - times.back() * jump.limit(Signs::all_plus(n));
+  return p1 - times.front() * jump.limit(Signs(n));
+}
+
+// Growth factor of the order sigma: the product of the spectral norms of the n factors of
+// (6.4). Intermediate quantities of both apply() and M_sigma dx are bounded by it times |dx|,
+// so rounding errors are a modest multiple of eps * growth * |dx|.
+double growth(const JumpMap& jump, const std::vector<int>& sigma) {
+  const int d = jump.dim();
+  double product = 1.0;
+  Signs b(jump.surfaces());
+  for (int j : sigma) {
+    const Eigen::VectorXd before = jump.limit(b);
+    b = b.with_plus(j);
+    const Eigen::MatrixXd factor =
+        Eigen::MatrixXd::Identity(d, d) +
+        (jump.limit(b) - before) * jump.normals().row(j) / jump.normals().row(j).dot(before);
+    product *= Eigen::JacobiSVD<Eigen::MatrixXd>(factor).singularValues()[0];
+  }
+  return product;
+}
+
+// Inverse transversality margin: max over j, b of |eta_j| |F_b| / (eta_j . F_b) >= 1.
+double margin_condition(const Eigen::MatrixXd& eta, const Eigen::MatrixXd& limits) {
+  const Eigen::MatrixXd dots = eta * limits;
+  double worst = 1.0;
+  for (Eigen::Index j = 0; j < eta.rows(); ++j) {
+    for (Eigen::Index w = 0; w < limits.cols(); ++w) {
+      worst = std::max(worst, eta.row(j).norm() * limits.col(w).norm() / dots(j, w));
+    }
+  }
+  return worst;
+}
+
+Eigen::VectorXd kernel_vector(std::mt19937_64& rng, const Eigen::MatrixXd& eta) {
+  return testing::NormalFactors(eta).kernel_projector * gaussian_vector(rng, eta.cols());
+}
+
+// ---------------------------------------------------------------------------------------
+// Closed form (3.2): Delta(b) = -delta b gives B = (1 - delta)/(1 + delta) I for every piece.
+TEST(JumpMapTest, ClosedFormOfPiecewiseConstantField) {
+  std::mt19937_64 rng(1);
+  for (int d = 2; d <= 10; ++d) {
+    for (double delta : {-0.6, -0.1, 0.25, 0.8}) {
+      const JumpMap jump(Eigen::MatrixXd::Identity(d, d), linear_pwconst_limits(d, delta));
+      const double gain = (1 - delta) / (1 + delta);
+      for (int trial = 0; trial < 20; ++trial) {
+        const Eigen::VectorXd dx = gaussian_vector(rng, d);
+        // Each step adds O(eps |Gamma| |tau|) with |Gamma| <= 2 and |tau| <= |dx| / 0.2.
+        EXPECT_LE((jump.apply(dx) - gain * dx).norm(), 100 * d * kEps * dx.norm())
+            << "d=" << d << " delta=" << delta;
+        EXPECT_LE((jump.active_jacobian(dx) - gain * Eigen::MatrixXd::Identity(d, d)).norm(),
+                  100 * d * kEps);
+      }
+      if (d <= 5) {
+        for (const Piece& piece : jump.pieces()) {
+          EXPECT_LE((piece.matrix - gain * Eigen::MatrixXd::Identity(d, d)).norm(), 100 * d * kEps);
+        }
+        const Triangulation tri = jump.triangulation();
+        const Eigen::VectorXd dx = gaussian_vector(rng, d);
+        EXPECT_LE((tri.apply_barycentric(dx).image - gain * dx).norm(), 1e-12 * dx.norm());
+      }
+    }
+  }
+}
+
+// n = 1: B is the classic saltation matrix (2.5), I + (F+ - F-) eta^T / (eta . F-).
+TEST(JumpMapTest, OneSurfaceIsClassicSaltationMatrix) {
+  std::mt19937_64 rng(2);
+  for (int d = 1; d <= 6; ++d) {
+    const Eigen::MatrixXd eta = testing::random_normals(rng, 1, d, false);
+    const Eigen::MatrixXd limits = testing::random_limits(rng, eta, {});
+    const JumpMap jump(eta, limits);
+    const Eigen::MatrixXd classic =
+        Eigen::MatrixXd::Identity(d, d) +
+        (limits.col(1) - limits.col(0)) * eta / eta.row(0).dot(limits.col(0));
+    EXPECT_LE((jump.saltation({0}) - classic).norm(), 1e-13 * classic.norm());
+    for (int trial = 0; trial < 10; ++trial) {
+      const Eigen::VectorXd dx = gaussian_vector(rng, d);
+      EXPECT_LE((jump.apply(dx) - classic * dx).norm(), 1e-13 * classic.norm() * dx.norm());
+      EXPECT_LE((jump.triangulation().apply_barycentric(dx).image - classic * dx).norm(),
+                1e-12 * classic.norm() * dx.norm());
+    }
+  }
+}
+
+// The properties of B on random transversal data, 1000 cases.
+//
+// Tolerances are relative to what the rounding can be. Both apply() and M_sigma dx form
+// intermediate vectors bounded by growth(sigma) |dx| (a product of n factor norms, ~1e4 and
+// more in stiff cases), so they agree to kApplyTol = 1e3 eps of that; the same bound covers
+// homogeneity, the kernel shift and the cone-boundary ties. Crossing times are differences of
+// such quantities divided by eta_j . F_b, so they carry the inverse transversality margin
+// kappa as well. The barycentric route goes through pseudo-inverses of Z-_sigma and of eta
+// and gets kBaryTol = 1e-11 of growth |dx| (observed worst 2e-13; the printout reports it).
+constexpr double kApplyTol = 1e3 * kEps;
+constexpr double kBaryTol = 1e-11;
+
+struct CaseStats {
+  double worst_apply = 0;
+  double worst_barycentric = 0;
+  double worst_time = 0;
+  int cases = 0;
+};
+
+void check_case(std::mt19937_64& rng, int n, int d, JumpCaseOptions options, CaseStats& stats) {
+  const Eigen::MatrixXd eta = testing::random_normals(rng, n, d, options.scaled_normals);
+  const Eigen::MatrixXd limits = testing::random_limits(rng, eta, options);
+  const JumpMap jump(eta, limits);
+  const Triangulation tri = jump.triangulation();
+  const double kappa = margin_condition(eta, limits);
+  const std::string where = "n=" + std::to_string(n) + " d=" + std::to_string(d) +
+                            " stiff=" + std::to_string(options.stiff) +
+                            " scaled=" + std::to_string(options.scaled_normals);
+  ++stats.cases;
+
+  for (int trial = 0; trial < 4; ++trial) {
+    const Eigen::VectorXd dx = gaussian_vector(rng, d);
+    const Eigen::VectorXd image = jump.apply(dx);
+    const CrossingOrder o = jump.order(dx);
+    ASSERT_TRUE(std::is_sorted(o.times.begin(), o.times.end())) << where;
+    const Eigen::MatrixXd m = jump.saltation(o.order);
+    const double g = growth(jump, o.order);
+    const double scale = g * dx.norm();
+    const double apply_error = (image - m * dx).norm() / scale;
+    stats.worst_apply = std::max(stats.worst_apply, apply_error);
+    EXPECT_LE(apply_error, kApplyTol) << where;
+
+    // Independent route: triangulation and barycentric coordinates.
+    const BarycentricEvaluation bary = tri.apply_barycentric(dx);
+    const double bary_error = (bary.image - image).norm() / scale;
+    stats.worst_barycentric = std::max(stats.worst_barycentric, bary_error);
+    EXPECT_LE(bary_error, kBaryTol) << where;
+    EXPECT_GE(bary.coordinates.minCoeff(), -kBaryTol * bary.coordinates.norm()) << where;
+
+    // Positive homogeneity.
+    for (double alpha : {1e-3, 7.5, 1e3}) {
+      EXPECT_LE((jump.apply(alpha * dx) - alpha * image).norm(), kApplyTol * alpha * scale)
+          << where;
+    }
+    // Kernel directions pass through unchanged.
+    const Eigen::VectorXd xi = kernel_vector(rng, eta);
+    EXPECT_LE((jump.apply(dx + xi) - image - xi).norm(), kApplyTol * g * (dx.norm() + xi.norm()))
+        << where;
+  }
+
+  // The nominal flow direction maps to the post-event field: B(F_-) = F_+. All crossing
+  // times tie at -1, so rounding picks the order; the error is bounded through its growth.
+  const Eigen::VectorXd f_minus = limits.col(0);
+  const Eigen::VectorXd f_plus = limits.col(limits.cols() - 1);
+  EXPECT_LE((jump.apply(f_minus) - f_plus).norm(),
+            kApplyTol * growth(jump, jump.order(f_minus).order) * (f_minus.norm() + f_plus.norm()))
+      << where;
+
+  // Prescribed order and times, including negative ones.
+  std::vector<int> sigma(static_cast<std::size_t>(n));
+  std::iota(sigma.begin(), sigma.end(), 0);
+  std::shuffle(sigma.begin(), sigma.end(), rng);
+  std::uniform_real_distribution<double> gap(0.05, 1.0);
+  std::vector<double> times(static_cast<std::size_t>(n));
+  times[0] = -0.5 + gap(rng);
+  for (int k = 1; k < n; ++k) times[k] = times[k - 1] + gap(rng);
+  Eigen::VectorXd expected;
+  const Eigen::VectorXd dx =
+      tangent_for_order(jump, sigma, times, kernel_vector(rng, eta), &expected);
+  const double g = growth(jump, sigma);
+  const CrossingOrder o = jump.order(dx);
+  EXPECT_EQ(o.order, sigma) << where;
+  for (int k = 0; k < n; ++k) {
+    const double error = std::abs(o.times[k] - times[k]) / (kappa * g * (1 + dx.norm()));
+    stats.worst_time = std::max(stats.worst_time, error);
+    EXPECT_LE(error, kApplyTol) << where << " k=" << k;
+  }
+  EXPECT_LE((jump.apply(dx) - expected).norm(), kApplyTol * kappa * g * (1 + dx.norm())) << where;
+
+  // Continuity across a cone boundary: make surfaces sigma(k) and sigma(k+1) tie exactly.
+  // Both neighbouring pieces must give the same value, equal to apply().
+  const int k = static_cast<int>(rng() % static_cast<unsigned>(n - 1));
+  times[k + 1] = times[k];
+  for (int i = k + 2; i < n; ++i) times[i] = std::max(times[i], times[i - 1]);
+  const Eigen::VectorXd tie =
+      tangent_for_order(jump, sigma, times, Eigen::VectorXd::Zero(d), &expected);
+  std::vector<int> swapped = sigma;
+  std::swap(swapped[k], swapped[k + 1]);
+  const Eigen::VectorXd image = jump.apply(tie);
+  const double tie_scale =
+      kApplyTol * kappa * std::max(g, growth(jump, swapped)) * (1 + tie.norm());
+  EXPECT_LE((jump.saltation(sigma) * tie - image).norm(), tie_scale) << where;
+  EXPECT_LE((jump.saltation(swapped) * tie - image).norm(), tie_scale) << where;
+  EXPECT_LE((expected - image).norm(), tie_scale) << where;
+}
+
+TEST(JumpMapTest, RandomTransversalCasesSatisfyEveryProperty) {
+  std::mt19937_64 rng(3);
+  CaseStats stats;
+  for (int seed = 0; seed < 10; ++seed) {
+    for (int n = 2; n <= 6; ++n) {
+      for (int d = n; d <= n + 4; ++d) {
+        for (int variant = 0; variant < 4; ++variant) {
+          check_case(rng, n, d, {(variant & 1) != 0, (variant & 2) != 0}, stats);
+        }
+      }
+    }
+  }
+  EXPECT_EQ(stats.cases, 1000);
+  std::printf(
+      "worst relative errors over %d cases: apply vs M_sigma %.3g, barycentric %.3g, "
+      "crossing times %.3g (in units of growth |dx|, times also of kappa)\n",
+      stats.cases, stats.worst_apply, stats.worst_barycentric, stats.worst_time);
+}
+
+// Exact ties are resolved by the lowest index; B is the same from both sides.
+TEST(JumpMapTest, ExactTiesTakeTheLowestIndex) {
+  const JumpMap jump(Eigen::MatrixXd::Identity(3, 3), linear_pwconst_limits(3, 0.3));
+  const CrossingOrder o = jump.order(Eigen::Vector3d(-1.0, -1.0, -1.0));
+  EXPECT_EQ(o.order, (std::vector<int>{0, 1, 2}));
+  EXPECT_EQ(o.times, (std::vector<double>{1.0 / 1.3, 1.0 / 1.3, 1.0 / 1.3}));
+}
+
+// Large n with a lazily evaluated Gamma: apply keeps every property; enumeration refuses.
+TEST(JumpMapTest, LargeNumbersOfSurfaces) {
+  std::mt19937_64 rng(4);
+  const int d = 256;
+  for (int n : {32, 64}) {
+    const Eigen::MatrixXd eta = testing::random_normals(rng, n, d, false);
+    const JumpMap jump(eta, testing::HashedLimits(rng, eta));
+    for (int trial = 0; trial < 3; ++trial) {
+      const Eigen::VectorXd dx = gaussian_vector(rng, d);
+      const Eigen::VectorXd image = jump.apply(dx);
+      const Eigen::MatrixXd m = jump.active_jacobian(dx);
+      const double scale = std::max(1.0, m.norm()) * dx.norm();
+      EXPECT_LE((image - m * dx).norm(), 500 * kEps * scale) << "n=" << n;
+      EXPECT_LE((jump.apply(3.0 * dx) - 3.0 * image).norm(), 500 * kEps * 3 * scale);
+      const Eigen::VectorXd xi = kernel_vector(rng, eta);
+      EXPECT_LE((jump.apply(dx + xi) - image - xi).norm(), 1e-12 * (scale + m.norm() * xi.norm()));
+    }
+    const Eigen::VectorXd f_minus = jump.limit(Signs(n));
+    const Eigen::VectorXd f_plus = jump.limit(Signs::all_plus(n));
+    EXPECT_LE((jump.apply(f_minus) - f_plus).norm(), 1e-12 * (f_minus.norm() + f_plus.norm()));
+
+    std::vector<int> sigma(static_cast<std::size_t>(n));
+    std::iota(sigma.begin(), sigma.end(), 0);
+    std::shuffle(sigma.begin(), sigma.end(), rng);
+    std::vector<double> times(static_cast<std::size_t>(n));
+    for (int k = 0; k < n; ++k) times[k] = -0.3 + 0.1 * k;
+    Eigen::VectorXd expected;
+    const Eigen::VectorXd dx =
+        tangent_for_order(jump, sigma, times, kernel_vector(rng, eta), &expected);
+    EXPECT_EQ(jump.order(dx).order, sigma);
+    EXPECT_LE((jump.apply(dx) - expected).norm(), 1e-9 * jump.saltation(sigma).norm() * dx.norm());
+
+    try {
+      jump.pieces();
+      FAIL() << "pieces() must refuse n = " << n;
+    } catch (const InvalidArgument& e) {
+      EXPECT_THAT(e.what(), HasSubstr("n = " + std::to_string(n) + " surfaces give n! pieces"));
+      EXPECT_THAT(e.what(), HasSubstr("n <= 10"));
+    }
+    EXPECT_THROW(jump.triangulation(), InvalidArgument);
+  }
+}
+
+TEST(JumpMapTest, PiecesAreAllOrdersWithTheirSaltationMatrices) {
+  std::mt19937_64 rng(5);
+  for (int n = 1; n <= 5; ++n) {
+    const Eigen::MatrixXd eta = testing::random_normals(rng, n, n + 2, false);
+    const JumpMap jump(eta, testing::random_limits(rng, eta, {}));
+    const std::vector<Piece> pieces = jump.pieces();
+    int expected_count = 1;
+    for (int k = 2; k <= n; ++k) expected_count *= k;
+    ASSERT_EQ(static_cast<int>(pieces.size()), expected_count);
+    std::vector<int> sigma(static_cast<std::size_t>(n));
+    std::iota(sigma.begin(), sigma.end(), 0);
+    std::size_t i = 0;
+    do {
+      ASSERT_EQ(pieces[i].order, sigma);
+      // Prefix sharing changes only the order of floating-point operations.
+      EXPECT_LE((pieces[i].matrix - jump.saltation(sigma)).norm(), 1e-13 * pieces[i].matrix.norm());
+      ++i;
+    } while (std::next_permutation(sigma.begin(), sigma.end()));
+  }
+}
+
+TEST(JumpMapTest, TriangulationMatchesTheDefinitions) {
+  std::mt19937_64 rng(6);
+  const int n = 3;
+  const int d = 5;
+  const Eigen::MatrixXd eta = testing::random_normals(rng, n, d, false);
+  const Eigen::MatrixXd limits = testing::random_limits(rng, eta, {});
+  const Triangulation tri = JumpMap(eta, limits).triangulation();
+  const Eigen::MatrixXd kernel = testing::NormalFactors(eta).kernel_projector;
+  for (Eigen::Index w = 0; w < 8; ++w) {
+    // (5.1), and zeta_b in the row space of eta.
+    for (int j = 0; j < n; ++j) {
+      const double lhs = ((w >> j) & 1) ? eta.row(j).dot(tri.zeta().col(w))
+                                        : eta.row(j).dot(tri.zeta().col(w) + limits.col(w));
+      EXPECT_NEAR(lhs, 0.0, 1e-13 * eta.row(j).norm() * limits.col(w).norm());
+    }
+    EXPECT_LE((kernel * tri.zeta().col(w)).norm(), 1e-13 * limits.col(w).norm());
+    EXPECT_LE((tri.zeta_image().col(w) - tri.zeta().col(w) - limits.col(w)).norm(), 1e-15 * 8);
+    // The sampled flow of zeta_b: B(zeta_b) = zeta_b + F_b - F_+.
+    const Eigen::VectorXd expected = tri.zeta().col(w) + limits.col(w) - limits.col(7);
+    EXPECT_LE((tri.apply_barycentric(tri.zeta().col(w)).image - expected).norm(), 1e-12);
+  }
+  EXPECT_EQ(tri.simplices().size(), 6u);
+  EXPECT_EQ(tri.simplices()[1].order, (std::vector<int>{0, 2, 1}));
+  EXPECT_EQ(tri.simplices()[1].words[2].str(), "+-+");
+  // L = ker eta + span F_-: orthonormal, dimension d - n + 1, holds F_- and the kernel.
+  const Eigen::MatrixXd& basis = tri.lineality_basis();
+  ASSERT_EQ(basis.cols(), d - n + 1);
+  EXPECT_LE((basis.transpose() * basis - Eigen::MatrixXd::Identity(d - n + 1, d - n + 1)).norm(),
+            1e-14 * d);
+  const Eigen::VectorXd f_minus = limits.col(0);
+  EXPECT_LE((f_minus - basis * (basis.transpose() * f_minus)).norm(), 1e-13 * f_minus.norm());
+  // B on L: kernel vectors unchanged, F_- to F_+ (the printed (6.3) fails the first).
+  const Eigen::VectorXd xi = kernel * gaussian_vector(rng, d);
+  EXPECT_LE((tri.apply_linear_part(xi) - xi).norm(), 1e-13 * xi.norm());
+  EXPECT_LE((tri.apply_linear_part(f_minus) - limits.col(7)).norm(), 1e-13 * f_minus.norm());
+}
+
+TEST(JumpMapTest, LazyLimitsAgreeWithTheTableEvenWhenTheCacheOverflows) {
+  std::mt19937_64 rng(7);
+  const int n = 6;
+  const int d = 9;
+  const Eigen::MatrixXd eta = testing::random_normals(rng, n, d, true);
+  const Eigen::MatrixXd limits = testing::random_limits(rng, eta, {true, true});
+  const JumpMap table(eta, limits);
+  int evaluations = 0;
+  const JumpMap lazy(
+      eta,
+      [&](Signs b, Eigen::Ref<Eigen::VectorXd> out) {
+        ++evaluations;
+        out = limits.col(static_cast<Eigen::Index>(b.bits()));
+      },
+      JumpMapOptions{n + 1});  // the smallest cache: cleared often
+  for (int trial = 0; trial < 50; ++trial) {
+    const Eigen::VectorXd dx = gaussian_vector(rng, d);
+    // eta . Gamma is one product per word here and one for the whole table there: equal up
+    // to rounding.
+    const Eigen::VectorXd image = table.apply(dx);
+    EXPECT_LE((image - lazy.apply(dx)).norm(),
+              kApplyTol * growth(table, table.order(dx).order) * dx.norm());
+    EXPECT_EQ(table.order(dx).order, lazy.order(dx).order);
+  }
+  EXPECT_GT(evaluations, 0);
+  const Eigen::MatrixXd block = Eigen::MatrixXd::Random(d, 5);
+  const Eigen::MatrixXd images = lazy.apply_block(block);
+  // Equal up to the alignment-dependent summation order of Eigen's dot products.
+  for (int k = 0; k < 5; ++k) {
+    EXPECT_LE((images.col(k) - lazy.apply(block.col(k))).norm(), 1e-12 * images.col(k).norm());
+  }
+  const std::vector<Piece> lazy_pieces = lazy.pieces();
+  const std::vector<Piece> table_pieces = table.pieces();
+  for (std::size_t i = 0; i < table_pieces.size(); ++i) {
+    EXPECT_LE((lazy_pieces[i].matrix - table_pieces[i].matrix).norm(),
+              kApplyTol * growth(table, table_pieces[i].order));
+  }
+  // In place.
+  Eigen::VectorXd x = block.col(0);
+  lazy.apply(x, x);
+  EXPECT_LE((x - images.col(0)).norm(), 1e-12 * x.norm());
+}
+
+// ---------------------------------------------------------------------------------------
+// Validation: every message names the problem and quotes the values.
+std::string error_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const InvalidArgument& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+TEST(JumpMapTest, ValidationMessagesNameTheProblem) {
+  const Eigen::MatrixXd eye = Eigen::MatrixXd::Identity(2, 2);
+  const Eigen::MatrixXd good = linear_pwconst_limits(2, 0.3);
+  EXPECT_THAT(error_of([&] { JumpMap(eye, Eigen::MatrixXd::Ones(3, 4)); }),
+              HasSubstr("expected a 2 x 4 table (d x 2^n), got 3 x 4"));
+  EXPECT_THAT(error_of([&] { JumpMap(Eigen::MatrixXd::Identity(3, 2), good); }),
+              HasSubstr("n = 3 surfaces in d = 2 dimensions"));
+  Eigen::MatrixXd parallel(2, 3);
+  parallel << 1, 0, 0, 2, 0, 1e-12;
+  EXPECT_THAT(error_of([&] { JumpMap(parallel, Eigen::MatrixXd::Ones(3, 4)); }),
+              HasSubstr("rank deficient"));
+  EXPECT_THAT(
+      error_of([&] { JumpMap(parallel, Eigen::MatrixXd::Ones(3, 4)); }),
+      HasSubstr(
+          "singular values of the row-normalised normals are [1.4142135623730951, 3.5355339"));
+  Eigen::MatrixXd nan_eta = eye;
+  nan_eta(1, 0) = std::nan("");
+  EXPECT_THAT(error_of([&] { JumpMap(nan_eta, good); }),
+              HasSubstr("normals: row 1 is not finite: [nan, 1]"));
+  Eigen::MatrixXd inf_limits = good;
+  inf_limits(0, 2) = INFINITY;
+  EXPECT_THAT(error_of([&] { JumpMap(eye, inf_limits); }),
+              HasSubstr("F_-+ is not finite: [inf, 0.7]"));
+  Eigen::MatrixXd bad = good;
+  bad(1, 1) = -0.25;  // word "+-", surface 1
+  EXPECT_THAT(error_of([&] { JumpMap(eye, bad); }),
+              HasSubstr("surface 1 is not transversal for word \"+-\": eta_1 . F_+- = -0.25"));
+  EXPECT_THAT(error_of([&] { JumpMap(Eigen::MatrixXd::Identity(65, 65), Eigen::MatrixXd()); }),
+              HasSubstr("n = 65 surfaces; at most 64"));
+  const JumpMap jump(eye, good);
+  EXPECT_THAT(error_of([&] { jump.apply(Eigen::VectorXd::Ones(3)); }),
+              HasSubstr("apply: tangent has 3 numbers, expected d = 2"));
+  EXPECT_THAT(error_of([&] { jump.apply(Eigen::Vector2d(1, NAN)); }),
+              HasSubstr("apply: tangent is not finite: [1, nan]"));
+  EXPECT_THAT(error_of([&] {
+                jump.saltation({0, 0});
+              }),
+              HasSubstr("order [0, 0] is not a permutation of 0..1"));
+  // A lazy Gamma is checked word by word as it is evaluated.
+  const JumpMap lazy(eye, [](Signs b, Eigen::Ref<Eigen::VectorXd> out) {
+    out << 1.0, b.str() == "++" ? -2.0 : 1.0;
+  });
+  EXPECT_THAT(error_of([&] { lazy.apply(Eigen::Vector2d(1, 1)); }),
+              HasSubstr("surface 1 is not transversal for word \"++\": eta_1 . F_++ = -2"));
+  // Missing words in the text form.
+  std::map<std::string, Eigen::VectorXd> words = {
+      {"--", Eigen::Vector2d(1, 1)}, {"+-", Eigen::Vector2d(1, 1)}, {"++", Eigen::Vector2d(1, 1)}};
+  EXPECT_THAT(error_of([&] { limits_table_from_words(2, 2, words); }),
+              HasSubstr("missing word \"-+\" (3 of 4 words given)"));
+  words["-+"] = Eigen::Vector3d(1, 1, 1);
+  EXPECT_THAT(error_of([&] { limits_table_from_words(2, 2, words); }),
+              HasSubstr("word \"-+\" has 3 numbers, expected 2"));
+  words["-+"] = Eigen::Vector2d(1, 1);
+  words["-+-"] = Eigen::Vector2d(1, 1);
+  EXPECT_THAT(error_of([&] { limits_table_from_words(2, 2, words); }),
+              HasSubstr("word \"-+-\" has 3 characters, expected 2"));
+}
+
+}  // namespace
+}  // namespace bflow
