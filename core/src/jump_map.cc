@@ -375,26 +375,31 @@ std::vector<Piece> JumpMap::pieces() const {
   const Eigen::MatrixXd eta_table = m.eta * table;
   std::vector<Piece> result;
   result.reserve(static_cast<std::size_t>(count));
-  // prefix[k] is the product of the first k factors of the current order.
-  std::vector<Eigen::MatrixXd> prefix(static_cast<std::size_t>(m.n) + 1);
+  // prefix[k] is the product of the first k factors of the current order; leaves are written
+  // straight into the result.
+  std::vector<Eigen::MatrixXd> prefix(static_cast<std::size_t>(m.n));
   prefix[0].setIdentity(m.d, m.d);
   std::vector<int> sigma(static_cast<std::size_t>(m.n));
+  Eigen::VectorXd v(m.d);
+  Eigen::RowVectorXd w(m.d);
   auto descend = [&](auto&& self, int depth, std::uint64_t bits) -> void {
-    if (depth == m.n) {
-      result.push_back(Piece{sigma, prefix[static_cast<std::size_t>(depth)]});
-      return;
-    }
     const auto before = static_cast<Eigen::Index>(bits);
+    const Eigen::MatrixXd& product = prefix[static_cast<std::size_t>(depth)];
     for (int j = 0; j < m.n; ++j) {
       if ((bits >> j) & 1u) continue;
       const std::uint64_t next = bits | (std::uint64_t{1} << j);
-      Eigen::MatrixXd& product = prefix[static_cast<std::size_t>(depth) + 1];
-      product = prefix[static_cast<std::size_t>(depth)];
-      left_multiply_factor(m.eta.row(j), table.col(before),
-                           table.col(static_cast<Eigen::Index>(next)), eta_table(j, before),
-                           product);
       sigma[static_cast<std::size_t>(depth)] = j;
-      self(self, depth + 1, next);
+      v = (table.col(static_cast<Eigen::Index>(next)) - table.col(before)) / eta_table(j, before);
+      w.noalias() = m.eta.row(j) * product;
+      if (depth + 1 == m.n) {
+        result.push_back(Piece{sigma, product});
+        result.back().matrix.noalias() += v * w;
+      } else {
+        Eigen::MatrixXd& extended = prefix[static_cast<std::size_t>(depth) + 1];
+        extended = product;
+        extended.noalias() += v * w;
+        self(self, depth + 1, next);
+      }
     }
   };
   descend(descend, 0, 0);
