@@ -30,8 +30,9 @@ class PiecewiseConstantField {
   explicit PiecewiseConstantField(Eigen::MatrixXd delta) : delta_(std::move(delta)) {
     const auto d = delta_.rows();
     if (d < 1 || d > 16 || delta_.cols() != (Eigen::Index{1} << d)) {
-      throw InvalidArgument("PiecewiseConstantField: Delta must be d x 2^d with 1 <= d <= 16, got " +
-                            std::to_string(delta_.rows()) + " x " + std::to_string(delta_.cols()));
+      throw InvalidArgument(
+          "PiecewiseConstantField: Delta must be d x 2^d with 1 <= d <= 16, got " +
+          std::to_string(delta_.rows()) + " x " + std::to_string(delta_.cols()));
     }
     for (Eigen::Index w = 0; w < delta_.cols(); ++w) {
       if (!delta_.col(w).allFinite() || !(delta_.col(w).minCoeff() > -1.0)) {
@@ -74,6 +75,34 @@ class PiecewiseConstantField {
   template <typename T>
   void surfaces(const T* x, T* h) const {
     for (Eigen::Index i = 0; i < delta_.rows(); ++i) h[i] = x[i];
+  }
+
+  /** The exact time-t flow from x: straight lines between crossings of the coordinate planes,
+      sign(0) = +1. Every velocity component is positive, so each plane is crossed at most once
+      and there are at most d + 1 segments. An independent reference for B: the flow is
+      piecewise affine, so its one-sided differences equal B up to rounding. */
+  Eigen::VectorXd flow(Eigen::VectorXd x, double t) const {
+    const int d = states();
+    Eigen::VectorXd velocity(d);
+    for (int segment = 0; segment <= d && t > 0.0; ++segment) {
+      std::uint64_t bits = 0;
+      for (int i = 0; i < d; ++i) {
+        if (x[i] >= 0.0) bits |= std::uint64_t{1} << i;
+      }
+      field(x.data(), Signs(d, bits), velocity.data());
+      double step = t;
+      int crossed = -1;
+      for (int i = 0; i < d; ++i) {
+        if (x[i] < 0.0 && -x[i] / velocity[i] < step) {
+          step = -x[i] / velocity[i];
+          crossed = i;
+        }
+      }
+      x += step * velocity;
+      t -= step;
+      if (crossed >= 0) x[crossed] = 0.0;  // on the plane, hence on its + side
+    }
+    return x;
   }
 
   /** F_b(0) = 1 + Delta(b) for every word: the limits table at rho = 0. */

@@ -1,0 +1,598 @@
+// `bflow jump`: the JumpMap of the core, JSON in, JSON out (format in docs/cli.md).
+//
+// The input is validated field by field before the core sees it, so that every rejection names
+// the field ("tangents[2]: has 3 numbers, expected d = 2"); what only the core can judge (rank,
+// transversality, sign words) is passed through with its own message, which already names the
+// field. Nothing is written to `out` unless the whole result is computed and finite.
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <istream>
+#include <iterator>
+#include <map>
+#include <memory>
+#include <new>
+#include <ostream>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+
+#include "bflow/core/errors.h"
+#include "bflow/core/field_limits.h"
+#include "bflow/core/jump_map.h"
+#include "bflow/core/signs.h"
+#include "bflow/core/triangulation.h"
+#include "cli_commands.h"
+#include "cli_util.h"
+
+namespace bflow::cli {
+namespace {
+
+using Json = nlohmann::json;
+// Output keeps the documented key order (n, d, results, pieces, triangulation).
+using OrderedJson = nlohmann::ordered_json;
+
+// Bad input; the message starts with the field. Exit code 2.
+class InputError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// A result that cannot be printed honestly (overflow to a non-finite number). Exit code 1.
+class OutputError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+[[noreturn]] void fail(const std::string& field, const std::string& problem) {
+  throw InputError(field + ": " + problem);
+}
+
+const std::vector<std::string>& known_keys() {
+  static const std::vector<std::string> keys = {"normals", "field_limits", "tangents", "pieces",
+                                                "triangulation"};
+  return keys;
+}
+
+// Levenshtein distance, for "did you mean" on a mistyped key.
+std::size_t edit_distance(const std::string& a, const std::string& b) {
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diagonal = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t above = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      diagonal = above;
+    }
+  }
+  return row[b.size()];
+}
+
+// "string \"abc\"", "number", "array of 3", ... for "expected X, got Y".
+std::string describe(const Json& v) {
+  switch (v.type()) {
+    case Json::value_t::string:
+      return "string " + quote(v.get_ref<const std::string&>(), 20);
+    case Json::value_t::boolean:
+      return std::string("boolean ") + (v.get<bool>() ? "true" : "false");
+    case Json::value_t::array:
+      return "an array of " + std::to_string(v.size());
+    case Json::value_t::object:
+      return "an object";
+    case Json::value_t::null:
+      return "null";
+    default:
+      return "a number";
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Parsing: nlohmann's DOM builder, plus a check that no object repeats a key (the DOM would
+// keep the last one silently).
+
+class DuplicateCheckingParser {
+ public:
+  explicit DuplicateCheckingParser(Json& root) : dom_(root) {}
+
+  bool null() { return element() && dom_.null(); }
+  bool boolean(bool v) { return element() && dom_.boolean(v); }
+  bool number_integer(Json::number_integer_t v) { return element() && dom_.number_integer(v); }
+  bool number_unsigned(Json::number_unsigned_t v) { return element() && dom_.number_unsigned(v); }
+  bool number_float(Json::number_float_t v, const Json::string_t& s) {
+    return element() && dom_.number_float(v, s);
+  }
+  bool string(Json::string_t& v) { return element() && dom_.string(v); }
+  bool binary(Json::binary_t& v) { return element() && dom_.binary(v); }
+  bool start_object(std::size_t size) {
+    element();
+    frames_.push_back(Frame{true, {}, {}, 0});
+    return dom_.start_object(size);
+  }
+  bool key(Json::string_t& k) {
+    Frame& frame = frames_.back();
+    if (!frame.keys.insert(k).second) {
+      throw InputError(path() + ": key " + quote(k) + " appears twice");
+    }
+    frame.key = k;
+    return dom_.key(k);
+  }
+  bool end_object() {
+    frames_.pop_back();
+    return dom_.end_object();
+  }
+  bool start_array(std::size_t size) {
+    element();
+    frames_.push_back(Frame{false, {}, {}, 0});
+    return dom_.start_array(size);
+  }
+  bool end_array() {
+    frames_.pop_back();
+    return dom_.end_array();
+  }
+  // A template, so that the exception reaches the caller with its own type.
+  template <typename Exception>
+  bool parse_error(std::size_t position, const std::string& token, const Exception& e) {
+    return dom_.parse_error(position, token, e);
+  }
+
+ private:
+  struct Frame {
+    bool object;
+    std::set<std::string> keys;
+    std::string key;    // last key read (objects)
+    std::size_t count;  // elements started (arrays)
+  };
+
+  // Counts one more element of the enclosing array.
+  bool element() {
+    if (!frames_.empty() && !frames_.back().object) ++frames_.back().count;
+    return true;
+  }
+
+  // The innermost container's place in the document: "input", "field_limits", "tangents[2]".
+  std::string path() const {
+    std::string text;
+    for (std::size_t i = 0; i + 1 < frames_.size(); ++i) {
+      const Frame& f = frames_[i];
+      if (f.object) {
+        text += (text.empty() ? "" : ".") + f.key;
+      } else {
+        text += "[" + std::to_string(f.count - 1) + "]";
+      }
+    }
+    return text.empty() ? "input" : text;
+  }
+
+  nlohmann::detail::json_sax_dom_parser<Json> dom_;
+  std::vector<Frame> frames_;
+};
+
+Json parse_document(const std::string& text) {
+  Json root;
+  DuplicateCheckingParser parser(root);
+  try {
+    Json::sax_parse(text, &parser);
+  } catch (const Json::exception& e) {
+    // Syntax errors and number overflow ("1e999"). Drop nlohmann's tag,
+    // "[json.exception.parse_error.101] "; keep the position and the reason.
+    std::string message = e.what();
+    const auto tag_end = message.find("] ");
+    if (message.rfind("[json.exception.", 0) == 0 && tag_end != std::string::npos) {
+      message.erase(0, tag_end + 2);
+    }
+    throw InputError("input: not valid JSON: " + message);
+  }
+  return root;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Field readers. `field` is the name used in messages.
+
+double read_number(const Json& v, const std::string& field) {
+  if (!v.is_number()) fail(field, "expected a number, got " + describe(v));
+  const double x = v.get<double>();
+  if (!std::isfinite(x)) fail(field, "number is out of the range of a double");
+  return x;
+}
+
+// An array of exactly `dim` numbers.
+Eigen::VectorXd read_vector(const Json& v, const std::string& field, Eigen::Index dim) {
+  if (!v.is_array()) {
+    fail(field, "expected an array of d = " + std::to_string(dim) + " numbers, got " + describe(v));
+  }
+  if (static_cast<Eigen::Index>(v.size()) != dim) {
+    fail(field,
+         "has " + std::to_string(v.size()) + " numbers, expected d = " + std::to_string(dim));
+  }
+  Eigen::VectorXd out(dim);
+  for (Eigen::Index i = 0; i < dim; ++i) {
+    out[i] = read_number(v[static_cast<std::size_t>(i)], field + "[" + std::to_string(i) + "]");
+  }
+  return out;
+}
+
+Eigen::MatrixXd read_normals(const Json& v) {
+  if (!v.is_array()) {
+    fail("normals", "expected an array of rows eta_j (one per surface), got " + describe(v));
+  }
+  if (v.empty()) fail("normals", "has no rows; expected at least one surface");
+  for (std::size_t j = 0; j < v.size(); ++j) {
+    if (!v[j].is_array()) {
+      fail("normals",
+           "row " + std::to_string(j) + " is not an array of numbers (got " + describe(v[j]) + ")");
+    }
+  }
+  const std::size_t d = v[0].size();
+  if (d == 0) fail("normals", "row 0 is empty; expected d >= 1 numbers");
+  for (std::size_t j = 1; j < v.size(); ++j) {
+    if (v[j].size() != d) {
+      fail("normals", "row " + std::to_string(j) + " has " + std::to_string(v[j].size()) +
+                          " numbers, expected " + std::to_string(d));
+    }
+  }
+  const std::size_t n = v.size();
+  if (n > d) {
+    // Checked here so that the limits are not first reported as incomplete.
+    fail("normals", "n = " + std::to_string(n) + " surfaces in d = " + std::to_string(d) +
+                        " dimensions; at most d surfaces can meet transversally");
+  }
+  Eigen::MatrixXd eta(n, d);
+  for (std::size_t j = 0; j < n; ++j) {
+    for (std::size_t i = 0; i < d; ++i) {
+      eta(static_cast<Eigen::Index>(j), static_cast<Eigen::Index>(i)) =
+          read_number(v[j][i], "normals[" + std::to_string(j) + "][" + std::to_string(i) + "]");
+    }
+  }
+  return eta;
+}
+
+Eigen::MatrixXd read_field_limits(const Json& v, int n, int d) {
+  if (!v.is_object()) {
+    fail(
+        "field_limits",
+        "expected an object mapping each sign word to d numbers, e.g. {\"--\": [1, 1], ...}, got " +
+            describe(v));
+  }
+  std::map<std::string, Eigen::VectorXd> words;
+  for (const auto& item : v.items()) {
+    words.emplace(item.key(),
+                  read_vector(item.value(), "field_limits[" + quote(item.key()) + "]", d));
+  }
+  try {
+    return limits_table_from_words(n, d, words);
+  } catch (const InvalidArgument& e) {
+    throw InputError(with_field("field_limits", e.what()));
+  }
+}
+
+std::vector<Eigen::VectorXd> read_tangents(const Json& v, int d) {
+  if (!v.is_array()) {
+    fail("tangents", "expected an array of tangent vectors of d = " + std::to_string(d) +
+                         " numbers, got " + describe(v));
+  }
+  std::vector<Eigen::VectorXd> tangents;
+  tangents.reserve(v.size());
+  for (std::size_t k = 0; k < v.size(); ++k) {
+    tangents.push_back(read_vector(v[k], "tangents[" + std::to_string(k) + "]", d));
+  }
+  return tangents;
+}
+
+bool read_flag(const Json& document, const std::string& key) {
+  const auto it = document.find(key);
+  if (it == document.end()) return false;
+  if (!it->is_boolean()) fail(key, "expected true or false, got " + describe(*it));
+  return it->get<bool>();
+}
+
+const Json& required(const Json& document, const std::string& key) {
+  const auto it = document.find(key);
+  if (it == document.end()) fail(key, "required field is missing");
+  return *it;
+}
+
+void check_keys(const Json& document) {
+  if (!document.is_object()) {
+    fail("input",
+         "expected a JSON object with keys \"normals\", \"field_limits\", \"tangents\", got " +
+             describe(document));
+  }
+  const auto& keys = known_keys();
+  for (const auto& item : document.items()) {
+    if (std::find(keys.begin(), keys.end(), item.key()) != keys.end()) continue;
+    std::string hint;
+    for (const auto& k : keys) {
+      if (edit_distance(item.key(), k) <= 2) hint = " (did you mean \"" + k + "\"?)";
+    }
+    fail("input", "unknown key " + quote(item.key()) + hint +
+                      "; the keys are normals, field_limits, tangents, pieces, triangulation");
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Output.
+
+void check_finite(const Eigen::Ref<const Eigen::MatrixXd>& values, const std::string& field,
+                  const std::string& what) {
+  if (!values.allFinite()) {
+    throw OutputError(field + ": " + what +
+                      " is not finite (overflow in the computation; rescale the normals, limits or "
+                      "tangents)");
+  }
+}
+
+OrderedJson vector_json(const Eigen::Ref<const Eigen::VectorXd>& v) {
+  OrderedJson out = OrderedJson::array();
+  for (Eigen::Index i = 0; i < v.size(); ++i) out.push_back(v[i]);
+  return out;
+}
+
+OrderedJson rows_json(const Eigen::Ref<const Eigen::MatrixXd>& m) {
+  OrderedJson out = OrderedJson::array();
+  for (Eigen::Index r = 0; r < m.rows(); ++r) out.push_back(vector_json(m.row(r).transpose()));
+  return out;
+}
+
+OrderedJson columns_json(const Eigen::Ref<const Eigen::MatrixXd>& m) {
+  OrderedJson out = OrderedJson::array();
+  for (Eigen::Index c = 0; c < m.cols(); ++c) out.push_back(vector_json(m.col(c)));
+  return out;
+}
+
+// Words in binary order (column b.bits() of the core's tables): "--", "+-", "-+", "++".
+OrderedJson words_json(const Eigen::MatrixXd& columns, int n) {
+  OrderedJson out = OrderedJson::object();
+  for (Eigen::Index w = 0; w < columns.cols(); ++w) {
+    out[Signs(n, static_cast<std::uint64_t>(w)).str()] = vector_json(columns.col(w));
+  }
+  return out;
+}
+
+// nlohmann prints a double in the shortest form that reads back to the same double.
+std::string scalar_text(const OrderedJson& v) {
+  return v.dump(-1, ' ', false, OrderedJson::error_handler_t::replace);
+}
+
+bool is_primitive_array(const OrderedJson& v) {
+  return v.is_array() &&
+         std::all_of(v.begin(), v.end(), [](const OrderedJson& e) { return e.is_primitive(); });
+}
+
+// A vector, or a small matrix, fits on one line.
+bool fits_one_line(const OrderedJson& v) {
+  if (is_primitive_array(v)) return true;
+  if (!v.is_array()) return false;
+  std::size_t count = 0;
+  for (const auto& e : v) {
+    if (!is_primitive_array(e)) return false;
+    count += e.size();
+  }
+  return count <= 16;
+}
+
+void write_inline(std::ostream& out, const OrderedJson& v) {
+  if (!v.is_array()) {
+    out << scalar_text(v);
+    return;
+  }
+  out << '[';
+  for (std::size_t i = 0; i < v.size(); ++i) {
+    if (i > 0) out << ", ";
+    write_inline(out, v[i]);
+  }
+  out << ']';
+}
+
+// Indented JSON, but vectors and small matrices on one line: readable and still exact.
+void write_pretty(std::ostream& out, const OrderedJson& v, int level) {
+  const std::string pad(static_cast<std::size_t>(2 * (level + 1)), ' ');
+  const std::string close_pad(static_cast<std::size_t>(2 * level), ' ');
+  if (v.is_object() && !v.empty()) {
+    out << "{\n";
+    bool first = true;
+    for (auto it = v.begin(); it != v.end(); ++it) {
+      out << (first ? "" : ",\n") << pad << scalar_text(OrderedJson(it.key())) << ": ";
+      write_pretty(out, it.value(), level + 1);
+      first = false;
+    }
+    out << '\n' << close_pad << '}';
+  } else if (v.is_array() && !v.empty() && !fits_one_line(v)) {
+    out << "[\n";
+    for (std::size_t i = 0; i < v.size(); ++i) {
+      out << (i == 0 ? "" : ",\n") << pad;
+      write_pretty(out, v[i], level + 1);
+    }
+    out << '\n' << close_pad << ']';
+  } else {
+    write_inline(out, v);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+
+OrderedJson evaluate(const Json& document) {
+  check_keys(document);
+  const Json& normals_json = required(document, "normals");
+  const Json& limits_json = required(document, "field_limits");
+  const Json& tangents_json = required(document, "tangents");
+
+  const Eigen::MatrixXd eta = read_normals(normals_json);
+  const int n = static_cast<int>(eta.rows());
+  const int d = static_cast<int>(eta.cols());
+  const Eigen::MatrixXd limits = read_field_limits(limits_json, n, d);
+  const std::vector<Eigen::VectorXd> tangents = read_tangents(tangents_json, d);
+  const bool want_pieces = read_flag(document, "pieces");
+  const bool want_triangulation = read_flag(document, "triangulation");
+
+  std::unique_ptr<JumpMap> jump;
+  try {
+    jump = std::make_unique<JumpMap>(eta, limits);
+  } catch (const InvalidArgument& e) {
+    // The core names "normals" or "field_limits" itself.
+    const std::string message = e.what();
+    throw InputError(message.rfind("normals:", 0) == 0 ? message
+                                                       : with_field("field_limits", message));
+  }
+
+  std::unique_ptr<Triangulation> triangulation;
+  if (want_triangulation) {
+    try {
+      triangulation = std::make_unique<Triangulation>(jump->triangulation());
+    } catch (const InvalidArgument& e) {
+      throw InputError(with_field("triangulation", e.what()));
+    }
+  }
+
+  OrderedJson result = OrderedJson::object();
+  result["n"] = n;
+  result["d"] = d;
+  OrderedJson results = OrderedJson::array();
+  for (std::size_t k = 0; k < tangents.size(); ++k) {
+    const std::string name = "results[" + std::to_string(k) + "]";
+    const Eigen::VectorXd& dx = tangents[k];
+    const Eigen::VectorXd image = jump->apply(dx);
+    const CrossingOrder order = jump->order(dx);
+    const Eigen::MatrixXd jacobian = jump->active_jacobian(dx);
+    const Eigen::Map<const Eigen::VectorXd> times(order.times.data(),
+                                                  static_cast<Eigen::Index>(order.times.size()));
+    check_finite(image, name, "image");
+    check_finite(times, name, "crossing_times");
+    check_finite(jacobian, name, "jacobian");
+    OrderedJson item = OrderedJson::object();
+    item["image"] = vector_json(image);
+    item["order"] = order.order;
+    item["crossing_times"] = vector_json(times);
+    item["jacobian"] = rows_json(jacobian);
+    if (triangulation) {
+      const Eigen::VectorXd barycentric = triangulation->apply_barycentric(dx).image;
+      check_finite(barycentric, name, "barycentric_image");
+      item["barycentric_image"] = vector_json(barycentric);
+    }
+    results.push_back(std::move(item));
+  }
+  result["results"] = std::move(results);
+
+  if (want_pieces) {
+    std::vector<Piece> pieces;
+    try {
+      pieces = jump->pieces();
+    } catch (const InvalidArgument& e) {
+      throw InputError(with_field("pieces", e.what()));
+    }
+    OrderedJson list = OrderedJson::array();
+    for (std::size_t k = 0; k < pieces.size(); ++k) {
+      check_finite(pieces[k].matrix, "pieces[" + std::to_string(k) + "]", "matrix");
+      OrderedJson item = OrderedJson::object();
+      item["order"] = pieces[k].order;
+      item["matrix"] = rows_json(pieces[k].matrix);
+      list.push_back(std::move(item));
+    }
+    result["pieces"] = std::move(list);
+  }
+
+  if (triangulation) {
+    check_finite(triangulation->zeta(), "triangulation", "zeta");
+    check_finite(triangulation->zeta_image(), "triangulation", "zeta_image");
+    check_finite(triangulation->lineality_basis(), "triangulation", "lineality_basis");
+    OrderedJson simplices = OrderedJson::array();
+    for (const Simplex& simplex : triangulation->simplices()) {
+      OrderedJson words = OrderedJson::array();
+      for (const Signs& b : simplex.words) words.push_back(b.str());
+      OrderedJson item = OrderedJson::object();
+      item["order"] = simplex.order;
+      item["words"] = std::move(words);
+      simplices.push_back(std::move(item));
+    }
+    OrderedJson t = OrderedJson::object();
+    t["zeta"] = words_json(triangulation->zeta(), n);
+    t["zeta_image"] = words_json(triangulation->zeta_image(), n);
+    t["lineality_basis"] = columns_json(triangulation->lineality_basis());
+    t["simplices"] = std::move(simplices);
+    result["triangulation"] = std::move(t);
+  }
+  return result;
+}
+
+int run_jump_text(const std::string& text, std::ostream& out, std::ostream& err,
+                  const JumpOptions& options) {
+  try {
+    const OrderedJson result = evaluate(parse_document(text));
+    // Everything is formatted before anything is written: no partial JSON on failure.
+    std::ostringstream buffer;
+    if (options.compact) {
+      buffer << result.dump(-1, ' ', false, OrderedJson::error_handler_t::replace);
+    } else {
+      write_pretty(buffer, result, 0);
+    }
+    buffer << '\n';
+    out << buffer.str() << std::flush;
+    if (!out) {
+      report_error(err, "output: cannot write the result");
+      return kExitFailure;
+    }
+    return kExitOk;
+  } catch (const InputError& e) {
+    report_error(err, e.what());
+    return kExitBadInput;
+  } catch (const OutputError& e) {
+    report_error(err, e.what());
+    return kExitFailure;
+  } catch (const InvalidArgument& e) {
+    report_error(err, with_field("input", e.what()));
+    return kExitBadInput;
+  } catch (const std::bad_alloc&) {
+    report_error(err, "input: out of memory (the input or the requested output is too large)");
+    return kExitFailure;
+  } catch (const std::exception& e) {
+    report_error(err, std::string("internal: ") + e.what());
+    return kExitFailure;
+  }
+}
+
+}  // namespace
+
+int run_jump(std::istream& in, std::ostream& out, std::ostream& err, const JumpOptions& options) {
+  std::string text;
+  try {
+    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  } catch (const std::exception& e) {
+    report_error(err, std::string("input: cannot read: ") + e.what());
+    return kExitBadInput;
+  }
+  if (in.bad()) {
+    report_error(err, "input: cannot read the standard input");
+    return kExitBadInput;
+  }
+  return run_jump_text(text, out, err, options);
+}
+
+int run_jump_file(const std::string& path, std::istream& stdin_stream, std::ostream& out,
+                  std::ostream& err, const JumpOptions& options) {
+  if (path == "-") return run_jump(stdin_stream, out, err, options);
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"), std::fclose);
+  if (!file) {
+    report_error(err, "input: cannot open " + quote(path, 200) + ": " + std::strerror(errno));
+    return kExitBadInput;
+  }
+  std::string text;
+  char buffer[1 << 16];
+  std::size_t got = 0;
+  while ((got = std::fread(buffer, 1, sizeof buffer, file.get())) > 0) text.append(buffer, got);
+  if (std::ferror(file.get())) {
+    report_error(err, "input: cannot read " + quote(path, 200) + ": " + std::strerror(errno));
+    return kExitBadInput;
+  }
+  return run_jump_text(text, out, err, options);
+}
+
+}  // namespace bflow::cli

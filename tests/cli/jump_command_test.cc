@@ -1,0 +1,581 @@
+// `bflow jump` in-process: numbers against closed forms and hand computations, exact printing,
+// and one precise error line (exit code 2) for every kind of malformed input.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+
+#include "bflow/core/jump_map.h"
+#include "bflow/core/signs.h"
+#include "bflow/core/triangulation.h"
+#include "cli_commands.h"
+
+namespace bflow::cli {
+namespace {
+
+using ::testing::ElementsAre;
+using ::testing::HasSubstr;
+using ::testing::StartsWith;
+using Json = nlohmann::json;
+
+constexpr double kEps = 2.220446049250313e-16;
+
+struct Outcome {
+  int code;
+  std::string out;
+  std::string err;
+};
+
+Outcome jump(const std::string& input, const JumpOptions& options = {}) {
+  std::istringstream in(input);
+  std::ostringstream out, err;
+  const int code = run_jump(in, out, err, options);
+  return {code, out.str(), err.str()};
+}
+
+Outcome command_line(std::vector<std::string> args, const std::string& stdin_text = "") {
+  args.insert(args.begin(), "bflow");
+  std::vector<const char*> argv;
+  for (const auto& a : args) argv.push_back(a.c_str());
+  std::istringstream in(stdin_text);
+  std::ostringstream out, err;
+  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
+  return {code, out.str(), err.str()};
+}
+
+Json rows_json(const Eigen::MatrixXd& m) {
+  Json rows = Json::array();
+  for (Eigen::Index r = 0; r < m.rows(); ++r) {
+    Json row = Json::array();
+    for (Eigen::Index c = 0; c < m.cols(); ++c) row.push_back(m(r, c));
+    rows.push_back(row);
+  }
+  return rows;
+}
+
+// The input document for normals eta (n x d), a limits table (d x 2^n) and tangents (columns).
+Json document(const Eigen::MatrixXd& eta, const Eigen::MatrixXd& limits,
+              const Eigen::MatrixXd& tangents) {
+  const int n = static_cast<int>(eta.rows());
+  Json words = Json::object();
+  for (Eigen::Index w = 0; w < limits.cols(); ++w) {
+    words[Signs(n, static_cast<std::uint64_t>(w)).str()] = rows_json(limits.col(w).transpose())[0];
+  }
+  return Json{{"normals", rows_json(eta)},
+              {"field_limits", words},
+              {"tangents", rows_json(tangents.transpose())}};
+}
+
+Eigen::VectorXd vector_of(const Json& v) {
+  Eigen::VectorXd out(static_cast<Eigen::Index>(v.size()));
+  for (std::size_t i = 0; i < v.size(); ++i) out[static_cast<Eigen::Index>(i)] = v[i].get<double>();
+  return out;
+}
+
+Eigen::MatrixXd matrix_of(const Json& rows) {
+  Eigen::MatrixXd out(static_cast<Eigen::Index>(rows.size()),
+                      static_cast<Eigen::Index>(rows[0].size()));
+  for (std::size_t r = 0; r < rows.size(); ++r) {
+    out.row(static_cast<Eigen::Index>(r)) = vector_of(rows[r]).transpose();
+  }
+  return out;
+}
+
+// Parses a successful run.
+Json result_of(const Json& input) {
+  const Outcome o = jump(input.dump());
+  EXPECT_EQ(o.code, 0) << o.err;
+  EXPECT_EQ(o.err, "");
+  return Json::parse(o.out);
+}
+
+// Gamma(b) = 1 - delta * b for the piecewise-constant field of [B] (3.1), eta = I.
+Eigen::MatrixXd linear_limits(int d, double delta) {
+  Eigen::MatrixXd limits(d, Eigen::Index{1} << d);
+  for (Eigen::Index w = 0; w < limits.cols(); ++w) {
+    for (int i = 0; i < d; ++i) limits(i, w) = ((w >> i) & 1) ? 1.0 - delta : 1.0 + delta;
+  }
+  return limits;
+}
+
+// The non-linear planar demo of [B] Section 3.1 (PiecewiseConstantField::planar_demo()).
+Eigen::MatrixXd planar_limits() {
+  Eigen::MatrixXd limits(2, 4);
+  limits << 1.0, 0.5, 1.7, 0.7,  //
+      1.0, 1.6, 0.6, 0.7;
+  return limits;
+}
+
+TEST(JumpCommandTest, LinearCaseImageIsScaledTangent) {
+  // [B] (3.2): Delta(b) = -delta b gives B = (1 - delta)/(1 + delta) I, here d = n = 3.
+  const double delta = 0.3;
+  const double factor = (1.0 - delta) / (1.0 + delta);
+  Eigen::MatrixXd tangents(3, 5);
+  tangents << 1.0, 3.0, -1.0, 2.0, 0.25,  //
+      2.0, 1.0, 0.5, -3.0, -0.75,         //
+      3.0, 2.0, 2.0, 1.0, 0.5;
+  const Json out =
+      result_of(document(Eigen::MatrixXd::Identity(3, 3), linear_limits(3, delta), tangents));
+  EXPECT_EQ(out["n"], 3);
+  EXPECT_EQ(out["d"], 3);
+  ASSERT_EQ(out["results"].size(), 5u);
+  for (Eigen::Index k = 0; k < tangents.cols(); ++k) {
+    SCOPED_TRACE(k);
+    const Json& r = out["results"][static_cast<std::size_t>(k)];
+    const Eigen::VectorXd dx = tangents.col(k);
+    // Algorithm 2.1 takes n = 3 steps with O(1) entries: a few eps relative to |dx|.
+    EXPECT_LE((vector_of(r["image"]) - factor * dx).norm(), 16 * kEps * dx.norm());
+    EXPECT_LE((matrix_of(r["jacobian"]) - factor * Eigen::MatrixXd::Identity(3, 3)).norm(),
+              16 * kEps);
+    std::vector<int> order = r["order"].get<std::vector<int>>();
+    std::sort(order.begin(), order.end());
+    EXPECT_THAT(order, ElementsAre(0, 1, 2));
+    EXPECT_EQ(r["crossing_times"].size(), 3u);
+    EXPECT_FALSE(r.contains("barycentric_image"));
+  }
+  EXPECT_FALSE(out.contains("pieces"));
+  EXPECT_FALSE(out.contains("triangulation"));
+}
+
+TEST(JumpCommandTest, OneSurfaceGivesClassicSaltationMatrix) {
+  // n = 1, [B] (2.5): M = I + (F+ - F-) eta^T / (eta . F-), computed here by hand.
+  Eigen::MatrixXd eta(1, 3);
+  eta << 2.0, -1.0, 0.5;
+  Eigen::Vector3d f_minus(1.0, 0.5, 2.0);  // eta . F- = 2.5
+  Eigen::Vector3d f_plus(0.3, -1.0, 4.0);  // eta . F+ = 3.6
+  Eigen::MatrixXd limits(3, 2);
+  limits << f_minus, f_plus;
+  const Eigen::Vector3d dx(0.4, -1.2, 0.7);
+  const Eigen::Matrix3d saltation =
+      Eigen::Matrix3d::Identity() + (f_plus - f_minus) * eta.row(0) / 2.5;
+
+  const Json out = result_of(document(eta, limits, dx));
+  const Json& r = out["results"][0];
+  EXPECT_LE((matrix_of(r["jacobian"]) - saltation).norm(), 8 * kEps * saltation.norm());
+  EXPECT_LE((vector_of(r["image"]) - saltation * dx).norm(),
+            8 * kEps * saltation.norm() * dx.norm());
+  EXPECT_THAT(r["order"].get<std::vector<int>>(), ElementsAre(0));
+  // Crossed when eta . (dx + t F-) = 0.
+  EXPECT_NEAR(r["crossing_times"][0].get<double>(), -eta.row(0).dot(dx) / 2.5, 4 * kEps);
+}
+
+TEST(JumpCommandTest, OrderAndCrossingTimesOfHandBuiltTangents) {
+  // Every Gamma(b) = (1, 1), eta = I: dx moves along (1, 1) and crosses surface j when
+  // dx_j + t = 0. (-1, -2) reaches x_0 = 0 at t = 1, then x_1 = 0 at t = 2; B = I.
+  Eigen::MatrixXd tangents(2, 2);
+  tangents << -1.0, -2.0,  //
+      -2.0, -1.0;
+  const Json out =
+      result_of(document(Eigen::MatrixXd::Identity(2, 2), Eigen::MatrixXd::Ones(2, 4), tangents));
+  const Json& first = out["results"][0];
+  EXPECT_THAT(first["order"].get<std::vector<int>>(), ElementsAre(0, 1));
+  EXPECT_THAT(first["crossing_times"].get<std::vector<double>>(), ElementsAre(1.0, 2.0));
+  EXPECT_THAT(first["image"].get<std::vector<double>>(), ElementsAre(-1.0, -2.0));
+  EXPECT_EQ(matrix_of(first["jacobian"]), Eigen::MatrixXd::Identity(2, 2));
+  const Json& second = out["results"][1];
+  EXPECT_THAT(second["order"].get<std::vector<int>>(), ElementsAre(1, 0));
+  EXPECT_THAT(second["crossing_times"].get<std::vector<double>>(), ElementsAre(1.0, 2.0));
+  EXPECT_THAT(second["image"].get<std::vector<double>>(), ElementsAre(-2.0, -1.0));
+}
+
+TEST(JumpCommandTest, PiecesOfThePlanarDemoMatchHandComputation) {
+  // M_(0,1) = S_1 S_0 with S_0 = I + (F+- - F--) e_0^T / 1 and
+  // S_1 = I + (F++ - F+-) e_1^T / 1.6; M_(1,0) likewise with F-+ and 1.7.
+  Eigen::Matrix2d m01, m10;
+  m01 << 0.575, 0.125,  //
+      0.2625, 0.4375;
+  m10 << 7.0 / 17.0, 4.9 / 17.0,  //
+      1.0 / 17.0, 10.9 / 17.0;
+  Json input =
+      document(Eigen::MatrixXd::Identity(2, 2), planar_limits(), Eigen::Matrix2d::Identity());
+  input["pieces"] = true;
+  const Json out = result_of(input);
+  ASSERT_EQ(out["pieces"].size(), 2u);
+  EXPECT_THAT(out["pieces"][0]["order"].get<std::vector<int>>(), ElementsAre(0, 1));
+  EXPECT_THAT(out["pieces"][1]["order"].get<std::vector<int>>(), ElementsAre(1, 0));
+  EXPECT_LE((matrix_of(out["pieces"][0]["matrix"]) - m01).norm(), 8 * kEps);
+  EXPECT_LE((matrix_of(out["pieces"][1]["matrix"]) - m10).norm(), 8 * kEps);
+  // (1, 0) crosses surface 0 first (tau_0 = -1 < tau_1 = 0), (0, 1) surface 1 first: the
+  // active Jacobians are the pieces, printed identically.
+  EXPECT_EQ(out["results"][0]["jacobian"], out["pieces"][0]["matrix"]);
+  EXPECT_EQ(out["results"][1]["jacobian"], out["pieces"][1]["matrix"]);
+  EXPECT_THAT(out["results"][0]["crossing_times"].get<std::vector<double>>(),
+              ElementsAre(-1.0, -0.375));
+}
+
+TEST(JumpCommandTest, PiecesAreAllNFactorialOrdersInLexicographicOrder) {
+  Json input =
+      document(Eigen::MatrixXd::Identity(3, 3), linear_limits(3, 0.5), Eigen::MatrixXd(3, 0));
+  input["pieces"] = true;
+  const Json out = result_of(input);
+  EXPECT_EQ(out["results"], Json::array());
+  ASSERT_EQ(out["pieces"].size(), 6u);
+  std::vector<int> expected = {0, 1, 2};
+  for (const Json& piece : out["pieces"]) {
+    EXPECT_EQ(piece["order"].get<std::vector<int>>(), expected);
+    // Linear case: every piece is (1 - delta)/(1 + delta) I = I / 3.
+    EXPECT_LE((matrix_of(piece["matrix"]) - Eigen::MatrixXd::Identity(3, 3) / 3.0).norm(),
+              16 * kEps);
+    std::next_permutation(expected.begin(), expected.end());
+  }
+}
+
+TEST(JumpCommandTest, PrintedNumbersReadBackExactly) {
+  // A tangent in ker eta is not moved at all (every tau is 0), so 0.1 and 1/3 come back as they
+  // went in, and must be printed in their shortest exact form.
+  Eigen::MatrixXd eta(1, 3);
+  eta << 1.0, 0.0, 0.0;
+  Eigen::MatrixXd limits(3, 2);
+  limits << 1.0, 2.0,  //
+      0.0, 1.0,        //
+      0.0, 0.0;
+  const Eigen::Vector3d dx(0.0, 0.1, 1.0 / 3.0);
+  const Outcome o = jump(document(eta, limits, dx).dump());
+  ASSERT_EQ(o.code, 0) << o.err;
+  EXPECT_THAT(o.out, HasSubstr("\"image\": [0.0, 0.1, 0.3333333333333333]"));
+  const Json out = Json::parse(o.out);
+  EXPECT_EQ(out["results"][0]["image"][1].get<double>(), 0.1);
+  EXPECT_EQ(out["results"][0]["image"][2].get<double>(), 1.0 / 3.0);
+
+  // Every number printed for the planar demo is the library's double, bit for bit.
+  Eigen::MatrixXd tangents(2, 3);
+  tangents << 0.1, 1.0 / 3.0, -std::sqrt(2.0),  //
+      0.7, -1e-7, 2.0 / 7.0;
+  Json input = document(Eigen::MatrixXd::Identity(2, 2), planar_limits(), tangents);
+  input["pieces"] = true;
+  const Json planar = result_of(input);
+  const JumpMap reference(Eigen::MatrixXd::Identity(2, 2), planar_limits());
+  for (Eigen::Index k = 0; k < tangents.cols(); ++k) {
+    const Json& r = planar["results"][static_cast<std::size_t>(k)];
+    EXPECT_EQ(vector_of(r["image"]), reference.apply(tangents.col(k)));
+    EXPECT_EQ(matrix_of(r["jacobian"]), reference.active_jacobian(tangents.col(k)));
+    EXPECT_EQ(r["crossing_times"].get<std::vector<double>>(),
+              reference.order(tangents.col(k)).times);
+  }
+  const auto pieces = reference.pieces();
+  for (std::size_t k = 0; k < pieces.size(); ++k) {
+    EXPECT_EQ(matrix_of(planar["pieces"][k]["matrix"]), pieces[k].matrix);
+  }
+}
+
+TEST(JumpCommandTest, TriangulationIsPrintedAndAgreesWithAlgorithm) {
+  Eigen::MatrixXd tangents(2, 3);
+  tangents << 1.0, 0.0, -0.3,  //
+      0.0, 1.0, 0.9;
+  Json input = document(Eigen::MatrixXd::Identity(2, 2), planar_limits(), tangents);
+  input["triangulation"] = true;
+  const Json out = result_of(input);
+  const Triangulation reference =
+      JumpMap(Eigen::MatrixXd::Identity(2, 2), planar_limits()).triangulation();
+  const Json& t = out["triangulation"];
+  const std::vector<std::string> words = {"--", "+-", "-+", "++"};  // column b.bits()
+  ASSERT_EQ(t["zeta"].size(), 4u);
+  for (std::size_t w = 0; w < words.size(); ++w) {
+    EXPECT_EQ(vector_of(t["zeta"][words[w]]), reference.zeta().col(static_cast<Eigen::Index>(w)));
+    EXPECT_EQ(vector_of(t["zeta_image"][words[w]]),
+              reference.zeta_image().col(static_cast<Eigen::Index>(w)));
+  }
+  // zeta_-- = -F_-- and zeta_++ = 0 ([B] (5.1)).
+  EXPECT_THAT(t["zeta"]["--"].get<std::vector<double>>(), ElementsAre(-1.0, -1.0));
+  EXPECT_THAT(t["zeta"]["++"].get<std::vector<double>>(), ElementsAre(0.0, 0.0));
+  // L = span F_-- (ker eta = {0}): one unit column along (1, 1).
+  ASSERT_EQ(t["lineality_basis"].size(), 1u);
+  const Eigen::VectorXd l = vector_of(t["lineality_basis"][0]);
+  EXPECT_NEAR(std::abs(l.dot(Eigen::Vector2d(1.0, 1.0).normalized())), 1.0, 4 * kEps);
+  ASSERT_EQ(t["simplices"].size(), 2u);
+  EXPECT_THAT(t["simplices"][0]["order"].get<std::vector<int>>(), ElementsAre(0, 1));
+  EXPECT_THAT(t["simplices"][0]["words"].get<std::vector<std::string>>(),
+              ElementsAre("--", "+-", "++"));
+  EXPECT_THAT(t["simplices"][1]["words"].get<std::vector<std::string>>(),
+              ElementsAre("--", "-+", "++"));
+  for (const Json& r : out["results"]) {
+    // Two independent evaluations of B; 2 x 2 solves of condition O(10).
+    EXPECT_LE((vector_of(r["barycentric_image"]) - vector_of(r["image"])).norm(), 1e-14);
+  }
+}
+
+TEST(JumpCommandTest, EmptyTangentsGiveEmptyResults) {
+  const Json out =
+      result_of(document(Eigen::MatrixXd::Identity(2, 2), planar_limits(), Eigen::MatrixXd(2, 0)));
+  EXPECT_EQ(out, (Json{{"n", 2}, {"d", 2}, {"results", Json::array()}}));
+}
+
+TEST(JumpCommandTest, CompactOutputIsOneLineWithTheSameContent) {
+  const Json input =
+      document(Eigen::MatrixXd::Identity(2, 2), planar_limits(), Eigen::Vector2d(0.3, -0.2));
+  const Outcome pretty = jump(input.dump());
+  const Outcome compact = jump(input.dump(), JumpOptions{true});
+  ASSERT_EQ(compact.code, 0);
+  EXPECT_EQ(std::count(compact.out.begin(), compact.out.end(), '\n'), 1);
+  EXPECT_EQ(Json::parse(compact.out), Json::parse(pretty.out));
+  // Keys in the documented order.
+  EXPECT_THAT(compact.out, StartsWith("{\"n\":2,\"d\":2,\"results\":[{\"image\":"));
+}
+
+TEST(JumpCommandTest, OverflowIsAFailureNotAnInfinity) {
+  // eta . F_-+ = 1e-300 makes a crossing time overflow; nothing may be printed as inf or null.
+  Eigen::MatrixXd limits = planar_limits();
+  limits.col(0) << 1e-300, 1.0;
+  limits.col(2) << 1e-300, 0.6;
+  const Outcome o =
+      jump(document(Eigen::MatrixXd::Identity(2, 2), limits, Eigen::Vector2d(1e10, -1e300)).dump());
+  EXPECT_EQ(o.code, 1);
+  EXPECT_EQ(o.out, "");
+  EXPECT_THAT(o.err, StartsWith("error: results[0]: "));
+  EXPECT_THAT(o.err, HasSubstr("is not finite"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Malformed input: exit code 2, nothing on stdout, exactly one line on stderr naming the field.
+
+struct BadInput {
+  const char* name;
+  std::string input;
+  std::string expected;  // the start of the line after "error: "
+};
+
+void PrintTo(const BadInput& c, std::ostream* os) { *os << c.name; }
+
+const std::string kNormals = R"("normals": [[1, 0], [0, 1]])";
+const std::string kLimits =
+    R"("field_limits": {"--": [1, 1], "+-": [0.5, 1.6], "-+": [1.7, 0.6], "++": [0.7, 0.7]})";
+const std::string kTangents = R"("tangents": [[1, 0]])";
+
+std::string with(const std::string& normals, const std::string& limits, const std::string& tangents,
+                 const std::string& extra = "") {
+  std::string text = "{" + normals;
+  for (const std::string* part : {&limits, &tangents, &extra}) {
+    if (!part->empty()) text += (text.size() > 1 ? ", " : "") + *part;
+  }
+  return text + "}";
+}
+
+class MalformedInputTest : public ::testing::TestWithParam<BadInput> {};
+
+TEST_P(MalformedInputTest, ExitsWithCodeTwoAndOneLineNamingTheField) {
+  const Outcome o = jump(GetParam().input);
+  EXPECT_EQ(o.code, 2);
+  EXPECT_EQ(o.out, "");
+  EXPECT_THAT(o.err, StartsWith("error: " + GetParam().expected));
+  EXPECT_EQ(std::count(o.err.begin(), o.err.end(), '\n'), 1) << o.err;
+  EXPECT_EQ(o.err.back(), '\n');
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    AllFields, MalformedInputTest,
+    ::testing::Values(
+        BadInput{"NotJson", "{\"normals\": [[1, 0]",
+                 "input: not valid JSON: parse error at line 1"},
+        BadInput{"Empty", "", "input: not valid JSON: parse error at line 1, column 1"},
+        BadInput{"TrailingGarbage", with(kNormals, kLimits, kTangents) + " x",
+                 "input: not valid JSON: parse error"},
+        BadInput{"NumberOverflow", with(R"("normals": [[1, 0], [0, 1e999]])", kLimits, kTangents),
+                 "input: not valid JSON: number overflow parsing '1e999'"},
+        BadInput{"TopLevelArray", "[1, 2]", "input: expected a JSON object"},
+        BadInput{"UnknownKey", with(kNormals, kLimits, R"("tangent": [[1, 0]])"),
+                 "input: unknown key \"tangent\" (did you mean \"tangents\"?)"},
+        BadInput{"UnknownKeyWithNewline", with(kNormals, kLimits, kTangents, R"("a\nb": 1)"),
+                 "input: unknown key \"a\\u000ab\""},
+        BadInput{"DuplicateKey", with(kNormals, kLimits, kTangents, kNormals),
+                 "input: key \"normals\" appears twice"},
+        BadInput{"MissingNormals", with(kLimits, kTangents, ""),
+                 "normals: required field is missing"},
+        BadInput{"MissingFieldLimits", with(kNormals, kTangents, ""),
+                 "field_limits: required field is missing"},
+        BadInput{"MissingTangents", with(kNormals, kLimits, ""),
+                 "tangents: required field is missing"},
+        BadInput{"NormalsString", with(R"("normals": "I")", kLimits, kTangents),
+                 "normals: expected an array of rows"},
+        BadInput{"NormalsEmpty", with(R"("normals": [])", kLimits, kTangents),
+                 "normals: has no rows"},
+        BadInput{"NormalsRowNotArray", with(R"("normals": [1, 0])", kLimits, kTangents),
+                 "normals: row 0 is not an array of numbers (got a number)"},
+        BadInput{"NormalsRowEmpty", with(R"("normals": [[]])", kLimits, kTangents),
+                 "normals: row 0 is empty"},
+        BadInput{"NormalsRagged", with(R"("normals": [[1, 0], [0, 1, 2]])", kLimits, kTangents),
+                 "normals: row 1 has 3 numbers, expected 2"},
+        BadInput{"NormalsStringEntry", with(R"("normals": [[1, 0], ["0", 1]])", kLimits, kTangents),
+                 "normals[1][0]: expected a number, got string \"0\""},
+        BadInput{"NormalsMoreThanD",
+                 with(R"("normals": [[1, 0], [0, 1], [1, 1]])", kLimits, kTangents),
+                 "normals: n = 3 surfaces in d = 2 dimensions"},
+        BadInput{"NormalsRankDeficient", with(R"("normals": [[1, 0], [2, 0]])", kLimits, kTangents),
+                 "normals: rank deficient"},
+        BadInput{"NormalsZeroRow", with(R"("normals": [[1, 0], [0, 0]])", kLimits, kTangents),
+                 "normals: row 1 is zero"},
+        BadInput{"LimitsArray", with(kNormals, R"("field_limits": [[1, 1]])", kTangents),
+                 "field_limits: expected an object mapping each sign word to d numbers"},
+        BadInput{
+            "LimitsMissingWord",
+            with(kNormals, R"("field_limits": {"--": [1, 1], "+-": [0.5, 1.6], "++": [0.7, 0.7]})",
+                 kTangents),
+            "field_limits: missing word \"-+\""},
+        BadInput{"LimitsBadCharacter",
+                 with(kNormals,
+                      R"("field_limits": {"--": [1, 1], "+-": [1, 1], "-x": [1, 1], "++": [1, 1]})",
+                      kTangents),
+                 "field_limits: sign word \"-x\" has 'x' at position 1"},
+        BadInput{
+            "LimitsWordTooLong",
+            with(kNormals,
+                 R"("field_limits": {"--": [1, 1], "+-": [1, 1], "-+-": [1, 1], "++": [1, 1]})",
+                 kTangents),
+            "field_limits: word \"-+-\" has 3 characters, expected 2"},
+        BadInput{
+            "LimitsVectorSize",
+            with(kNormals,
+                 R"("field_limits": {"--": [1, 1], "+-": [1, 1, 1], "-+": [1, 1], "++": [1, 1]})",
+                 kTangents),
+            "field_limits[\"+-\"]: has 3 numbers, expected d = 2"},
+        BadInput{
+            "LimitsStringEntry",
+            with(kNormals,
+                 R"("field_limits": {"--": [1, 1], "+-": [1, "1"], "-+": [1, 1], "++": [1, 1]})",
+                 kTangents),
+            "field_limits[\"+-\"][1]: expected a number, got string \"1\""},
+        BadInput{
+            "LimitsDuplicateWord",
+            with(
+                kNormals,
+                R"("field_limits": {"--": [1, 1], "--": [2, 2], "+-": [1, 1], "-+": [1, 1], "++": [1, 1]})",
+                kTangents),
+            "field_limits: key \"--\" appears twice"},
+        BadInput{
+            "LimitsNotTransversal",
+            with(kNormals,
+                 R"("field_limits": {"--": [1, 1], "+-": [-0.5, 1.6], "-+": [1, 1], "++": [1, 1]})",
+                 kTangents),
+            "field_limits: surface 0 is not transversal for word \"+-\""},
+        BadInput{"TangentsObject", with(kNormals, kLimits, R"("tangents": {})"),
+                 "tangents: expected an array of tangent vectors"},
+        BadInput{"TangentNotArray", with(kNormals, kLimits, R"("tangents": [1, 0])"),
+                 "tangents[0]: expected an array of d = 2 numbers, got a number"},
+        BadInput{"TangentSize", with(kNormals, kLimits, R"("tangents": [[1, 2, 3]])"),
+                 "tangents[0]: has 3 numbers, expected d = 2"},
+        BadInput{"TangentStringEntry", with(kNormals, kLimits, R"("tangents": [[1, 0], ["1", 0]])"),
+                 "tangents[1][0]: expected a number, got string \"1\""},
+        BadInput{"TangentNull", with(kNormals, kLimits, R"("tangents": [[1, null]])"),
+                 "tangents[0][1]: expected a number, got null"},
+        BadInput{"TangentBoolean", with(kNormals, kLimits, R"("tangents": [[true, 0]])"),
+                 "tangents[0][0]: expected a number, got boolean true"},
+        BadInput{"PiecesNotBoolean", with(kNormals, kLimits, kTangents, R"("pieces": 1)"),
+                 "pieces: expected true or false, got a number"},
+        BadInput{"TriangulationNotBoolean",
+                 with(kNormals, kLimits, kTangents, R"("triangulation": "yes")"),
+                 "triangulation: expected true or false, got string \"yes\""}),
+    [](const ::testing::TestParamInfo<BadInput>& param_info) {
+      return std::string(param_info.param.name);
+    });
+
+TEST(JumpCommandTest, TooManySurfacesForPiecesNamesPieces) {
+  // n = 11 is valid for B but pieces() enumerates at most n = 10 (11! matrices).
+  Json input = document(Eigen::MatrixXd::Identity(11, 11), linear_limits(11, 0.2),
+                        Eigen::MatrixXd::Ones(11, 1));
+  input["pieces"] = true;
+  const Outcome o = jump(input.dump());
+  EXPECT_EQ(o.code, 2);
+  EXPECT_EQ(o.out, "");
+  EXPECT_THAT(o.err, StartsWith("error: pieces: n = 11 surfaces give n! pieces"));
+  EXPECT_EQ(std::count(o.err.begin(), o.err.end(), '\n'), 1);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Files and the command line.
+
+TEST(JumpCommandTest, ReadsFilesAndReportsUnreadableOnes) {
+  const std::filesystem::path dir = std::filesystem::path(::testing::TempDir()) / "jump_file";
+  std::filesystem::create_directories(dir);
+  const std::string good = (dir / "good.json").string();
+  std::ofstream(good) << with(kNormals, kLimits, kTangents);
+  std::istringstream no_stdin;
+  std::ostringstream out, err;
+  EXPECT_EQ(run_jump_file(good, no_stdin, out, err), 0) << err.str();
+  EXPECT_EQ(Json::parse(out.str())["results"][0]["order"], Json({0, 1}));
+
+  const std::string missing = (dir / "missing.json").string();
+  const Outcome gone = command_line({"jump", "--input", missing});
+  EXPECT_EQ(gone.code, 2);
+  EXPECT_EQ(gone.out, "");
+  EXPECT_EQ(gone.err, "error: input: cannot open \"" + missing + "\": No such file or directory\n");
+
+  const Outcome directory = command_line({"jump", "--input", dir.string()});
+  EXPECT_EQ(directory.code, 2);
+  EXPECT_EQ(directory.err, "error: input: cannot read \"" + dir.string() + "\": Is a directory\n");
+}
+
+TEST(CommandLineTest, JumpReadsStandardInputForDash) {
+  const Outcome o =
+      command_line({"jump", "--input", "-", "--compact"}, with(kNormals, kLimits, kTangents));
+  EXPECT_EQ(o.code, 0) << o.err;
+  EXPECT_THAT(o.out, StartsWith("{\"n\":2,\"d\":2,\"results\":[{\"image\":[0.57"));
+}
+
+TEST(CommandLineTest, VersionAndHelp) {
+  const Outcome version = command_line({"--version"});
+  EXPECT_EQ(version.code, 0);
+  EXPECT_EQ(version.out, "bflow 0.1.0\n");
+  EXPECT_EQ(version_string(), "bflow 0.1.0");
+
+  const Outcome help = command_line({"--help"});
+  EXPECT_EQ(help.code, 0);
+  EXPECT_THAT(help.out, HasSubstr("Usage: bflow"));
+  EXPECT_THAT(help.out, HasSubstr("jump"));
+  EXPECT_THAT(help.out, HasSubstr("demo"));
+  EXPECT_THAT(help.out, HasSubstr("Exit codes"));
+
+  const Outcome jump_help = command_line({"jump", "--help"});
+  EXPECT_EQ(jump_help.code, 0);
+  for (const char* phrase :
+       {"--input FILE|-", "\"normals\"", "\"field_limits\"", "\"tangents\"", "\"pieces\"",
+        "\"triangulation\"", "\"crossing_times\"", "\"jacobian\"", "\"barycentric_image\"",
+        "Example", "error: tangents[0]: has 3 numbers, expected d = 2"}) {
+    EXPECT_THAT(jump_help.out, HasSubstr(phrase));
+  }
+  const Outcome demo_help = command_line({"demo", "--help"});
+  EXPECT_EQ(demo_help.code, 0);
+  EXPECT_THAT(demo_help.out, HasSubstr("--no-plot"));
+  EXPECT_THAT(demo_help.out, HasSubstr("bflow-demo"));
+}
+
+TEST(CommandLineTest, TheExampleInJumpHelpIsTrue) {
+  const Outcome o = command_line(
+      {"jump", "--input", "-", "--compact"},
+      R"({"normals": [[1, 0]], "field_limits": {"-": [1, 0], "+": [2, 1]}, "tangents": [[-1, 0]]})");
+  EXPECT_EQ(o.code, 0) << o.err;
+  EXPECT_EQ(o.out,
+            "{\"n\":1,\"d\":2,\"results\":[{\"image\":[-2.0,-1.0],\"order\":[0],"
+            "\"crossing_times\":[1.0],\"jacobian\":[[2.0,0.0],[1.0,1.0]]}]}\n");
+}
+
+TEST(CommandLineTest, UsageErrorsAreOneLineWithCodeTwo) {
+  for (const std::vector<std::string>& args :
+       std::vector<std::vector<std::string>>{{},
+                                             {"frobnicate"},
+                                             {"jump"},
+                                             {"jump", "--input"},
+                                             {"jump", "--input", "-", "--frobnicate"},
+                                             {"demo", "--output"}}) {
+    const Outcome o = command_line(args);
+    SCOPED_TRACE(::testing::PrintToString(args));
+    EXPECT_EQ(o.code, 2);
+    EXPECT_EQ(o.out, "");
+    EXPECT_THAT(o.err, StartsWith("error: "));
+    EXPECT_EQ(std::count(o.err.begin(), o.err.end(), '\n'), 1) << o.err;
+  }
+  EXPECT_EQ(command_line({}).err,
+            "error: a command is required: jump or demo (see 'bflow --help')\n");
+  EXPECT_EQ(command_line({"jump"}).err,
+            "error: jump: --input is required (see 'bflow jump --help')\n");
+}
+
+}  // namespace
+}  // namespace bflow::cli
