@@ -92,7 +92,7 @@ struct Check {
   double tolerance;
 };
 
-int piece_index(const std::vector<Piece>& pieces, const std::vector<int>& order) {
+int piece_index(const Pieces& pieces, const std::vector<int>& order) {
   for (std::size_t k = 0; k < pieces.size(); ++k) {
     if (pieces[k].order == order) return static_cast<int>(k);
   }
@@ -128,7 +128,7 @@ void write_file(const fs::path& path, const std::string& contents) {
 
 std::string gnuplot_color(int piece) { return piece == 0 ? "#DAA520" : "#2E8B57"; }
 
-std::string gnuplot_script(const std::vector<Piece>& pieces, double range) {
+std::string gnuplot_script(const Pieces& pieces, double range) {
   const std::string m0 = "M_{" + order_text(pieces[0].order) + "}";
   const std::string m1 = "M_{" + order_text(pieces[1].order) + "}";
   std::ostringstream gp;
@@ -222,7 +222,7 @@ int demo(const DemoOptions& options, std::ostream& out, std::ostream& err) {
   const Eigen::MatrixXd eta = Eigen::MatrixXd::Identity(d, d);
   const JumpMap jump(eta, model.limits());
   const Triangulation triangulation = jump.triangulation();
-  const std::vector<Piece> pieces = jump.pieces();
+  const Pieces pieces = jump.pieces();
   const Signs minus = Signs::all_minus(d);
   const Signs plus = Signs::all_plus(d);
   const Eigen::VectorXd f_minus = jump.limit(minus);

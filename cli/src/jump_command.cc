@@ -14,6 +14,7 @@
 #include <map>
 #include <memory>
 #include <new>
+#include <optional>
 #include <ostream>
 #include <set>
 #include <sstream>
@@ -483,18 +484,19 @@ OrderedJson evaluate(const Json& document) {
   result["results"] = std::move(results);
 
   if (want_pieces) {
-    std::vector<Piece> pieces;
+    std::optional<Pieces> pieces;
     try {
-      pieces = jump->pieces();
+      pieces.emplace(jump->pieces());
     } catch (const InvalidArgument& e) {
       throw InputError(with_field("pieces", e.what()));
     }
     OrderedJson list = OrderedJson::array();
-    for (std::size_t k = 0; k < pieces.size(); ++k) {
-      check_finite(pieces[k].matrix, "pieces[" + std::to_string(k) + "]", "matrix");
+    for (std::size_t k = 0; k < pieces->size(); ++k) {
+      const Piece piece = (*pieces)[k];
+      check_finite(piece.matrix, "pieces[" + std::to_string(k) + "]", "matrix");
       OrderedJson item = OrderedJson::object();
-      item["order"] = pieces[k].order;
-      item["matrix"] = rows_json(pieces[k].matrix);
+      item["order"] = piece.order;
+      item["matrix"] = rows_json(piece.matrix);
       list.push_back(std::move(item));
     }
     result["pieces"] = std::move(list);

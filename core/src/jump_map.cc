@@ -1,6 +1,10 @@
 #include "bflow/core/jump_map.h"
 
 #include <algorithm>
+#include <cstdlib>
+#include <new>
+
+#include <sys/mman.h>
 #include <cmath>
 #include <string>
 
@@ -354,56 +358,203 @@ Eigen::MatrixXd JumpMap::active_jacobian(const Eigen::Ref<const Eigen::VectorXd>
   return saltation(order(dx).order);
 }
 
-std::vector<Piece> JumpMap::pieces() const {
-  Impl& m = *impl_;
-  if (m.n > kMaxEnumeratedSurfaces) {
-    throw InvalidArgument(
-        "pieces: n = " + std::to_string(m.n) + " surfaces give n! pieces; " +
-        "enumeration is limited to n <= " + std::to_string(kMaxEnumeratedSurfaces) +
-        " (use apply() or active_jacobian() for one direction)");
-  }
+namespace {
+
+double factorial(int n) {
   double count = 1;
-  for (int k = 2; k <= m.n; ++k) count *= k;
+  for (int k = 2; k <= n; ++k) count *= k;
+  return count;
+}
+
+// Depth-first enumeration of all orders with shared prefixes. Along the current order the
+// prefix product P and the rows R = eta P (n x d) are kept per depth: a child is
+// P + v_j R_j with R + (eta v_j) R_j, so a step costs d^2 + 2 n d multiply-adds. With two
+// surfaces left, both leaves are written directly as rank-2 updates of P.
+class PieceEnumerator {
+ public:
+  PieceEnumerator(const Eigen::MatrixXd& eta, const Eigen::MatrixXd& table)
+      : eta_(eta),
+        table_(table),
+        eta_table_(eta * table),
+        n_(static_cast<int>(eta.rows())),
+        d_(static_cast<int>(eta.cols())),
+        prefix_(static_cast<std::size_t>(n_)),
+        rows_(static_cast<std::size_t>(n_)),
+        sigma_(static_cast<std::size_t>(n_)),
+        v_(d_),
+        v_b_(d_),
+        eta_v_(n_),
+        w_a_(d_),
+        u_(d_) {
+    prefix_[0].setIdentity(d_, d_);
+    rows_[0] = eta_;
+  }
+
+  // target(sigma) returns where the d x d matrix of sigma goes; done(sigma, leaf) follows.
+  template <typename Target, typename Done>
+  void run(Target&& target, Done&& done) {
+    descend(0, 0, target, done);
+  }
+
+ private:
+  // Writes (F_after - F_before) / (eta_j . F_before) for crossing j from `bits` into `v`.
+  void jump_vector(int j, std::uint64_t bits, Eigen::VectorXd& v) const {
+    const auto before = static_cast<Eigen::Index>(bits);
+    const auto after = static_cast<Eigen::Index>(bits | (std::uint64_t{1} << j));
+    v = (table_.col(after) - table_.col(before)) / eta_table_(j, before);
+  }
+
+  // leaf = P + v_a w_a^T + v_b w_b^T, column by column (vectorised axpys, no temporaries).
+  void write_leaf(const Eigen::MatrixXd& product, const Eigen::VectorXd& v_a,
+                  const Eigen::RowVectorXd& w_a, const Eigen::VectorXd& v_b,
+                  const Eigen::RowVectorXd& w_b, double* out) const {
+    Eigen::Map<Eigen::MatrixXd> leaf(out, d_, d_);
+    for (int c = 0; c < d_; ++c) {
+      leaf.col(c) = product.col(c) + w_a[c] * v_a + w_b[c] * v_b;
+    }
+  }
+
+  template <typename Target, typename Done>
+  void descend(int depth, std::uint64_t bits, Target& target, Done& done) {
+    const auto k = static_cast<std::size_t>(depth);
+    const Eigen::MatrixXd& product = prefix_[k];
+    const Eigen::MatrixXd& rows = rows_[k];  // rows.row(j) = eta_j P
+    int remaining[Signs::kMaxSurfaces];
+    int r = 0;
+    for (int j = 0; j < n_; ++j) {
+      if (!((bits >> j) & 1u)) remaining[r++] = j;
+    }
+    if (r == 1) {  // n == 1
+      sigma_[k] = remaining[0];
+      jump_vector(remaining[0], bits, v_);
+      double* out = target(sigma_);
+      Eigen::Map<Eigen::MatrixXd> leaf(out, d_, d_);
+      leaf.noalias() = product + v_ * rows.row(remaining[0]);
+      done(sigma_, Eigen::Map<const Eigen::MatrixXd>(out, d_, d_));
+      return;
+    }
+    if (r == 2) {
+      for (int first = 0; first < 2; ++first) {
+        const int a = remaining[first];
+        const int b = remaining[1 - first];
+        sigma_[k] = a;
+        sigma_[k + 1] = b;
+        jump_vector(a, bits, v_);
+        jump_vector(b, bits | (std::uint64_t{1} << a), v_b_);
+        // eta_b (I + v_a eta_a^T) P = eta_b P + (eta_b . v_a) eta_a P.
+        w_a_ = rows.row(a);
+        u_ = rows.row(b) + eta_.row(b).dot(v_) * w_a_;
+        double* out = target(sigma_);
+        write_leaf(product, v_, w_a_, v_b_, u_, out);
+        done(sigma_, Eigen::Map<const Eigen::MatrixXd>(out, d_, d_));
+      }
+      return;
+    }
+    for (int i = 0; i < r; ++i) {
+      const int j = remaining[i];
+      sigma_[k] = j;
+      jump_vector(j, bits, v_);
+      Eigen::MatrixXd& child = prefix_[k + 1];
+      child.noalias() = product + v_ * rows.row(j);
+      eta_v_.noalias() = eta_ * v_;
+      Eigen::MatrixXd& child_rows = rows_[k + 1];
+      child_rows.noalias() = rows + eta_v_ * rows.row(j);
+      descend(depth + 1, bits | (std::uint64_t{1} << j), target, done);
+    }
+  }
+
+  const Eigen::MatrixXd& eta_;
+  const Eigen::MatrixXd& table_;
+  const Eigen::MatrixXd eta_table_;
+  const int n_;
+  const int d_;
+  std::vector<Eigen::MatrixXd> prefix_;
+  std::vector<Eigen::MatrixXd> rows_;
+  std::vector<int> sigma_;
+  Eigen::VectorXd v_;
+  Eigen::VectorXd v_b_;
+  Eigen::VectorXd eta_v_;
+  Eigen::RowVectorXd w_a_;
+  Eigen::RowVectorXd u_;
+};
+
+void check_enumerable(const char* what, int n) {
+  if (n > JumpMap::kMaxEnumeratedSurfaces) {
+    throw InvalidArgument(std::string(what) + ": n = " + std::to_string(n) +
+                          " surfaces give n! pieces; enumeration is limited to n <= " +
+                          std::to_string(JumpMap::kMaxEnumeratedSurfaces) +
+                          " (use apply() or active_jacobian() for one direction)");
+  }
+}
+
+}  // namespace
+
+void Pieces::Free::operator()(double* p) const { std::free(p); }
+
+Pieces::Pieces(int n, int d, std::size_t count)
+    : n_(n), d_(d), count_(count), orders_(count * static_cast<std::size_t>(n)) {
+  const std::size_t bytes = count * static_cast<std::size_t>(d) * d * sizeof(double);
+  // Large results go on transparent huge pages where the kernel allows: faulting in 4 KiB
+  // pages one at a time costs more than computing the pieces.
+  constexpr std::size_t kHugePage = std::size_t{2} << 20;
+  const std::size_t alignment = bytes >= 2 * kHugePage ? kHugePage : 64;
+  const std::size_t rounded = (bytes + alignment - 1) / alignment * alignment;
+  matrices_.reset(static_cast<double*>(
+      std::aligned_alloc(alignment, std::max<std::size_t>(rounded, alignment))));
+  if (!matrices_) throw std::bad_alloc();
+#ifdef MADV_HUGEPAGE
+  if (alignment == kHugePage) madvise(matrices_.get(), rounded, MADV_HUGEPAGE);
+#endif
+}
+
+std::vector<int> Pieces::order(std::size_t i) const {
+  const auto first =
+      orders_.begin() + static_cast<std::ptrdiff_t>(i * static_cast<std::size_t>(n_));
+  return std::vector<int>(first, first + n_);
+}
+
+Eigen::Map<const Eigen::MatrixXd> Pieces::matrix(std::size_t i) const {
+  return Eigen::Map<const Eigen::MatrixXd>(
+      matrices_.get() + i * static_cast<std::size_t>(d_) * static_cast<std::size_t>(d_), d_, d_);
+}
+
+Pieces JumpMap::pieces() const {
+  Impl& m = *impl_;
+  check_enumerable("pieces", m.n);
+  const double count = factorial(m.n);
   const double bytes = count * m.d * m.d * sizeof(double);
   if (bytes > static_cast<double>(kMaxPiecesBytes)) {
     throw InvalidArgument("pieces: n! = " + format_number(count) + " matrices of " +
                           std::to_string(m.d) + " x " + std::to_string(m.d) + " need " +
                           format_number(bytes) + " bytes, more than the limit of " +
-                          format_number(static_cast<double>(kMaxPiecesBytes)));
+                          format_number(static_cast<double>(kMaxPiecesBytes)) +
+                          " (for_each_piece() visits them without storing)");
   }
+  Pieces result(m.n, m.d, static_cast<std::size_t>(count));
   const Eigen::MatrixXd table = m.table();
-  const Eigen::MatrixXd eta_table = m.eta * table;
-  std::vector<Piece> result;
-  result.reserve(static_cast<std::size_t>(count));
-  // prefix[k] is the product of the first k factors of the current order; leaves are written
-  // straight into the result.
-  std::vector<Eigen::MatrixXd> prefix(static_cast<std::size_t>(m.n));
-  prefix[0].setIdentity(m.d, m.d);
-  std::vector<int> sigma(static_cast<std::size_t>(m.n));
-  Eigen::VectorXd v(m.d);
-  Eigen::RowVectorXd w(m.d);
-  auto descend = [&](auto&& self, int depth, std::uint64_t bits) -> void {
-    const auto before = static_cast<Eigen::Index>(bits);
-    const Eigen::MatrixXd& product = prefix[static_cast<std::size_t>(depth)];
-    for (int j = 0; j < m.n; ++j) {
-      if ((bits >> j) & 1u) continue;
-      const std::uint64_t next = bits | (std::uint64_t{1} << j);
-      sigma[static_cast<std::size_t>(depth)] = j;
-      v = (table.col(static_cast<Eigen::Index>(next)) - table.col(before)) / eta_table(j, before);
-      w.noalias() = m.eta.row(j) * product;
-      if (depth + 1 == m.n) {
-        result.push_back(Piece{sigma, product});
-        result.back().matrix.noalias() += v * w;
-      } else {
-        Eigen::MatrixXd& extended = prefix[static_cast<std::size_t>(depth) + 1];
-        extended = product;
-        extended.noalias() += v * w;
-        self(self, depth + 1, next);
-      }
-    }
-  };
-  descend(descend, 0, 0);
+  PieceEnumerator enumerator(m.eta, table);
+  std::size_t next = 0;
+  const std::size_t stride = static_cast<std::size_t>(m.d) * static_cast<std::size_t>(m.d);
+  enumerator.run(
+      [&](const std::vector<int>& sigma) {
+        std::copy(sigma.begin(), sigma.end(),
+                  result.orders_.begin() + static_cast<std::ptrdiff_t>(next * sigma.size()));
+        return result.matrices_.get() + next * stride;
+      },
+      [&](const std::vector<int>&, const Eigen::Map<const Eigen::MatrixXd>&) { ++next; });
+  BFLOW_ASSERT(next == result.size());
   return result;
+}
+
+void JumpMap::for_each_piece(const PieceVisitor& visit) const {
+  Impl& m = *impl_;
+  check_enumerable("for_each_piece", m.n);
+  const Eigen::MatrixXd table = m.table();
+  PieceEnumerator enumerator(m.eta, table);
+  Eigen::MatrixXd scratch(m.d, m.d);
+  enumerator.run([&](const std::vector<int>&) { return scratch.data(); },
+                 [&](const std::vector<int>& sigma,
+                     const Eigen::Map<const Eigen::MatrixXd>& matrix) { visit(sigma, matrix); });
 }
 
 Triangulation JumpMap::triangulation() const {

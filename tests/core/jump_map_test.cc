@@ -322,10 +322,10 @@ TEST(JumpMapTest, LargeNumbersOfSurfaces) {
 
 TEST(JumpMapTest, PiecesAreAllOrdersWithTheirSaltationMatrices) {
   std::mt19937_64 rng(5);
-  for (int n = 1; n <= 5; ++n) {
+  for (int n = 1; n <= 6; ++n) {
     const Eigen::MatrixXd eta = testing::random_normals(rng, n, n + 2, false);
     const JumpMap jump(eta, testing::random_limits(rng, eta, {}));
-    const std::vector<Piece> pieces = jump.pieces();
+    const Pieces pieces = jump.pieces();
     int expected_count = 1;
     for (int k = 2; k <= n; ++k) expected_count *= k;
     ASSERT_EQ(static_cast<int>(pieces.size()), expected_count);
@@ -338,6 +338,15 @@ TEST(JumpMapTest, PiecesAreAllOrdersWithTheirSaltationMatrices) {
       EXPECT_LE((pieces[i].matrix - jump.saltation(sigma)).norm(), 1e-13 * pieces[i].matrix.norm());
       ++i;
     } while (std::next_permutation(sigma.begin(), sigma.end()));
+    // The visitor sees the same pieces, in the same order, with the same bits.
+    std::size_t visited = 0;
+    jump.for_each_piece(
+        [&](const std::vector<int>& order, const Eigen::Ref<const Eigen::MatrixXd>& m) {
+          EXPECT_EQ(order, pieces.order(visited));
+          EXPECT_EQ(m, pieces.matrix(visited));
+          ++visited;
+        });
+    EXPECT_EQ(visited, pieces.size());
   }
 }
 
@@ -409,8 +418,8 @@ TEST(JumpMapTest, LazyLimitsAgreeWithTheTableEvenWhenTheCacheOverflows) {
   for (int k = 0; k < 5; ++k) {
     EXPECT_LE((images.col(k) - lazy.apply(block.col(k))).norm(), 1e-12 * images.col(k).norm());
   }
-  const std::vector<Piece> lazy_pieces = lazy.pieces();
-  const std::vector<Piece> table_pieces = table.pieces();
+  const Pieces lazy_pieces = lazy.pieces();
+  const Pieces table_pieces = table.pieces();
   for (std::size_t i = 0; i < table_pieces.size(); ++i) {
     EXPECT_LE((lazy_pieces[i].matrix - table_pieces[i].matrix).norm(),
               kApplyTol * growth(table, table_pieces[i].order));

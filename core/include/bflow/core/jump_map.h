@@ -28,6 +28,7 @@
 #define BFLOW_CORE_JUMP_MAP_H_
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <type_traits>
 #include <utility>
@@ -56,6 +57,55 @@ struct Piece {
   std::vector<int> order;
   Eigen::MatrixXd matrix;
 };
+
+/** All n! pieces of B, stored contiguously (orders n ints each, matrices d x d each).
+    Read-only; indexing copies a Piece out, matrix(i) is a view without a copy. */
+class Pieces {
+ public:
+  class Iterator {
+   public:
+    Iterator(const Pieces* pieces, std::size_t i) : pieces_(pieces), i_(i) {}
+    Piece operator*() const { return (*pieces_)[i_]; }
+    Iterator& operator++() {
+      ++i_;
+      return *this;
+    }
+    bool operator!=(const Iterator& other) const { return i_ != other.i_; }
+
+   private:
+    const Pieces* pieces_;
+    std::size_t i_;
+  };
+
+  std::size_t size() const { return count_; }
+  int surfaces() const { return n_; }
+  int dim() const { return d_; }
+  /** Order sigma of piece i (surface indices, first crossed first). */
+  std::vector<int> order(std::size_t i) const;
+  /** M_sigma of piece i, a view into this object. */
+  Eigen::Map<const Eigen::MatrixXd> matrix(std::size_t i) const;
+  /** Piece i, copied out. */
+  Piece operator[](std::size_t i) const { return Piece{order(i), matrix(i)}; }
+  Iterator begin() const { return Iterator(this, 0); }
+  Iterator end() const { return Iterator(this, count_); }
+
+ private:
+  friend class JumpMap;
+  struct Free {
+    void operator()(double* p) const;
+  };
+  Pieces(int n, int d, std::size_t count);
+
+  int n_ = 0;
+  int d_ = 0;
+  std::size_t count_ = 0;
+  std::vector<int> orders_;
+  std::unique_ptr<double[], Free> matrices_;
+};
+
+/** Receives one piece: its order sigma and M_sigma (valid only during the call). */
+using PieceVisitor =
+    std::function<void(const std::vector<int>& order, const Eigen::Ref<const Eigen::MatrixXd>& m)>;
 
 struct JumpMapOptions {
   /** Capacity of the cache of a lazily evaluated Gamma, in words; 0 chooses 8 (n + 1).
@@ -126,10 +176,14 @@ class JumpMap {
   /** M_sigma for sigma = order(dx): the linear piece active at dx. */
   Eigen::MatrixXd active_jacobian(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
 
-  /** All n! pieces (sigma, M_sigma), sigma in lexicographic order; a common prefix of sigma is
-      multiplied once. @throws InvalidArgument for n > kMaxEnumeratedSurfaces or when the
-      result would exceed kMaxPiecesBytes (the message gives n!, d and the bytes). */
-  std::vector<Piece> pieces() const;
+  /** All n! pieces (sigma, M_sigma), sigma in lexicographic order. A common prefix of sigma is
+      multiplied once, and the last two factors are applied together as one rank-2 update:
+      about 2 e n! d^2 multiply-adds. @throws InvalidArgument for n > kMaxEnumeratedSurfaces or
+      when the result would exceed kMaxPiecesBytes (the message gives n!, d and the bytes). */
+  Pieces pieces() const;
+  /** The same n! pieces, in the same order, handed to `visit` one at a time without storing
+      them (memory O(n d^2)). @throws InvalidArgument for n > kMaxEnumeratedSurfaces. */
+  void for_each_piece(const PieceVisitor& visit) const;
 
   /** The triangulation of [B] Section 5: an independent representation of B.
       @throws InvalidArgument for n > kMaxEnumeratedSurfaces. */
