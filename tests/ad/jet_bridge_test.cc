@@ -9,6 +9,7 @@
 #include "bflow/core/errors.h"
 #include "bflow/core/model.h"
 #include "bflow/core/signs.h"
+#include "support/error_message.h"
 
 namespace bflow::ad {
 namespace {
@@ -271,17 +272,7 @@ TEST(JetBridgeTest, DynamicSizeModel) {
             kExact);
 }
 
-// Throws if `call` does not throw InvalidArgument; returns its message.
-template <typename Call>
-std::string message_of(Call call) {
-  try {
-    call();
-  } catch (const InvalidArgument& e) {
-    return e.what();
-  }
-  ADD_FAILURE() << "expected bflow::InvalidArgument";
-  return "";
-}
+using testing::message_of;
 
 TEST(JetBridgeTest, RejectsWrongSizesWithMessage) {
   const Curved model;

@@ -12,6 +12,7 @@
 #include "bflow/core/jump_map.h"
 #include "bflow/core/model.h"
 #include "bflow/core/signs.h"
+#include "support/error_message.h"
 
 namespace bflow::ad {
 namespace {
@@ -236,17 +237,7 @@ struct Line {
   }
 };
 
-// Throws if `call` does not throw InvalidArgument; returns its message.
-template <typename Call>
-std::string message_of(Call call) {
-  try {
-    call();
-  } catch (const InvalidArgument& e) {
-    return e.what();
-  }
-  ADD_FAILURE() << "expected bflow::InvalidArgument";
-  return "";
-}
+using testing::message_of;
 
 TEST(ModelJumpTest, RejectsNonTransversalCrossingsWithMessage) {
   const Eigen::VectorXd rho = Eigen::VectorXd::Zero(1);

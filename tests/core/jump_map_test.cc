@@ -11,6 +11,7 @@
 
 #include "bflow/core/errors.h"
 #include "bflow/core/triangulation.h"
+#include "support/error_message.h"
 #include "support/random_jump.h"
 
 namespace bflow {
@@ -432,50 +433,43 @@ TEST(JumpMapTest, LazyLimitsAgreeWithTheTableEvenWhenTheCacheOverflows) {
 
 // ---------------------------------------------------------------------------------------
 // Validation: every message names the problem and quotes the values.
-std::string error_of(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const InvalidArgument& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
+using testing::message_of;
 
 TEST(JumpMapTest, ValidationMessagesNameTheProblem) {
   const Eigen::MatrixXd eye = Eigen::MatrixXd::Identity(2, 2);
   const Eigen::MatrixXd good = linear_pwconst_limits(2, 0.3);
-  EXPECT_THAT(error_of([&] { JumpMap(eye, Eigen::MatrixXd::Ones(3, 4)); }),
+  EXPECT_THAT(message_of([&] { JumpMap(eye, Eigen::MatrixXd::Ones(3, 4)); }),
               HasSubstr("expected a 2 x 4 table (d x 2^n), got 3 x 4"));
-  EXPECT_THAT(error_of([&] { JumpMap(Eigen::MatrixXd::Identity(3, 2), good); }),
+  EXPECT_THAT(message_of([&] { JumpMap(Eigen::MatrixXd::Identity(3, 2), good); }),
               HasSubstr("n = 3 surfaces in d = 2 dimensions"));
   Eigen::MatrixXd parallel(2, 3);
   parallel << 1, 0, 0, 2, 0, 1e-12;
-  EXPECT_THAT(error_of([&] { JumpMap(parallel, Eigen::MatrixXd::Ones(3, 4)); }),
+  EXPECT_THAT(message_of([&] { JumpMap(parallel, Eigen::MatrixXd::Ones(3, 4)); }),
               HasSubstr("rank deficient"));
   EXPECT_THAT(
-      error_of([&] { JumpMap(parallel, Eigen::MatrixXd::Ones(3, 4)); }),
+      message_of([&] { JumpMap(parallel, Eigen::MatrixXd::Ones(3, 4)); }),
       HasSubstr(
           "singular values of the row-normalised normals are [1.4142135623730951, 3.5355339"));
   Eigen::MatrixXd nan_eta = eye;
   nan_eta(1, 0) = std::nan("");
-  EXPECT_THAT(error_of([&] { JumpMap(nan_eta, good); }),
+  EXPECT_THAT(message_of([&] { JumpMap(nan_eta, good); }),
               HasSubstr("normals: row 1 is not finite: [nan, 1]"));
   Eigen::MatrixXd inf_limits = good;
   inf_limits(0, 2) = INFINITY;
-  EXPECT_THAT(error_of([&] { JumpMap(eye, inf_limits); }),
+  EXPECT_THAT(message_of([&] { JumpMap(eye, inf_limits); }),
               HasSubstr("F_-+ is not finite: [inf, 0.7]"));
   Eigen::MatrixXd bad = good;
   bad(1, 1) = -0.25;  // word "+-", surface 1
-  EXPECT_THAT(error_of([&] { JumpMap(eye, bad); }),
+  EXPECT_THAT(message_of([&] { JumpMap(eye, bad); }),
               HasSubstr("surface 1 is not transversal for word \"+-\": eta_1 . F_+- = -0.25"));
-  EXPECT_THAT(error_of([&] { JumpMap(Eigen::MatrixXd::Identity(65, 65), Eigen::MatrixXd()); }),
+  EXPECT_THAT(message_of([&] { JumpMap(Eigen::MatrixXd::Identity(65, 65), Eigen::MatrixXd()); }),
               HasSubstr("n = 65 surfaces; at most 64"));
   const JumpMap jump(eye, good);
-  EXPECT_THAT(error_of([&] { jump.apply(Eigen::VectorXd::Ones(3)); }),
+  EXPECT_THAT(message_of([&] { jump.apply(Eigen::VectorXd::Ones(3)); }),
               HasSubstr("apply: tangent has 3 numbers, expected d = 2"));
-  EXPECT_THAT(error_of([&] { jump.apply(Eigen::Vector2d(1, NAN)); }),
+  EXPECT_THAT(message_of([&] { jump.apply(Eigen::Vector2d(1, NAN)); }),
               HasSubstr("apply: tangent is not finite: [1, nan]"));
-  EXPECT_THAT(error_of([&] {
+  EXPECT_THAT(message_of([&] {
                 jump.saltation({0, 0});
               }),
               HasSubstr("order [0, 0] is not a permutation of 0..1"));
@@ -483,19 +477,19 @@ TEST(JumpMapTest, ValidationMessagesNameTheProblem) {
   const JumpMap lazy(eye, [](Signs b, Eigen::Ref<Eigen::VectorXd> out) {
     out << 1.0, b.str() == "++" ? -2.0 : 1.0;
   });
-  EXPECT_THAT(error_of([&] { lazy.apply(Eigen::Vector2d(1, 1)); }),
+  EXPECT_THAT(message_of([&] { lazy.apply(Eigen::Vector2d(1, 1)); }),
               HasSubstr("surface 1 is not transversal for word \"++\": eta_1 . F_++ = -2"));
   // Missing words in the text form.
   std::map<std::string, Eigen::VectorXd> words = {
       {"--", Eigen::Vector2d(1, 1)}, {"+-", Eigen::Vector2d(1, 1)}, {"++", Eigen::Vector2d(1, 1)}};
-  EXPECT_THAT(error_of([&] { limits_table_from_words(2, 2, words); }),
+  EXPECT_THAT(message_of([&] { limits_table_from_words(2, 2, words); }),
               HasSubstr("missing word \"-+\" (3 of 4 words given)"));
   words["-+"] = Eigen::Vector3d(1, 1, 1);
-  EXPECT_THAT(error_of([&] { limits_table_from_words(2, 2, words); }),
+  EXPECT_THAT(message_of([&] { limits_table_from_words(2, 2, words); }),
               HasSubstr("word \"-+\" has 3 numbers, expected 2"));
   words["-+"] = Eigen::Vector2d(1, 1);
   words["-+-"] = Eigen::Vector2d(1, 1);
-  EXPECT_THAT(error_of([&] { limits_table_from_words(2, 2, words); }),
+  EXPECT_THAT(message_of([&] { limits_table_from_words(2, 2, words); }),
               HasSubstr("word \"-+-\" has 3 characters, expected 2"));
 }
 
