@@ -11,15 +11,10 @@ namespace bflow {
 std::string format_number(double value) {
   if (std::isnan(value)) return "nan";
   if (std::isinf(value)) return value > 0 ? "inf" : "-inf";
-  // Shortest round-trip form; %.17g always reads back exactly and is the fallback.
+  // Shortest form that reads back to the same double.
   char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%.17g", value);
-  for (int digits = 1; digits < 17; ++digits) {
-    char shorter[32];
-    std::snprintf(shorter, sizeof shorter, "%.*g", digits, value);
-    if (std::strtod(shorter, nullptr) == value) return shorter;
-  }
-  return buffer;
+  const auto end = std::to_chars(buffer, buffer + sizeof buffer, value).ptr;
+  return std::string(buffer, end);
 }
 
 std::string format_vector(const Eigen::Ref<const Eigen::VectorXd>& v) {

@@ -1,0 +1,40 @@
+// Dormand-Prince 5(4) with dense output, written once for any scalar: with T = double it
+// integrates the state; with T = ceres::Jet<double, N> the same arithmetic carries N tangent
+// directions in the Jet parts, which is the variational equation V' = DF_b(x) V ([B] (2.4)).
+//
+// Step control uses the state only (the Jet values), unless tangents_in_error_norm is set; the
+// step size is a plain double and is never differentiated. With the state alone in the norm,
+// every chunk of tangents takes exactly the same steps, so a d x k block integrated in chunks
+// of eight sees one trajectory.
+//
+// Events follow segment.h: after each accepted step the watched g_j = s_j h_j are evaluated;
+// a sign change from > 0 to <= 0 is located on the dense output (Illinois method on the
+// values, to a few ulps of t) and the step is cut there. The state and tangents at the
+// crossing come from the dense output, which is accurate to the integration tolerance.
+#ifndef BFLOW_INTEGRATORS_DOPRI5_H_
+#define BFLOW_INTEGRATORS_DOPRI5_H_
+
+#include "bflow/integrators/segment.h"
+
+namespace bflow {
+
+/** Dormand-Prince 5(4) backend. Tangents are carried by Jet<double, 1> for one direction and
+    Jet<double, 8> chunks otherwise. */
+class Dopri5Integrator final : public SegmentIntegrator {
+ public:
+  SegmentResult integrate(const SegmentModel& model, const SegmentRequest& request,
+                          const IntegratorOptions& options) override;
+};
+
+namespace internal {
+/** The templated core, explicitly instantiated for double, Jet1 and JetChunk in dopri5.cc.
+    x0 holds the state and, for Jets, the tangent directions in the derivative parts. */
+template <typename T>
+SegmentResult dopri5_segment(const SegmentModel& model, Signs sides, double t0, double t_end,
+                             const std::vector<T>& x0, const IntegratorOptions& options,
+                             std::vector<T>* x_out, bool watch);
+}  // namespace internal
+
+}  // namespace bflow
+
+#endif  // BFLOW_INTEGRATORS_DOPRI5_H_

@@ -1,0 +1,50 @@
+// ModelAdapter: a templated bflow model (bflow/core/model.h) seen as a SegmentModel.
+#ifndef BFLOW_INTEGRATORS_MODEL_ADAPTER_H_
+#define BFLOW_INTEGRATORS_MODEL_ADAPTER_H_
+
+#include <utility>
+
+#include "bflow/ad/jet_bridge.h"
+#include "bflow/core/model.h"
+#include "bflow/integrators/segment.h"
+
+namespace bflow {
+
+/** Holds a copy of the model. */
+template <typename Model>
+class ModelAdapter final : public SegmentModel {
+ public:
+  explicit ModelAdapter(Model model) : model_(std::move(model)) {}
+  const Model& model() const { return model_; }
+
+  int states() const override { return model_states(model_); }
+  int surfaces() const override { return model_surfaces(model_); }
+  void field(const double* x, Signs b, double* xdot) const override { model_.field(x, b, xdot); }
+  void field(const Jet1* x, Signs b, Jet1* xdot) const override { model_.field(x, b, xdot); }
+  void field(const JetChunk* x, Signs b, JetChunk* xdot) const override {
+    model_.field(x, b, xdot);
+  }
+  void field_tangents(const Eigen::Ref<const Eigen::VectorXd>& x, Signs b,
+                      const Eigen::Ref<const Eigen::MatrixXd>& v, Eigen::Ref<Eigen::VectorXd> f,
+                      Eigen::Ref<Eigen::MatrixXd> fv) const override {
+    ad::field_jacobian_times<kTangentChunk>(model_, x, b, v, f, fv);
+  }
+  void surface_values(const double* x, double* h) const override {
+    if (surfaces() > 0) model_.surfaces(x, h);
+  }
+  Eigen::MatrixXd surface_normals(const Eigen::Ref<const Eigen::VectorXd>& x) const override {
+    return ad::normals<kTangentChunk>(model_, x);
+  }
+
+ private:
+  Model model_;
+};
+
+template <typename Model>
+ModelAdapter<std::decay_t<Model>> adapt(Model&& model) {
+  return ModelAdapter<std::decay_t<Model>>(std::forward<Model>(model));
+}
+
+}  // namespace bflow
+
+#endif  // BFLOW_INTEGRATORS_MODEL_ADAPTER_H_

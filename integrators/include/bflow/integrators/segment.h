@@ -1,0 +1,111 @@
+// One smooth segment of a nonsmooth flow: the contract between the hybrid flow driver and the
+// integration backends (Dormand-Prince 5(4) in dopri5.h, SUNDIALS CVODES in cvodes.h).
+//
+// On a segment the sides b of all surfaces are fixed, so the field F_b is smooth. A backend
+// integrates x' = F_b(x) and, when tangents are given, V' = DF_b(x) V (the variational
+// equation, [B] (2.4)), from t0 towards t_end, and stops at the first time a surface crosses.
+//
+// Zero-crossing semantics. Surface j is watched through g_j(x) = s_j h_j(x), where s_j = +1 if
+// b puts j on its + side and -1 otherwise, so g_j >= 0 while the state is on the side b says.
+// A crossing is g_j going from > 0 to <= 0 inside a step. A surface whose g_j is <= 0 at the
+// start of the segment (one just crossed, sitting on the surface to within the tolerance) is
+// not watched until g_j > 0: a crossing just handled is never detected again.
+#ifndef BFLOW_INTEGRATORS_SEGMENT_H_
+#define BFLOW_INTEGRATORS_SEGMENT_H_
+
+#include <limits>
+#include <string>
+#include <vector>
+
+#include <ceres/jet.h>
+#include <Eigen/Core>
+
+#include "bflow/core/signs.h"
+
+namespace bflow {
+
+/** Jet widths the integrators are compiled for: one direction, and chunks of eight. */
+inline constexpr int kTangentChunk = 8;
+using Jet1 = ceres::Jet<double, 1>;
+using JetChunk = ceres::Jet<double, kTangentChunk>;
+
+/** A model seen through virtual calls, so that integrators compile once (see model_adapter.h
+    for the adapter of a templated bflow model). */
+class SegmentModel {
+ public:
+  virtual ~SegmentModel() = default;
+  virtual int states() const = 0;
+  virtual int surfaces() const = 0;
+  virtual void field(const double* x, Signs b, double* xdot) const = 0;
+  virtual void field(const Jet1* x, Signs b, Jet1* xdot) const = 0;
+  virtual void field(const JetChunk* x, Signs b, JetChunk* xdot) const = 0;
+  /** f = F_b(x) and FV = DF_b(x) V for a d x k block V, by Jets in chunks (no differences). */
+  virtual void field_tangents(const Eigen::Ref<const Eigen::VectorXd>& x, Signs b,
+                              const Eigen::Ref<const Eigen::MatrixXd>& v,
+                              Eigen::Ref<Eigen::VectorXd> f,
+                              Eigen::Ref<Eigen::MatrixXd> fv) const = 0;
+  virtual void surface_values(const double* x, double* h) const = 0;
+  /** Dh(x), n x d, by Jets. */
+  virtual Eigen::MatrixXd surface_normals(const Eigen::Ref<const Eigen::VectorXd>& x) const = 0;
+};
+
+enum class IntegrationStatus {
+  kReachedEnd,         // t == t_end
+  kCrossing,           // stopped at the first crossing; `crossed` says which surfaces
+  kStepSizeUnderflow,  // the step size fell below min_step
+  kTooManySteps,       // max_steps taken
+  kNonFinite,          // the state, the field or a tangent became NaN or infinite
+  kSolverFailure,      // a backend failure (CVODES return code), see message
+  kTooManyEvents,      // the hybrid driver's event limit (a Zeno trajectory?), never a backend's
+};
+
+/** Name of a status, e.g. "step-size underflow". */
+const char* to_string(IntegrationStatus status);
+
+struct IntegratorOptions {
+  double rtol = 1e-8;
+  double atol = 1e-10;
+  /** First step; 0 chooses one from the field. */
+  double initial_step = 0.0;
+  double max_step = std::numeric_limits<double>::infinity();
+  /** Smallest step relative to max(1, |t|) before giving up with kStepSizeUnderflow. */
+  double min_step = 1e-14;
+  long max_steps = 1000000;
+  /** Include the tangents in the error norm (the step size itself is never differentiated). */
+  bool tangents_in_error_norm = false;
+};
+
+struct SegmentRequest {
+  Signs sides;
+  double t0 = 0.0;
+  double t_end = 0.0;
+  Eigen::VectorXd x0;
+  /** d x k tangents at t0 (k may be 0). */
+  Eigen::MatrixXd v0;
+};
+
+struct SegmentResult {
+  IntegrationStatus status = IntegrationStatus::kReachedEnd;
+  std::string message;
+  /** Where the segment stopped: t_end, the crossing time, or where it failed. */
+  double t = 0.0;
+  Eigen::VectorXd x;
+  Eigen::MatrixXd v;
+  /** With kCrossing: the surfaces found crossing at t (lowest index first). */
+  std::vector<int> crossed;
+  long steps = 0;
+  long rejected_steps = 0;
+  long field_evaluations = 0;
+};
+
+/** A backend: integrates one segment. */
+class SegmentIntegrator {
+ public:
+  virtual ~SegmentIntegrator() = default;
+  virtual SegmentResult integrate(const SegmentModel& model, const SegmentRequest& request,
+                                  const IntegratorOptions& options) = 0;
+};
+
+}  // namespace bflow
+
+#endif  // BFLOW_INTEGRATORS_SEGMENT_H_

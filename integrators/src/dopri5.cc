@@ -1,0 +1,469 @@
+#include "bflow/integrators/dopri5.h"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include "bflow/core/errors.h"
+
+namespace bflow {
+
+const char* to_string(IntegrationStatus status) {
+  switch (status) {
+    case IntegrationStatus::kReachedEnd:
+      return "reached the end";
+    case IntegrationStatus::kCrossing:
+      return "surface crossing";
+    case IntegrationStatus::kStepSizeUnderflow:
+      return "step-size underflow";
+    case IntegrationStatus::kTooManySteps:
+      return "too many steps";
+    case IntegrationStatus::kNonFinite:
+      return "non-finite state";
+    case IntegrationStatus::kSolverFailure:
+      return "solver failure";
+    case IntegrationStatus::kTooManyEvents:
+      return "too many events";
+  }
+  return "unknown";
+}
+
+namespace {
+
+// Dormand & Prince (1980) tableau and Hairer's dense output of order 4.
+constexpr double c2 = 1.0 / 5, c3 = 3.0 / 10, c4 = 4.0 / 5, c5 = 8.0 / 9;
+constexpr double a21 = 1.0 / 5;
+constexpr double a31 = 3.0 / 40, a32 = 9.0 / 40;
+constexpr double a41 = 44.0 / 45, a42 = -56.0 / 15, a43 = 32.0 / 9;
+constexpr double a51 = 19372.0 / 6561, a52 = -25360.0 / 2187, a53 = 64448.0 / 6561,
+                 a54 = -212.0 / 729;
+constexpr double a61 = 9017.0 / 3168, a62 = -355.0 / 33, a63 = 46732.0 / 5247, a64 = 49.0 / 176,
+                 a65 = -5103.0 / 18656;
+constexpr double a71 = 35.0 / 384, a73 = 500.0 / 1113, a74 = 125.0 / 192, a75 = -2187.0 / 6784,
+                 a76 = 11.0 / 84;
+constexpr double e1 = 71.0 / 57600, e3 = -71.0 / 16695, e4 = 71.0 / 1920, e5 = -17253.0 / 339200,
+                 e6 = 22.0 / 525, e7 = -1.0 / 40;
+constexpr double d1 = -12715105075.0 / 11282082432, d3 = 87487479700.0 / 32700410799,
+                 d4 = -10690763975.0 / 1880347072, d5 = 701980252875.0 / 199316789632,
+                 d6 = -1453857185.0 / 822651844, d7 = 69997945.0 / 29380423;
+
+double value_of(double x) { return x; }
+template <int N>
+double value_of(const ceres::Jet<double, N>& x) {
+  return x.a;
+}
+bool all_finite(double x) { return std::isfinite(x); }
+template <int N>
+bool all_finite(const ceres::Jet<double, N>& x) {
+  return std::isfinite(x.a) && x.v.allFinite();
+}
+// Sum of squared scaled tangent errors and how many terms.
+double tangent_error(double, double) { return 0.0; }
+template <int N>
+double tangent_error(const ceres::Jet<double, N>& err, double scale) {
+  return (err.v / scale).squaredNorm() / N;
+}
+
+template <typename T>
+class Stepper {
+ public:
+  Stepper(const SegmentModel& model, Signs sides, const IntegratorOptions& options)
+      : model_(model),
+        sides_(sides),
+        options_(options),
+        d_(model.states()),
+        n_(model.surfaces()),
+        k1_(d_),
+        k2_(d_),
+        k3_(d_),
+        k4_(d_),
+        k5_(d_),
+        k6_(d_),
+        k7_(d_),
+        stage_(d_),
+        next_(d_),
+        values_(d_),
+        h_values_(n_),
+        g_(n_),
+        g_next_(n_),
+        armed_(n_) {}
+
+  SegmentResult run(double t0, double t_end, std::vector<T>& x, bool watch) {
+    SegmentResult result;
+    double t = t0;
+    result.t = t;
+    if (watch) {
+      surface_g(x, g_);
+      for (int j = 0; j < n_; ++j) armed_[j] = g_[j] > 0.0;
+    }
+    if (!field(x, k1_, t, result)) return result;
+    double h = options_.initial_step > 0.0 ? options_.initial_step : initial_step(x, t0, t_end);
+    bool rejected_last = false;
+    while (true) {
+      h = std::min(h, options_.max_step);
+      // Within 1% of the end, stretch the step to land on it (no sliver of a last step).
+      const bool last = t + 1.01 * h >= t_end;
+      if (last) h = t_end - t;
+      if (result.steps >= options_.max_steps) {
+        return fail(result, IntegrationStatus::kTooManySteps, t, x,
+                    "dopri5: " + std::to_string(result.steps) +
+                        " steps taken before t = " + format_number(t_end) + " (max_steps)");
+      }
+      if (h <= options_.min_step * std::max(1.0, std::abs(t)) && !last) {
+        return fail(result, IntegrationStatus::kStepSizeUnderflow, t, x,
+                    "dopri5: step size " + format_number(h) +
+                        " underflows at t = " + format_number(t) + " (min_step " +
+                        format_number(options_.min_step) + " relative to max(1, |t|))");
+      }
+      if (!attempt(x, h, t, result)) return result;
+      const double error = error_norm(x);
+      if (!std::isfinite(error)) {
+        // A non-finite trial state: retry smaller, as a rejection.
+        ++result.rejected_steps;
+        h *= 0.2;
+        rejected_last = true;
+        if (h <= options_.min_step * std::max(1.0, std::abs(t))) {
+          return fail(result, IntegrationStatus::kNonFinite, t, x,
+                      "dopri5: the state becomes non-finite just after t = " + format_number(t));
+        }
+        continue;
+      }
+      if (error > 1.0) {
+        ++result.rejected_steps;
+        h *= std::max(0.2, 0.9 * std::pow(error, -0.2));
+        rejected_last = true;
+        continue;
+      }
+      ++result.steps;
+      if (watch && n_ > 0) {
+        double theta = 0.0;
+        if (locate_crossing(x, h, theta, result.crossed)) {
+          dense(x, h, theta, next_);
+          x = next_;
+          result.t = t + theta * h;
+          result.status = IntegrationStatus::kCrossing;
+          return result;
+        }
+      }
+      t = last ? t_end : t + h;
+      x.swap(next_);
+      k1_.swap(k7_);  // first same as last
+      if (last) {
+        result.t = t;
+        result.status = IntegrationStatus::kReachedEnd;
+        return result;
+      }
+      const double grow =
+          error == 0.0 ? 5.0 : std::min(5.0, std::max(0.2, 0.9 * std::pow(error, -0.2)));
+      h *= rejected_last ? std::min(1.0, grow) : grow;
+      rejected_last = false;
+    }
+  }
+
+ private:
+  bool field(const std::vector<T>& x, std::vector<T>& dx, double t, SegmentResult& result) {
+    model_.field(x.data(), sides_, dx.data());
+    ++result.field_evaluations;
+    (void)t;
+    return true;
+  }
+
+  SegmentResult& fail(SegmentResult& result, IntegrationStatus status, double t,
+                      const std::vector<T>&, std::string message) {
+    result.status = status;
+    result.t = t;
+    result.message = std::move(message);
+    return result;
+  }
+
+  double scale(double a, double b) const {
+    return options_.atol + options_.rtol * std::max(std::abs(a), std::abs(b));
+  }
+
+  double initial_step(const std::vector<T>& x, double t0, double t_end) {
+    // Hairer, Norsett & Wanner, Solving ODEs I, II.4: from the size of x, x' and x''.
+    double size0 = 0, size1 = 0;
+    for (int i = 0; i < d_; ++i) {
+      const double s = scale(value_of(x[i]), 0.0);
+      size0 += std::pow(value_of(x[i]) / s, 2);
+      size1 += std::pow(value_of(k1_[i]) / s, 2);
+    }
+    size0 = std::sqrt(size0 / d_);
+    size1 = std::sqrt(size1 / d_);
+    double h0 = (size0 < 1e-5 || size1 < 1e-5) ? 1e-6 : 0.01 * size0 / size1;
+    h0 = std::min(h0, t_end - t0);
+    for (int i = 0; i < d_; ++i) stage_[i] = x[i] + h0 * k1_[i];
+    model_.field(stage_.data(), sides_, k2_.data());
+    double size2 = 0;
+    for (int i = 0; i < d_; ++i) {
+      size2 += std::pow(value_of(k2_[i] - k1_[i]) / scale(value_of(x[i]), 0.0), 2);
+    }
+    size2 = std::sqrt(size2 / d_) / h0;
+    const double h1 = std::max(size1, size2) <= 1e-15
+                          ? std::max(1e-6, h0 * 1e-3)
+                          : std::pow(0.01 / std::max(size1, size2), 0.2);
+    return std::min(100 * h0, h1);
+  }
+
+  // One trial step from x: fills k2..k7 and next_ (k7 = F(next_)).
+  bool attempt(const std::vector<T>& x, double h, double t, SegmentResult& result) {
+    for (int i = 0; i < d_; ++i) stage_[i] = x[i] + h * (a21 * k1_[i]);
+    field(stage_, k2_, t + c2 * h, result);
+    for (int i = 0; i < d_; ++i) stage_[i] = x[i] + h * (a31 * k1_[i] + a32 * k2_[i]);
+    field(stage_, k3_, t + c3 * h, result);
+    for (int i = 0; i < d_; ++i) {
+      stage_[i] = x[i] + h * (a41 * k1_[i] + a42 * k2_[i] + a43 * k3_[i]);
+    }
+    field(stage_, k4_, t + c4 * h, result);
+    for (int i = 0; i < d_; ++i) {
+      stage_[i] = x[i] + h * (a51 * k1_[i] + a52 * k2_[i] + a53 * k3_[i] + a54 * k4_[i]);
+    }
+    field(stage_, k5_, t + c5 * h, result);
+    for (int i = 0; i < d_; ++i) {
+      stage_[i] =
+          x[i] + h * (a61 * k1_[i] + a62 * k2_[i] + a63 * k3_[i] + a64 * k4_[i] + a65 * k5_[i]);
+    }
+    field(stage_, k6_, t + h, result);
+    for (int i = 0; i < d_; ++i) {
+      next_[i] =
+          x[i] + h * (a71 * k1_[i] + a73 * k3_[i] + a74 * k4_[i] + a75 * k5_[i] + a76 * k6_[i]);
+    }
+    field(next_, k7_, t + h, result);
+    last_h_ = h;
+    return true;
+  }
+
+  double error_norm(const std::vector<T>& x) const {
+    double sum = 0;
+    for (int i = 0; i < d_; ++i) {
+      if (!all_finite(next_[i]) || !all_finite(k7_[i])) return NAN;
+      const T err = last_h_ * (e1 * k1_[i] + e3 * k3_[i] + e4 * k4_[i] + e5 * k5_[i] + e6 * k6_[i] +
+                               e7 * k7_[i]);
+      const double s = scale(value_of(x[i]), value_of(next_[i]));
+      sum += std::pow(value_of(err) / s, 2);
+      if (options_.tangents_in_error_norm) sum += tangent_error(err, s);
+    }
+    return std::sqrt(sum / d_);
+  }
+
+  // x(t + theta h) on the dense output of the last accepted step.
+  void dense(const std::vector<T>& x, double h, double theta, std::vector<T>& out) const {
+    const double theta1 = 1.0 - theta;
+    for (int i = 0; i < d_; ++i) {
+      const T r2 = next_[i] - x[i];
+      const T r3 = h * k1_[i] - r2;
+      const T r4 = r2 - h * k7_[i] - r3;
+      const T r5 =
+          h * (d1 * k1_[i] + d3 * k3_[i] + d4 * k4_[i] + d5 * k5_[i] + d6 * k6_[i] + d7 * k7_[i]);
+      out[i] = x[i] + theta * (r2 + theta1 * (r3 + theta * (r4 + theta1 * r5)));
+    }
+  }
+
+  // g at theta on the dense output, values only.
+  void dense_g(const std::vector<T>& x, double h, double theta, std::vector<double>& g) {
+    const double theta1 = 1.0 - theta;
+    for (int i = 0; i < d_; ++i) {
+      const double x0 = value_of(x[i]);
+      const double r2 = value_of(next_[i]) - x0;
+      const double r3 = h * value_of(k1_[i]) - r2;
+      const double r4 = r2 - h * value_of(k7_[i]) - r3;
+      const double r5 = h * (d1 * value_of(k1_[i]) + d3 * value_of(k3_[i]) + d4 * value_of(k4_[i]) +
+                             d5 * value_of(k5_[i]) + d6 * value_of(k6_[i]) + d7 * value_of(k7_[i]));
+      values_[i] = x0 + theta * (r2 + theta1 * (r3 + theta * (r4 + theta1 * r5)));
+    }
+    signed_surfaces(g);
+  }
+
+  void signed_surfaces(std::vector<double>& g) {
+    model_.surface_values(values_.data(), h_values_.data());
+    for (int j = 0; j < n_; ++j) g[j] = sides_.plus(j) ? h_values_[j] : -h_values_[j];
+  }
+
+  void surface_g(const std::vector<T>& x, std::vector<double>& g) {
+    for (int i = 0; i < d_; ++i) values_[i] = value_of(x[i]);
+    signed_surfaces(g);
+  }
+
+  // After an accepted step x -> next_: the first crossing in (0, 1], if any.
+  bool locate_crossing(const std::vector<T>& x, double h, double& theta_first,
+                       std::vector<int>& crossed) {
+    surface_g(next_, g_next_);
+    std::vector<double> theta(static_cast<std::size_t>(n_), 2.0);
+    bool any = false;
+    for (int j = 0; j < n_; ++j) {
+      if (!armed_[j]) {
+        armed_[j] = g_next_[j] > 0.0;
+        continue;
+      }
+      if (g_next_[j] > 0.0) continue;
+      // Illinois iteration on [0, 1] with g(0) > 0 >= g(1).
+      double lo = 0.0, hi = 1.0, g_lo = g_[j], g_hi = g_next_[j];
+      int side = 0;
+      std::vector<double> g(static_cast<std::size_t>(n_));
+      for (int iteration = 0; iteration < 100 && hi - lo > 4e-16; ++iteration) {
+        double mid = (lo * g_hi - hi * g_lo) / (g_hi - g_lo);
+        if (!(mid > lo && mid < hi)) mid = 0.5 * (lo + hi);
+        dense_g(x, h, mid, g);
+        if (g[j] > 0.0) {
+          lo = mid;
+          g_lo = g[j];
+          if (side == -1) g_hi *= 0.5;
+          side = -1;
+        } else {
+          hi = mid;
+          g_hi = g[j];
+          if (side == 1) g_lo *= 0.5;
+          side = 1;
+        }
+      }
+      theta[static_cast<std::size_t>(j)] = hi;
+      any = true;
+    }
+    if (!any) {
+      g_.swap(g_next_);
+      return false;
+    }
+    theta_first = *std::min_element(theta.begin(), theta.end());
+    // Crossings within a few ulps of the first are the same crossing.
+    const double same = 8e-16 * std::max(1.0, 1.0 / h);
+    for (int j = 0; j < n_; ++j) {
+      if (theta[static_cast<std::size_t>(j)] <= theta_first + same) crossed.push_back(j);
+    }
+    return true;
+  }
+
+  const SegmentModel& model_;
+  const Signs sides_;
+  const IntegratorOptions& options_;
+  const int d_;
+  const int n_;
+  std::vector<T> k1_, k2_, k3_, k4_, k5_, k6_, k7_, stage_, next_;
+  std::vector<double> values_, h_values_, g_, g_next_;
+  std::vector<char> armed_;
+  double last_h_ = 0.0;
+};
+
+}  // namespace
+
+namespace internal {
+template <typename T>
+SegmentResult dopri5_segment(const SegmentModel& model, Signs sides, double t0, double t_end,
+                             const std::vector<T>& x0, const IntegratorOptions& options,
+                             std::vector<T>* x_out, bool watch) {
+  std::vector<T> x = x0;
+  Stepper<T> stepper(model, sides, options);
+  SegmentResult result = stepper.run(t0, t_end, x, watch);
+  *x_out = std::move(x);
+  return result;
+}
+}  // namespace internal
+
+namespace {
+
+void check_request(const SegmentModel& model, const SegmentRequest& request,
+                   const IntegratorOptions& options) {
+  const int d = model.states();
+  if (request.x0.size() != d || (request.v0.size() > 0 && request.v0.rows() != d)) {
+    throw InvalidArgument("dopri5: x0 has " + std::to_string(request.x0.size()) +
+                          " numbers and the tangents " + std::to_string(request.v0.rows()) +
+                          " rows; the model has d = " + std::to_string(d) + " states");
+  }
+  if (!request.x0.allFinite() || !request.v0.allFinite()) {
+    throw InvalidArgument("dopri5: x0 or the tangents are not finite: x0 = " +
+                          format_vector(request.x0));
+  }
+  if (request.sides.size() != model.surfaces()) {
+    throw InvalidArgument("dopri5: sides \"" + request.sides.str() + "\" name " +
+                          std::to_string(request.sides.size()) + " surfaces, the model has " +
+                          std::to_string(model.surfaces()));
+  }
+  if (!(request.t_end >= request.t0) || !std::isfinite(request.t_end)) {
+    throw InvalidArgument("dopri5: need finite t_end >= t0, got t0 = " + format_number(request.t0) +
+                          ", t_end = " + format_number(request.t_end));
+  }
+  if (!(options.rtol > 0) || !(options.atol > 0)) {
+    throw InvalidArgument("dopri5: rtol and atol must be positive, got rtol = " +
+                          format_number(options.rtol) + ", atol = " + format_number(options.atol));
+  }
+}
+
+template <typename T>
+SegmentResult run_chunk(const SegmentModel& model, const SegmentRequest& request,
+                        const IntegratorOptions& options, double t_end, Eigen::Index first,
+                        int width, bool watch, Eigen::MatrixXd* v) {
+  const int d = model.states();
+  std::vector<T> x(static_cast<std::size_t>(d));
+  for (int i = 0; i < d; ++i) {
+    if constexpr (std::is_same_v<T, double>) {
+      x[i] = request.x0[i];
+    } else {
+      x[i] = T(request.x0[i]);
+      for (int c = 0; c < width; ++c) x[i].v[c] = request.v0(i, first + c);
+    }
+  }
+  std::vector<T> x_end;
+  SegmentResult result = internal::dopri5_segment<T>(model, request.sides, request.t0, t_end, x,
+                                                     options, &x_end, watch);
+  result.x.resize(d);
+  for (int i = 0; i < d; ++i) {
+    if constexpr (std::is_same_v<T, double>) {
+      result.x[i] = x_end[i];
+    } else {
+      result.x[i] = x_end[i].a;
+      for (int c = 0; c < width; ++c) (*v)(i, first + c) = x_end[i].v[c];
+    }
+  }
+  return result;
+}
+
+}  // namespace
+
+SegmentResult Dopri5Integrator::integrate(const SegmentModel& model, const SegmentRequest& request,
+                                          const IntegratorOptions& options) {
+  check_request(model, request, options);
+  const Eigen::Index k = request.v0.cols();
+  Eigen::MatrixXd v(model.states(), k);
+  if (k == 0) {
+    SegmentResult result =
+        run_chunk<double>(model, request, options, request.t_end, 0, 0, true, &v);
+    result.v = v;
+    return result;
+  }
+  if (k == 1) {
+    SegmentResult result = run_chunk<Jet1>(model, request, options, request.t_end, 0, 1, true, &v);
+    result.v = v;
+    return result;
+  }
+  // The first chunk finds where the segment ends; the others integrate to exactly there.
+  SegmentResult result =
+      run_chunk<JetChunk>(model, request, options, request.t_end, 0,
+                          static_cast<int>(std::min<Eigen::Index>(k, kTangentChunk)), true, &v);
+  for (Eigen::Index first = kTangentChunk; first < k; first += kTangentChunk) {
+    const int width = static_cast<int>(std::min<Eigen::Index>(kTangentChunk, k - first));
+    const SegmentResult chunk =
+        run_chunk<JetChunk>(model, request, options, result.t, first, width, false, &v);
+    result.field_evaluations += chunk.field_evaluations;
+    if (chunk.status != IntegrationStatus::kReachedEnd) {
+      result.status = chunk.status;
+      result.message = chunk.message;
+      break;
+    }
+  }
+  result.v = v;
+  return result;
+}
+
+template SegmentResult internal::dopri5_segment<double>(const SegmentModel&, Signs, double, double,
+                                                        const std::vector<double>&,
+                                                        const IntegratorOptions&,
+                                                        std::vector<double>*, bool);
+template SegmentResult internal::dopri5_segment<Jet1>(const SegmentModel&, Signs, double, double,
+                                                      const std::vector<Jet1>&,
+                                                      const IntegratorOptions&, std::vector<Jet1>*,
+                                                      bool);
+template SegmentResult internal::dopri5_segment<JetChunk>(const SegmentModel&, Signs, double,
+                                                          double, const std::vector<JetChunk>&,
+                                                          const IntegratorOptions&,
+                                                          std::vector<JetChunk>*, bool);
+
+}  // namespace bflow

@@ -1,0 +1,287 @@
+#include "bflow/integrators/hybrid_flow.h"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include "bflow/core/errors.h"
+#include "bflow/integrators/dopri5.h"
+
+namespace bflow {
+
+Backend parse_backend(const std::string& name) {
+  if (name == "dopri5") return Backend::kDopri5;
+  if (name == "cvodes-bdf") return Backend::kCvodesBdf;
+  if (name == "cvodes-adams") return Backend::kCvodesAdams;
+  throw InvalidArgument("integrator \"" + name +
+                        "\" is unknown; choose dopri5, cvodes-bdf or cvodes-adams");
+}
+
+const char* to_string(Backend backend) {
+  switch (backend) {
+    case Backend::kDopri5:
+      return "dopri5";
+    case Backend::kCvodesBdf:
+      return "cvodes-bdf";
+    case Backend::kCvodesAdams:
+      return "cvodes-adams";
+  }
+  return "unknown";
+}
+
+namespace {
+
+std::string indices_text(const std::vector<int>& indices) {
+  std::string text = "[";
+  for (std::size_t i = 0; i < indices.size(); ++i) {
+    text += (i ? ", " : "") + std::to_string(indices[i]);
+  }
+  return text + "]";
+}
+
+Signs starting_sides(const SegmentModel& model, const Eigen::VectorXd& x0,
+                     const FlowOptions& options) {
+  const int n = model.surfaces();
+  if (options.initial_sides) {
+    if (options.initial_sides->size() != n) {
+      throw InvalidArgument("initial_sides \"" + options.initial_sides->str() + "\" names " +
+                            std::to_string(options.initial_sides->size()) +
+                            " surfaces, the model has " + std::to_string(n));
+    }
+    return *options.initial_sides;
+  }
+  Eigen::VectorXd h(n);
+  model.surface_values(x0.data(), h.data());
+  std::uint64_t bits = 0;
+  for (int j = 0; j < n; ++j) {
+    if (!std::isfinite(h[j]) || h[j] == 0.0) {
+      throw InvalidArgument("x0 = " + format_vector(x0) + " has h_" + std::to_string(j) + " = " +
+                            format_number(h[j]) + ": its side of surface " + std::to_string(j) +
+                            " is undecided; give FlowOptions::initial_sides");
+    }
+    if (h[j] > 0) bits |= std::uint64_t{1} << j;
+  }
+  return Signs(n, bits);
+}
+
+struct Event {
+  EventRecord record;
+  std::optional<JumpMap> jump;
+};
+
+Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs sides,
+                 const FlowOptions& options) {
+  const int d = model.states();
+  const int n_model = model.surfaces();
+  const Eigen::VectorXd& rho = segment.x;
+  Event event;
+  EventRecord& record = event.record;
+  record.t = segment.t;
+  record.rho = rho;
+  record.sides_before = sides;
+
+  const Eigen::MatrixXd dh = model.surface_normals(rho);
+  Eigen::VectorXd h(n_model);
+  model.surface_values(rho.data(), h.data());
+  Eigen::VectorXd f_before(d);
+  model.field(rho.data(), sides, f_before.data());
+
+  // Group: the surfaces found crossing, and those reached within the window at this speed.
+  std::vector<int> group = segment.crossed;
+  for (int j = 0; j < n_model; ++j) {
+    if (std::find(group.begin(), group.end(), j) != group.end()) continue;
+    const double s = sides.plus(j) ? 1.0 : -1.0;
+    const double g = s * h[j];
+    const double rate = s * dh.row(j).dot(f_before);
+    if (rate < 0.0 && g / -rate <= options.simultaneity_window) group.push_back(j);
+  }
+  std::sort(group.begin(), group.end());
+  record.surfaces = group;
+  const int n = static_cast<int>(group.size());
+
+  // Oriented normals: the flow crosses from the current side to the other.
+  Eigen::MatrixXd eta(n, d);
+  std::uint64_t flip = 0;
+  for (int k = 0; k < n; ++k) {
+    const int j = group[static_cast<std::size_t>(k)];
+    eta.row(k) = (sides.plus(j) ? -1.0 : 1.0) * dh.row(j);
+    flip |= std::uint64_t{1} << j;
+  }
+  record.sides_after = sides.flipped(flip);
+  Eigen::VectorXd f_after(d);
+  model.field(rho.data(), record.sides_after, f_after.data());
+  for (int k = 0; k < n; ++k) {
+    const int j = group[static_cast<std::size_t>(k)];
+    const double norm = eta.row(k).norm();
+    const double before = eta.row(k).dot(f_before) / (norm * f_before.norm());
+    const double after = eta.row(k).dot(f_after) / (norm * f_after.norm());
+    record.margin_before.push_back(before);
+    record.margin_after.push_back(after);
+    if (!(before >= options.grazing_threshold)) {
+      throw InvalidArgument(
+          "grazing at t = " + format_number(segment.t) + ": surface " + std::to_string(j) +
+          " is reached with eta . F / (|eta| |F|) = " + format_number(before) +
+          " < grazing_threshold " + format_number(options.grazing_threshold) +
+          " at rho = " + format_vector(rho) + "; the B-derivative does not exist at a tangency");
+    }
+    if (!(after > 0.0)) {
+      throw InvalidArgument(
+          "sliding at t = " + format_number(segment.t) + ": after crossing surface " +
+          std::to_string(j) + " the field F_" + record.sides_after.str() +
+          " points back into it (eta . F / (|eta| |F|) = " + format_number(after) +
+          ") at rho = " + format_vector(rho) +
+          "; the flow is not event-selected there. Simulate sliding with FESD (integrators/fesd)");
+    }
+  }
+
+  // Limits F_w(rho) for the words w of the group, placed into the model's sides.
+  auto full_sides = [sides, group](Signs w) {
+    std::uint64_t mask = 0;
+    for (std::size_t k = 0; k < group.size(); ++k) {
+      if (w.plus(static_cast<int>(k))) mask |= std::uint64_t{1} << group[k];
+    }
+    return sides.flipped(mask);
+  };
+  try {
+    if (n <= JumpMap::kMaxEnumeratedSurfaces) {
+      Eigen::MatrixXd table(d, Eigen::Index{1} << n);
+      for (Eigen::Index w = 0; w < table.cols(); ++w) {
+        model.field(rho.data(), full_sides(Signs(n, static_cast<std::uint64_t>(w))),
+                    table.col(w).data());
+      }
+      event.jump.emplace(eta, table);
+    } else {
+      // The model must outlive the jump map (documented on flow_derivative()).
+      event.jump.emplace(eta, [&model, rho, full_sides](Signs w, Eigen::Ref<Eigen::VectorXd> out) {
+        model.field(rho.data(), full_sides(w), out.data());
+      });
+    }
+  } catch (const InvalidArgument& e) {
+    throw InvalidArgument("event at t = " + format_number(segment.t) + ", surfaces " +
+                          indices_text(group) + ": " + e.what());
+  }
+  return event;
+}
+
+FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
+               double t_final, const Eigen::MatrixXd* directions, const FlowOptions& options,
+               FlowDerivative* derivative) {
+  const int d = model.states();
+  if (x0.size() != d || !x0.allFinite()) {
+    throw InvalidArgument("x0 must have d = " + std::to_string(d) + " finite numbers, got " +
+                          format_vector(x0));
+  }
+  if (!(t_final >= 0.0) || !std::isfinite(t_final)) {
+    throw InvalidArgument("t must be finite and >= 0, got " + format_number(t_final));
+  }
+  if (!(options.simultaneity_window >= 0.0)) {
+    throw InvalidArgument("simultaneity_window must be >= 0, got " +
+                          format_number(options.simultaneity_window));
+  }
+  FlowResult result;
+  result.sides = starting_sides(model, x0, options);
+  std::unique_ptr<SegmentIntegrator> integrator = make_integrator(options.backend);
+  SegmentRequest request;
+  request.sides = result.sides;
+  request.t0 = 0.0;
+  request.t_end = t_final;
+  request.x0 = x0;
+  if (derivative != nullptr) {
+    request.v0 = Eigen::MatrixXd::Identity(d, d);
+  } else if (directions != nullptr) {
+    request.v0 = *directions;
+  } else {
+    request.v0.resize(d, 0);
+  }
+  while (true) {
+    const SegmentResult segment = integrator->integrate(model, request, options.integrator);
+    result.steps += segment.steps;
+    result.field_evaluations += segment.field_evaluations;
+    result.t = segment.t;
+    result.x = segment.x;
+    if (segment.status == IntegrationStatus::kCrossing) {
+      Event event = make_event(model, segment, request.sides, options);
+      if (derivative != nullptr) {
+        derivative->append_transition(segment.v);
+        derivative->append_jump(std::move(*event.jump), segment.t);
+        request.v0 = Eigen::MatrixXd::Identity(d, d);
+      } else {
+        request.v0 = segment.v;
+        if (request.v0.cols() > 0) event.jump->apply_block(segment.v, request.v0);
+      }
+      request.sides = event.record.sides_after;
+      request.t0 = segment.t;
+      request.x0 = segment.x;
+      result.events.push_back(std::move(event.record));
+      if (static_cast<int>(result.events.size()) > options.max_events) {
+        result.status = IntegrationStatus::kTooManyEvents;
+        result.message = std::to_string(result.events.size()) +
+                         " events by t = " + format_number(segment.t) + " (max_events " +
+                         std::to_string(options.max_events) +
+                         "): the trajectory may be Zeno (events accumulating)";
+        break;
+      }
+      continue;
+    }
+    result.status = segment.status;
+    result.message = segment.message;
+    if (segment.status == IntegrationStatus::kReachedEnd) {
+      if (derivative != nullptr) {
+        derivative->append_transition(segment.v);
+        Eigen::VectorXd field(d);
+        model.field(segment.x.data(), request.sides, field.data());
+        derivative->set_time_derivative(field);
+      } else {
+        result.v = segment.v;
+      }
+    }
+    break;
+  }
+  result.sides = request.sides;
+  return result;
+}
+
+}  // namespace
+
+FlowResult simulate(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
+                    double t_final, const FlowOptions& options) {
+  return run(model, x0, t_final, nullptr, options, nullptr);
+}
+
+FlowResult simulate(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
+                    double t_final, const Eigen::Ref<const Eigen::MatrixXd>& directions,
+                    const FlowOptions& options) {
+  if (directions.rows() != model.states() || !directions.allFinite()) {
+    throw InvalidArgument("directions must be finite with d = " + std::to_string(model.states()) +
+                          " rows, got " + std::to_string(directions.rows()) + " x " +
+                          std::to_string(directions.cols()));
+  }
+  const Eigen::MatrixXd copy = directions;
+  return run(model, x0, t_final, &copy, options, nullptr);
+}
+
+FlowDerivative flow_derivative(const SegmentModel& model,
+                               const Eigen::Ref<const Eigen::VectorXd>& x0, double t_final,
+                               const FlowOptions& options, FlowResult* trajectory) {
+  FlowDerivative derivative(model.states());
+  FlowResult result = run(model, x0, t_final, nullptr, options, &derivative);
+  if (!result.ok()) {
+    throw InvalidArgument(std::string("flow_derivative: the simulation ended with ") +
+                          to_string(result.status) + ": " + result.message);
+  }
+  if (trajectory != nullptr) *trajectory = std::move(result);
+  return derivative;
+}
+
+std::unique_ptr<SegmentIntegrator> make_integrator(Backend backend) {
+  switch (backend) {
+    case Backend::kDopri5:
+      return std::make_unique<Dopri5Integrator>();
+    case Backend::kCvodesBdf:
+    case Backend::kCvodesAdams:
+      break;
+  }
+  throw InvalidArgument(std::string("integrator ") + to_string(backend) + " is not built");
+}
+
+}  // namespace bflow

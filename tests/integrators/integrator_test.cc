@@ -1,0 +1,166 @@
+// One suite for every backend: the variational solution of linear systems against exp(At),
+// tangents against one-sided finite differences, convergence as the tolerance tightens, and
+// crossings located where they are.
+#include <cmath>
+#include <memory>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <unsupported/Eigen/MatrixFunctions>
+
+#include "bflow/integrators/dopri5.h"
+#include "bflow/integrators/hybrid_flow.h"
+#include "bflow/integrators/model_adapter.h"
+
+namespace bflow {
+namespace {
+
+// x' = A x with a rotation-and-decay A; no surfaces.
+struct Linear {
+  static constexpr int kStates = 3;
+  static constexpr int kSurfaces = 0;
+  template <typename T>
+  void field(const T* x, Signs, T* xdot) const {
+    xdot[0] = -0.3 * x[0] + 2.0 * x[1];
+    xdot[1] = -2.0 * x[0] - 0.3 * x[1] + 0.5 * x[2];
+    xdot[2] = -1.5 * x[2];
+  }
+  template <typename T>
+  void surfaces(const T*, T*) const {}
+  static Eigen::Matrix3d matrix() {
+    Eigen::Matrix3d a;
+    a << -0.3, 2.0, 0.0, -2.0, -0.3, 0.5, 0.0, 0.0, -1.5;
+    return a;
+  }
+};
+
+// A pendulum with one surface, theta = 0.4, crossed from below.
+struct Pendulum {
+  static constexpr int kStates = 2;
+  static constexpr int kSurfaces = 1;
+  template <typename T>
+  void field(const T* x, Signs, T* xdot) const {
+    using std::sin;
+    xdot[0] = x[1];
+    xdot[1] = -sin(x[0]);
+  }
+  template <typename T>
+  void surfaces(const T* x, T* h) const {
+    h[0] = x[0] - 0.4;
+  }
+};
+
+class IntegratorTest : public ::testing::TestWithParam<Backend> {
+ protected:
+  FlowOptions options(double rtol) const {
+    FlowOptions o;
+    o.backend = GetParam();
+    o.integrator.rtol = rtol;
+    o.integrator.atol = rtol * 1e-2;
+    return o;
+  }
+};
+
+TEST_P(IntegratorTest, LinearSystemAndItsVariationalEquationMatchTheExponential) {
+  const auto model = adapt(Linear{});
+  const Eigen::Vector3d x0(1.0, -0.5, 2.0);
+  const double t = 2.5;
+  const Eigen::Matrix3d exp_at = (Linear::matrix() * t).exp();
+  const FlowResult r = simulate(model, x0, t, Eigen::Matrix3d::Identity(), options(1e-10));
+  ASSERT_TRUE(r.ok()) << r.message;
+  // Global error of a tolerance-controlled run: a small multiple of rtol over this horizon.
+  EXPECT_LE((r.x - exp_at * x0).norm(), 1e-8 * x0.norm());
+  EXPECT_LE((r.v - exp_at).norm(), 1e-8 * exp_at.norm());
+  EXPECT_TRUE(r.events.empty());
+}
+
+TEST_P(IntegratorTest, ErrorFallsWithTheTolerance) {
+  const auto model = adapt(Linear{});
+  const Eigen::Vector3d x0(1.0, -0.5, 2.0);
+  const Eigen::Vector3d exact = (Linear::matrix() * 2.5).exp() * x0;
+  const double loose = (simulate(model, x0, 2.5, options(1e-5)).x - exact).norm();
+  const double tight = (simulate(model, x0, 2.5, options(1e-10)).x - exact).norm();
+  EXPECT_GT(loose, 0.0);
+  // Five orders of tolerance must buy at least three orders of accuracy.
+  EXPECT_LT(tight, 1e-3 * loose) << "loose " << loose << " tight " << tight;
+}
+
+TEST_P(IntegratorTest, TangentsAgreeWithOneSidedDifferences) {
+  const auto model = adapt(Linear{});
+  const Eigen::Vector3d x0(0.2, 0.1, -0.3);
+  const Eigen::Vector3d dx(0.3, -1.0, 0.5);
+  const FlowOptions o = options(1e-11);
+  const FlowResult r = simulate(model, x0, 1.7, dx, o);
+  const double alpha = 1e-6;
+  const Eigen::VectorXd fd = (simulate(model, x0 + alpha * dx, 1.7, o).x - r.x) / alpha;
+  // Linear system: the difference is exact up to rounding eps |x| / alpha and rtol / alpha.
+  EXPECT_LE((r.v.col(0) - fd).norm(), 1e-4 * dx.norm());
+}
+
+TEST_P(IntegratorTest, CrossingIsLocatedAndItsSaltationIsTheIdentityForAContinuousField) {
+  const auto model = adapt(Pendulum{});
+  const Eigen::Vector2d x0(0.0, 1.0);
+  const FlowResult r = simulate(model, x0, 1.0, Eigen::Matrix2d::Identity(), options(1e-11));
+  ASSERT_TRUE(r.ok()) << r.message;
+  ASSERT_EQ(r.events.size(), 1u);
+  // The surface theta = 0.4 on the pendulum: the event lies on it to the tolerance.
+  EXPECT_NEAR(r.events[0].rho[0], 0.4, 1e-9);
+  EXPECT_EQ(r.events[0].sides_before.str(), "-");
+  EXPECT_EQ(r.events[0].sides_after.str(), "+");
+  // The field is the same on both sides, so the derivative is that of the smooth flow.
+  const FlowOptions o = options(1e-11);
+  const double alpha = 1e-6;
+  for (int c = 0; c < 2; ++c) {
+    const Eigen::Vector2d dx = Eigen::Matrix2d::Identity().col(c);
+    const Eigen::VectorXd fd = (simulate(model, x0 + alpha * dx, 1.0, o).x - r.x) / alpha;
+    EXPECT_LE((r.v.col(c) - fd).norm(), 1e-5) << "column " << c;
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Backends, IntegratorTest, ::testing::Values(Backend::kDopri5),
+                         [](const ::testing::TestParamInfo<Backend>& param) {
+                           std::string name = to_string(param.param);
+                           for (char& c : name)
+                             if (c == '-') c = '_';
+                           return name;
+                         });
+
+// Dormand-Prince is fifth order: at fixed steps, halving the step divides the error by ~32.
+TEST(Dopri5Test, FifthOrderConvergenceAtFixedSteps) {
+  const auto model = adapt(Linear{});
+  const Eigen::Vector3d x0(1.0, -0.5, 2.0);
+  const double t = 2.0;
+  const Eigen::Vector3d exact = (Linear::matrix() * t).exp() * x0;
+  double previous = 0;
+  for (int steps : {10, 20, 40, 80}) {
+    IntegratorOptions o;
+    o.rtol = o.atol = 1e10;  // accept every step
+    o.initial_step = o.max_step = t / steps;
+    Dopri5Integrator integrator;
+    SegmentRequest request{Signs(0), 0.0, t, x0, Eigen::MatrixXd(3, 0)};
+    const SegmentResult r = integrator.integrate(model, request, o);
+    ASSERT_EQ(r.status, IntegrationStatus::kReachedEnd);
+    EXPECT_EQ(r.steps, steps);
+    const double error = (r.x - exact).norm();
+    if (previous > 0) {
+      const double ratio = previous / error;
+      EXPECT_GT(ratio, 25.0) << steps << " steps";
+      EXPECT_LT(ratio, 40.0) << steps << " steps";
+    }
+    previous = error;
+  }
+}
+
+TEST(Dopri5Test, FailuresAreStatusesWithMessages) {
+  const auto model = adapt(Linear{});
+  IntegratorOptions o;
+  o.max_steps = 3;
+  Dopri5Integrator integrator;
+  SegmentRequest request{Signs(0), 0.0, 100.0, Eigen::Vector3d(1, 1, 1), Eigen::MatrixXd(3, 0)};
+  const SegmentResult r = integrator.integrate(model, request, o);
+  EXPECT_EQ(r.status, IntegrationStatus::kTooManySteps);
+  EXPECT_THAT(r.message, ::testing::HasSubstr("3 steps taken before t = 100"));
+}
+
+}  // namespace
+}  // namespace bflow
