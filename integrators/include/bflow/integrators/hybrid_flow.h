@@ -46,7 +46,10 @@ const char* to_string(Backend backend);
 struct FlowOptions {
   IntegratorOptions integrator;
   Backend backend = Backend::kDopri5;
-  /** Crossings of different surfaces closer in time than this form one event. */
+  /** Crossings of different surfaces closer in time than this form one event. Grouping
+      flips the sides of the later surfaces up to this much early, an error of at most
+      window x |F_after - F_before| in the state: keep it below the tolerance you need, and
+      above the spread that integration error puts on truly simultaneous crossings. */
   double simultaneity_window = 1e-9;
   /** A crossing with eta . F_before < grazing_threshold |eta| |F_before| is grazing. */
   double grazing_threshold = 1e-12;
