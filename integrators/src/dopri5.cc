@@ -97,7 +97,11 @@ class Stepper {
       for (int j = 0; j < n_; ++j) armed_[j] = g_[j] > 0.0;
     }
     if (!field(x, k1_, t, result)) return result;
-    double h = options_.initial_step > 0.0 ? options_.initial_step : initial_step(x, t0, t_end);
+    // The estimate can be tiny when x0 is near zero; steps then grow by up to 5x each.
+    double h = options_.initial_step > 0.0
+                   ? options_.initial_step
+                   : std::max(initial_step(x, t0, t_end),
+                              10 * options_.min_step * std::max(1.0, std::abs(t0)));
     bool rejected_last = false;
     while (true) {
       h = std::min(h, options_.max_step);
@@ -108,12 +112,6 @@ class Stepper {
         return fail(result, IntegrationStatus::kTooManySteps, t, x,
                     "dopri5: " + std::to_string(result.steps) +
                         " steps taken before t = " + format_number(t_end) + " (max_steps)");
-      }
-      if (h <= options_.min_step * std::max(1.0, std::abs(t)) && !last) {
-        return fail(result, IntegrationStatus::kStepSizeUnderflow, t, x,
-                    "dopri5: step size " + format_number(h) +
-                        " underflows at t = " + format_number(t) + " (min_step " +
-                        format_number(options_.min_step) + " relative to max(1, |t|))");
       }
       if (!attempt(x, h, t, result)) return result;
       const double error = error_norm(x);
@@ -132,6 +130,13 @@ class Stepper {
         ++result.rejected_steps;
         h *= std::max(0.2, 0.9 * std::pow(error, -0.2));
         rejected_last = true;
+        if (h <= options_.min_step * std::max(1.0, std::abs(t))) {
+          return fail(result, IntegrationStatus::kStepSizeUnderflow, t, x,
+                      "dopri5: step size " + format_number(h) + " underflows at t = " +
+                          format_number(t) + " (min_step " + format_number(options_.min_step) +
+                          " relative to max(1, |t|)): the error estimate " + format_number(error) +
+                          " does not fall as the step shrinks");
+        }
         continue;
       }
       ++result.steps;
