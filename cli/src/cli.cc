@@ -19,11 +19,12 @@ namespace {
 
 constexpr const char* kMainFooter = R"(Exit codes:
   0  success
-  1  the computation or its output failed (a non-finite result, a file that cannot be
-     written, gnuplot missing or failing)
+  1  the computation or its output failed (a non-finite result, a simulation that stops
+     early, a failed self-check of the demo, a file that cannot be written, gnuplot missing
+     or failing)
   2  bad input or usage: the one line on stderr, "error: <field>: <problem>", names it
 
-Run 'bflow jump --help' for the JSON format. Documentation: docs/cli.md.)";
+Run 'bflow jump --help' and 'bflow flow --help' for the formats. Documentation: docs/cli.md.)";
 
 constexpr const char* kJumpFooter =
     R"(Input, one JSON object (n surfaces meet at a point rho in d dimensions):
@@ -58,14 +59,55 @@ Example (one surface, x_0 = 0, in d = 2):
 Bad input exits with code 2 and one line on stderr, e.g.
   error: tangents[0]: has 3 numbers, expected d = 2)";
 
+constexpr const char* kFlowFooter =
+    R"(Scenes (--param key=value, each key at most once):
+  pwconst  xdot = 1 + Delta(sign(x)), h(x) = x, of [B] Section 3.1: all d surfaces meet at
+           rho = 0, reached at t = 1/2 from the default x0 = rho- = -F_--(0)/2.
+           d (default 2, at most 16); delta: the linear case Delta(b) = -delta b, |delta| < 1,
+           B = (1-delta)/(1+delta) I at t = 1 (default delta = 0.25); or seed: a random Delta
+           with entries in (-0.7, 1.5) (fixed generator), B piecewise linear. Default --t 1.
+  biped    the vertical-plane biped of [B] Section 3.2.4 (d = 6, x = (x, y, theta, xdot, ydot,
+           thetadot), 2 feet): variant (conservative | dissipative | mode-damping, the
+           default), m, J, g, leg_length, psi, kappa, beta. Default x0 = (0,1,0,0,0,0), from
+           which both feet touch together at t = 0.3968; default --t 0.6.
+
+Output, one JSON object (numbers print in the shortest form that reads back exactly):
+  "scene", "params", "integrator", "rtol", "atol", "t", "x0"
+  "x_t"         phi_t(x0)
+  "events"      [{"t", "surfaces" (crossed together), "rho", "sides_before", "sides_after",
+                  "margins": [{"before", "after"}] (eta . F / (|eta| |F|) per surface)}]
+  "directions"  one per --dx, in order (default e_0 ... e_{d-1}):
+     "dx", "image" (D phi_t(x0; dx)), "orders" (crossing order at each event),
+     "jacobian" (the piece active at dx, rows), and with --fd "fd": {"one_sided", "central"
+     (at the alpha of the smallest one-sided error), "alpha", "rows": [{"alpha",
+     "one_sided_error", "central_error"}] for alpha = 1e-2 ... 1e-10}
+If the simulation stops early (too many steps, step-size underflow, ...) the output has
+"status", "message", "t_reached" and the events so far, and the exit code is 1.
+
+Example ([B] (3.2): B = (1 - delta)/(1 + delta) I = 0.6 I; the rounding is the simulation's):
+  $ bflow flow --scene pwconst --param d=3 --dx 1,0,0 --compact
+  {..."events":[{"t":0.4999999999999999,"surfaces":[0,1,2],...}],"directions":[{"dx":
+  [1.0,0.0,0.0],"image":[0.6000000000000001,0.0,0.0],"orders":[[0,1,2]],"jacobian":[[0.6,
+  0.0,0.0],[0.0,0.6,0.0],[0.0,0.0,0.6]]}]}
+
+Bad input exits with code 2 and one line on stderr, e.g.
+  error: --dx[0]: has 2 numbers, expected d = 3 (comma-separated))";
+
 constexpr const char* kDemoFooter =
-    R"(The field xdot = 1 + Delta(sign(x)) of [B] Section 3.1 with d = 2 and a non-linear
-Delta: its flow through rho = 0 has a B-derivative with two pieces. Prints B on unit
-vectors every 45 degrees and on F_--, the pieces M_(0,1) and M_(1,0), and checks against
-the triangulation and one-sided differences of the exact flow. Writes DIR/demo_circle.dat
-(the unit circle at 720 points and its image under B, a piecewise ellipse),
-DIR/demo_circle.gp, and runs gnuplot on it to draw DIR/demo_circle.png. Exits with code 1
-if a check fails, a file cannot be written, or gnuplot is missing or fails.)";
+    R"(--scene biped (the default): the vertical-plane biped of [B] Section 3.2.4 with
+mode-dependent damping, falling from (0,1,0,0,0,0) to t = 0.6; both feet touch at the same
+instant (t = 0.3968), one event with two surfaces whose jump has two pieces. Prints the event,
+the pieces M_(0,1) and M_(1,0), B = D phi_0.6 on a table of directions against one-sided
+differences, and checks. Writes DIR/demo_biped.dat (a circle of (theta, y) perturbations
+and its image under B, projected on (theta, y): a piecewise ellipse), DIR/demo_biped.gp, and
+runs gnuplot to draw DIR/demo_biped.png.
+
+--scene pwconst: the field xdot = 1 + Delta(sign(x)) of [B] Section 3.1 with d = 2 and a
+non-linear Delta: B on unit vectors every 45 degrees and on F_--, the pieces, checks against
+the triangulation and one-sided differences of the exact flow; DIR/demo_circle.{dat,gp,png}.
+
+Exits with code 1 if a check fails, a file cannot be written, or gnuplot is missing or fails;
+the last line printed is the path of the PNG.)";
 
 }  // namespace
 
@@ -94,11 +136,53 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     jump->add_flag("--compact", jump_options.compact, "Print the result on one line");
     jump->footer(kJumpFooter);
 
+    FlowCommandOptions flow_options;
+    CLI::App* flow = app.add_subcommand(
+        "flow",
+        "Simulate a scene (pwconst or biped) across its switching surfaces and print the "
+        "B-derivative of its flow on directions (JSON)");
+    flow->add_option("--scene", flow_options.scene, "pwconst or biped (required)")
+        ->type_name("NAME");
+    flow->add_option("--param", flow_options.params,
+                     "A scene parameter, key=value; repeat for several")
+        ->type_name("KEY=VALUE")
+        ->allow_extra_args(false);
+    flow->add_option("--t", flow_options.t, "Final time, >= 0 (pwconst: 1, biped: 0.6)")
+        ->type_name("T");
+    flow->add_option("--x0", flow_options.x0,
+                     "Initial state, d comma-separated numbers (default: the scene's)")
+        ->type_name("A,B,...");
+    flow->add_option("--dx", flow_options.dx,
+                     "A direction, d comma-separated numbers; repeat for several (default: the "
+                     "unit vectors)")
+        ->type_name("A,B,...")
+        ->allow_extra_args(false);
+    flow->add_option("--rtol", flow_options.rtol, "Relative tolerance, > 0 (default 1e-8)")
+        ->type_name("R");
+    flow->add_option("--atol", flow_options.atol, "Absolute tolerance, > 0 (default 1e-10)")
+        ->type_name("A");
+    flow->add_option("--integrator", flow_options.integrator, "dopri5, cvodes-bdf or cvodes-adams")
+        ->type_name("NAME")
+        ->capture_default_str();
+    flow->add_option("--max-steps", flow_options.max_steps,
+                     "Steps per smooth segment before the run stops (default 1000000)")
+        ->type_name("N");
+    flow->add_flag("--fd", flow_options.fd,
+                   "Also one-sided and central finite differences of the simulated flow, "
+                   "alpha = 1e-2 ... 1e-10");
+    flow->add_flag("--compact", flow_options.compact, "Print the result on one line");
+    flow->footer(kFlowFooter);
+
     DemoOptions demo_options;
     CLI::App* demo = app.add_subcommand(
-        "demo", "Table and plot of B for the piecewise-constant field of [B] Section 3.1 in d = 2");
+        "demo",
+        "Table and plot of a B-derivative: the biped of [B] Section 3.2.4 (default) or the "
+        "piecewise-constant field of Section 3.1");
+    demo->add_option("--scene", demo_options.scene, "biped or pwconst")
+        ->type_name("NAME")
+        ->capture_default_str();
     demo->add_option("-o,--output", demo_options.output_dir,
-                     "Directory for demo_circle.{dat,gp,png}; created if missing")
+                     "Directory for the demo's .dat, .gp and .png; created if missing")
         ->type_name("DIR")
         ->capture_default_str();
     demo->add_flag("--no-plot", demo_options.no_plot,
@@ -106,12 +190,13 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     demo->footer(kDemoFooter);
 
     if (argc <= 1) {
-      report_error(err, "a command is required: jump or demo (see 'bflow --help')");
+      report_error(err, "a command is required: jump, flow or demo (see 'bflow --help')");
       return kExitBadInput;
     }
-    if (argv[1][0] != '-' && std::string(argv[1]) != "jump" && std::string(argv[1]) != "demo") {
-      report_error(err, "unknown command " + quote(argv[1]) +
-                            "; the commands are jump and demo (see 'bflow --help')");
+    const std::string command = argv[1];
+    if (command[0] != '-' && command != "jump" && command != "flow" && command != "demo") {
+      report_error(err, "unknown command " + quote(command) +
+                            "; the commands are jump, flow and demo (see 'bflow --help')");
       return kExitBadInput;
     }
     std::vector<std::string> args;
@@ -124,14 +209,17 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
       }
       std::string message = e.what();
       if (message.empty()) message = e.get_name();
-      const std::string where = jump->parsed() ? "jump: " : demo->parsed() ? "demo: " : "";
-      const std::string help = jump->parsed()   ? "bflow jump --help"
-                               : demo->parsed() ? "bflow demo --help"
-                                                : "bflow --help";
+      std::string name;
+      for (const CLI::App* sub : {jump, flow, demo}) {
+        if (sub->parsed()) name = sub->get_name();
+      }
+      const std::string where = name.empty() ? "" : name + ": ";
+      const std::string help = name.empty() ? "bflow --help" : "bflow " + name + " --help";
       report_error(err, where + message + " (see '" + help + "')");
       return kExitBadInput;
     }
     if (jump->parsed()) return run_jump_file(input, in, out, err, jump_options);
+    if (flow->parsed()) return run_flow(flow_options, out, err);
     return run_demo(demo_options, out, err);
   } catch (const std::exception& e) {
     report_error(err, std::string("internal: ") + e.what());

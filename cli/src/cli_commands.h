@@ -2,23 +2,31 @@
 //
 // Every entry point writes results to `out`, diagnostics to `err`, and returns the exit code:
 //   0  success;
-//   1  the computation or its output failed (a non-finite result, a file that cannot be
-//      written, gnuplot missing or failing, an unexpected internal error);
+//   1  the computation or its output failed (a non-finite result, a simulation that stops
+//      early, a failed self-check of the demo, a file that cannot be written, gnuplot missing
+//      or failing, an unexpected internal error);
 //   2  bad input or usage (malformed JSON, a field with the wrong shape or type, an unknown key,
-//      input the core rejects such as non-transversal limits, an unknown option, an
-//      unreadable input file).
+//      input the library rejects such as non-transversal limits or sliding, a malformed option
+//      value, an unknown option or scene, an unreadable input file).
 // On failure `err` receives exactly one line, "error: <field>: <problem>", naming the offending
-// field ("normals", "tangents[3]", "field_limits", "input", ...).
+// field or option ("normals", "tangents[3]", "--dx[1]", "--param", "flow", ...).
 //
 //   std::istringstream in(R"({"normals": [[1]], "field_limits": {"-": [1], "+": [2]},
 //                             "tangents": [[-1]]})");
 //   std::ostringstream out, err;
 //   int code = bflow::cli::run_jump(in, out, err);  // 0; out holds {"n": 1, "d": 1, ...}
+//
+//   bflow::cli::FlowCommandOptions flow;
+//   flow.scene = "pwconst";
+//   flow.params = {"d=3", "delta=0.25"};
+//   code = bflow::cli::run_flow(flow, out, err);    // 0; every "image" is 0.6 dx
 #ifndef BFLOW_CLI_CLI_COMMANDS_H_
 #define BFLOW_CLI_CLI_COMMANDS_H_
 
 #include <iosfwd>
+#include <optional>
 #include <string>
+#include <vector>
 
 namespace bflow::cli {
 
@@ -44,17 +52,56 @@ int run_jump(std::istream& in, std::ostream& out, std::ostream& err,
 int run_jump_file(const std::string& path, std::istream& stdin_stream, std::ostream& out,
                   std::ostream& err, const JumpOptions& options = {});
 
+/** `bflow flow`: the options as given on the command line. Numbers stay text so that
+    run_flow() validates them and names the option in its message. */
+struct FlowCommandOptions {
+  /** "pwconst" or "biped"; required. */
+  std::string scene;
+  /** "key=value", each key at most once: pwconst d, delta, seed; biped as bflow::set_param. */
+  std::vector<std::string> params;
+  /** Final time (default 1 for pwconst, 0.6 for biped), >= 0. */
+  std::optional<std::string> t;
+  /** "a,b,..." with d numbers (default: rho- = -F_--(0)/2 for pwconst, biped_initial_state()). */
+  std::optional<std::string> x0;
+  /** Directions "a,b,..." with d numbers each (default: the unit vectors e_0 ... e_{d-1}). */
+  std::vector<std::string> dx;
+  std::optional<std::string> rtol;
+  std::optional<std::string> atol;
+  /** "dopri5", "cvodes-bdf" or "cvodes-adams" (bflow::parse_backend). */
+  std::string integrator = "dopri5";
+  /** Steps per smooth segment before the run stops (bflow::IntegratorOptions::max_steps). */
+  std::optional<std::string> max_steps;
+  /** Also finite differences of the simulated flow for every direction (bflow::fd::compare). */
+  bool fd = false;
+  /** One line of JSON instead of the indented form. */
+  bool compact = false;
+};
+
+/** `bflow flow`: simulates the scene to t, computes the B-derivative of its flow once
+    (bflow::flow_derivative) and prints, as JSON, x(t), the events and, for every direction,
+    the image D phi_t(x0; dx), the crossing orders and the active Jacobian (see docs/cli.md).
+    Exit code 2 for a bad option or input the library rejects (sliding, grazing, x0 on a
+    surface), 1 when the simulation stops early (the JSON then has "status" and "message").
+    Never throws. */
+int run_flow(const FlowCommandOptions& options, std::ostream& out, std::ostream& err);
+
 struct DemoOptions {
-  /** Directory for demo_circle.{dat,gp,png}; created if missing. */
+  /** Directory for the demo's .dat, .gp and .png files; created if missing. */
   std::string output_dir = "bflow-demo";
   /** Skip running gnuplot (the .dat and .gp files are still written). */
   bool no_plot = false;
+  /** "biped" (the mode-damping biped of [B] Section 3.2.4, files demo_biped.*) or "pwconst"
+      (the planar piecewise-constant field of [B] Section 3.1, files demo_circle.*). */
+  std::string scene = "biped";
 };
 
-/** `bflow demo`: the piecewise-constant field of [B] Section 3.1 at rho = 0, d = 2 (see
-    docs/cli.md). Prints the table, the pieces and self-checks, writes the files, runs
-    gnuplot. Returns 1 when a self-check fails, a file cannot be written, or gnuplot fails.
-    Never throws. */
+/** `bflow demo`: with scene "biped", the B-derivative of the mode-damping biped's flow through
+    the touchdown of both feet: the event, the two pieces of its jump, a table of B against
+    one-sided differences, and the image of a circle of (theta, thetadot) perturbations (a
+    piecewise ellipse, [B] Figure 3.2). With scene "pwconst", the piecewise-constant field of
+    [B] Section 3.1 at rho = 0, d = 2. Prints the tables and self-checks, writes the files, runs
+    gnuplot (see docs/cli.md). Returns 2 for an unknown scene or an empty directory name, 1
+    when a self-check fails, a file cannot be written, or gnuplot fails. Never throws. */
 int run_demo(const DemoOptions& options, std::ostream& out, std::ostream& err);
 
 /** The whole command line (argv[0] is ignored): parses it and dispatches. Never throws. */

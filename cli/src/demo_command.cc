@@ -1,25 +1,19 @@
-// `bflow demo`: the B-derivative of the piecewise-constant field of [B] Section 3.1 at rho = 0
-// in d = 2, non-linear case (Figure 3.1, right): a table of B on unit vectors, the two pieces,
-// self-checks against independent computations, and a plot of the unit circle and its image,
-// a piecewise ellipse.
+// `bflow demo`: dispatch on --scene, and the pwconst scene: the B-derivative of the
+// piecewise-constant field of [B] Section 3.1 at rho = 0 in d = 2, non-linear case (Figure 3.1,
+// right): a table of B on unit vectors, the two pieces, self-checks against independent
+// computations, and a plot of the unit circle and its image, a piecewise ellipse. The biped
+// scene is in demo_biped.cc.
 //
 // Every number printed comes from the library (JumpMap, Triangulation) or from the exact flow
 // of the field (straight lines between crossings), which checks B by one-sided differences.
-#include <spawn.h>
-#include <sys/wait.h>
-
 #include <algorithm>
-#include <cerrno>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
 #include <exception>
 #include <filesystem>
-#include <fstream>
 #include <ostream>
 #include <sstream>
 #include <string>
-#include <system_error>
 #include <vector>
 
 #include <Eigen/Core>
@@ -31,8 +25,7 @@
 #include "bflow/examples/piecewise_constant.h"
 #include "cli_commands.h"
 #include "cli_util.h"
-
-extern char** environ;  // NOLINT: POSIX, for posix_spawnp
+#include "demo_util.h"
 
 namespace bflow::cli {
 namespace {
@@ -51,46 +44,10 @@ constexpr double kBarycentricTolerance = 1e-12;
 constexpr double kDifferenceStep = 1e-6;
 constexpr double kDifferenceTolerance = 1e-8;
 
-class DemoError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
-
-template <typename... Args>
-std::string formatted(const char* format, Args... args) {
-  char buffer[256];
-  std::snprintf(buffer, sizeof buffer, format, args...);
-  return buffer;
-}
-
-std::string vector_text(const Eigen::Ref<const Eigen::VectorXd>& v) {
-  std::string text = "(";
-  for (Eigen::Index i = 0; i < v.size(); ++i) {
-    // Rounding noise such as cos(90 deg) = 6e-17 would print as "-0.000000".
-    const double shown = std::fabs(v[i]) < 5e-7 ? 0.0 : v[i];
-    text += formatted("%9.6f", shown) + (i + 1 < v.size() ? ", " : ")");
-  }
-  return text;
-}
-
-std::string order_text(const std::vector<int>& order) {
-  std::string text = "(";
-  for (std::size_t k = 0; k < order.size(); ++k) {
-    text += std::to_string(order[k]) + (k + 1 < order.size() ? "," : ")");
-  }
-  return text;
-}
-
 std::string times_text(const std::vector<double>& times) {
   return vector_text(
       Eigen::Map<const Eigen::VectorXd>(times.data(), static_cast<Eigen::Index>(times.size())));
 }
-
-struct Check {
-  std::string what;
-  double value;
-  double tolerance;
-};
 
 int piece_index(const Pieces& pieces, const std::vector<int>& order) {
   for (std::size_t k = 0; k < pieces.size(); ++k) {
@@ -113,16 +70,6 @@ void write_samples(std::ostream& out, const std::vector<Sample>& samples) {
     out << formatted("%9.4f", s.angle_deg) << ' ' << format_number(s.dx[0]) << ' '
         << format_number(s.dx[1]) << ' ' << format_number(s.image[0]) << ' '
         << format_number(s.image[1]) << ' ' << s.piece << '\n';
-  }
-}
-
-void write_file(const fs::path& path, const std::string& contents) {
-  std::ofstream file(path, std::ios::binary);
-  if (file) file << contents;
-  if (file) file.close();
-  if (!file) {
-    throw DemoError("demo: cannot write " + quote(path.string(), 200) + ": " +
-                    std::strerror(errno));
   }
 }
 
@@ -173,50 +120,9 @@ std::string gnuplot_script(const Pieces& pieces, double range) {
   return gp.str();
 }
 
-// Runs `gnuplot demo_circle.gp` in `dir`; throws DemoError naming the command on failure.
-void run_gnuplot(const fs::path& dir) {
-  const std::string command =
-      "gnuplot demo_circle.gp (in directory " + quote(dir.string(), 200) + ")";
-  std::error_code ec;
-  fs::remove(dir / "demo_circle.png", ec);  // a stale plot must not pass for a new one
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_addchdir_np(&actions, dir.c_str());
-  char program[] = "gnuplot";
-  char script[] = "demo_circle.gp";
-  char* argv[] = {program, script, nullptr};
-  pid_t pid = 0;
-  const int spawn_error = posix_spawnp(&pid, program, &actions, nullptr, argv, environ);
-  posix_spawn_file_actions_destroy(&actions);
-  if (spawn_error != 0) {
-    throw DemoError("demo: cannot run " + command + ": " + std::strerror(spawn_error) +
-                    "; install gnuplot (Debian: gnuplot-nox) or pass --no-plot");
-  }
-  int status = 0;
-  while (waitpid(pid, &status, 0) < 0) {
-    if (errno != EINTR) {
-      throw DemoError("demo: waiting for " + command + " failed: " + std::strerror(errno));
-    }
-  }
-  if (WIFSIGNALED(status)) {
-    throw DemoError("demo: " + command + " was killed by signal " +
-                    std::to_string(WTERMSIG(status)));
-  }
-  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
-    throw DemoError("demo: " + command + " failed with exit status " +
-                    std::to_string(WEXITSTATUS(status)) + " (gnuplot's message is above)");
-  }
-  const auto size = fs::file_size(dir / "demo_circle.png", ec);
-  if (ec || size == 0) {
-    throw DemoError("demo: " + command + " exited normally but did not write demo_circle.png");
-  }
-}
+}  // namespace
 
-int demo(const DemoOptions& options, std::ostream& out, std::ostream& err) {
-  if (options.output_dir.empty()) {
-    report_error(err, "--output: the directory name is empty");
-    return kExitBadInput;
-  }
+int demo_pwconst(const DemoOptions& options, std::ostream& out, std::ostream& /*err*/) {
   const auto model = examples::PiecewiseConstantField::planar_demo();
   const int d = model.states();
   const Eigen::MatrixXd eta = Eigen::MatrixXd::Identity(d, d);
@@ -327,24 +233,11 @@ int demo(const DemoOptions& options, std::ostream& out, std::ostream& err) {
       {"max |(phi(1, rho- + a dx) - rho+)/a - B(dx)|, a = 1e-6, rows above (exact flow)",
        max_difference_error, kDifferenceTolerance},
   };
-  out << "\nChecks against independent computations (value <= tolerance):\n";
-  bool all_passed = true;
-  for (const Check& check : checks) {
-    const bool passed = check.value <= check.tolerance;
-    all_passed = all_passed && passed;
-    out << formatted("  %-6s %.1e %s %.0e  %s\n", passed ? "ok" : "FAILED", check.value,
-                     passed ? "<=" : "> ", check.tolerance, check.what.c_str());
-  }
-  out << (all_passed ? "All checks passed.\n" : "SOME CHECKS FAILED.\n");
+  const bool all_passed = print_checks(out, checks);
 
   // Files.
   const fs::path dir(options.output_dir);
-  std::error_code ec;
-  fs::create_directories(dir, ec);
-  if (ec || !fs::is_directory(dir)) {
-    throw DemoError("demo: cannot create directory " + quote(dir.string(), 200) + ": " +
-                    (ec ? ec.message() : std::string("a file of that name exists")));
-  }
+  make_directory(dir);
 
   // The arcs of the two pieces, bounded exactly by the rays +-p where the order changes (for
   // n = d = 2 the cones are the half-planes on either side of the line spanned by F_--).
@@ -413,17 +306,25 @@ int demo(const DemoOptions& options, std::ostream& out, std::ostream& err) {
         << " && gnuplot demo_circle.gp\n";
   } else {
     out << "Running gnuplot demo_circle.gp in " << dir.string() << '\n' << std::flush;
-    run_gnuplot(dir);
+    run_gnuplot(dir, "demo_circle.gp", "demo_circle.png");
     out << png_path.string() << '\n';
   }
   return all_passed ? kExitOk : kExitFailure;
 }
 
-}  // namespace
-
 int run_demo(const DemoOptions& options, std::ostream& out, std::ostream& err) {
+  if (options.scene != "biped" && options.scene != "pwconst") {
+    report_error(err, "--scene: unknown demo scene " + quote(options.scene) +
+                          "; the demo scenes are biped and pwconst");
+    return kExitBadInput;
+  }
+  if (options.output_dir.empty()) {
+    report_error(err, "--output: the directory name is empty");
+    return kExitBadInput;
+  }
   try {
-    return demo(options, out, err);
+    return options.scene == "biped" ? demo_biped(options, out, err)
+                                    : demo_pwconst(options, out, err);
   } catch (const DemoError& e) {
     out << std::flush;
     report_error(err, e.what());

@@ -32,14 +32,13 @@
 #include "bflow/core/signs.h"
 #include "bflow/core/triangulation.h"
 #include "cli_commands.h"
+#include "cli_json.h"
 #include "cli_util.h"
 
 namespace bflow::cli {
 namespace {
 
 using Json = nlohmann::json;
-// Output keeps the documented key order (n, d, results, pieces, triangulation).
-using OrderedJson = nlohmann::ordered_json;
 
 // Bad input; the message starts with the field. Exit code 2.
 class InputError : public std::runtime_error {
@@ -332,24 +331,6 @@ void check_finite(const Eigen::Ref<const Eigen::MatrixXd>& values, const std::st
   }
 }
 
-OrderedJson vector_json(const Eigen::Ref<const Eigen::VectorXd>& v) {
-  OrderedJson out = OrderedJson::array();
-  for (Eigen::Index i = 0; i < v.size(); ++i) out.push_back(v[i]);
-  return out;
-}
-
-OrderedJson rows_json(const Eigen::Ref<const Eigen::MatrixXd>& m) {
-  OrderedJson out = OrderedJson::array();
-  for (Eigen::Index r = 0; r < m.rows(); ++r) out.push_back(vector_json(m.row(r).transpose()));
-  return out;
-}
-
-OrderedJson columns_json(const Eigen::Ref<const Eigen::MatrixXd>& m) {
-  OrderedJson out = OrderedJson::array();
-  for (Eigen::Index c = 0; c < m.cols(); ++c) out.push_back(vector_json(m.col(c)));
-  return out;
-}
-
 // Words in binary order (column b.bits() of the core's tables): "--", "+-", "-+", "++".
 OrderedJson words_json(const Eigen::MatrixXd& columns, int n) {
   OrderedJson out = OrderedJson::object();
@@ -357,66 +338,6 @@ OrderedJson words_json(const Eigen::MatrixXd& columns, int n) {
     out[Signs(n, static_cast<std::uint64_t>(w)).str()] = vector_json(columns.col(w));
   }
   return out;
-}
-
-// nlohmann prints a double in the shortest form that reads back to the same double.
-std::string scalar_text(const OrderedJson& v) {
-  return v.dump(-1, ' ', false, OrderedJson::error_handler_t::replace);
-}
-
-bool is_primitive_array(const OrderedJson& v) {
-  return v.is_array() &&
-         std::all_of(v.begin(), v.end(), [](const OrderedJson& e) { return e.is_primitive(); });
-}
-
-// A vector, or a small matrix, fits on one line.
-bool fits_one_line(const OrderedJson& v) {
-  if (is_primitive_array(v)) return true;
-  if (!v.is_array()) return false;
-  std::size_t count = 0;
-  for (const auto& e : v) {
-    if (!is_primitive_array(e)) return false;
-    count += e.size();
-  }
-  return count <= 16;
-}
-
-void write_inline(std::ostream& out, const OrderedJson& v) {
-  if (!v.is_array()) {
-    out << scalar_text(v);
-    return;
-  }
-  out << '[';
-  for (std::size_t i = 0; i < v.size(); ++i) {
-    if (i > 0) out << ", ";
-    write_inline(out, v[i]);
-  }
-  out << ']';
-}
-
-// Indented JSON, but vectors and small matrices on one line: readable and still exact.
-void write_pretty(std::ostream& out, const OrderedJson& v, int level) {
-  const std::string pad(static_cast<std::size_t>(2 * (level + 1)), ' ');
-  const std::string close_pad(static_cast<std::size_t>(2 * level), ' ');
-  if (v.is_object() && !v.empty()) {
-    out << "{\n";
-    bool first = true;
-    for (auto it = v.begin(); it != v.end(); ++it) {
-      out << (first ? "" : ",\n") << pad << scalar_text(OrderedJson(it.key())) << ": ";
-      write_pretty(out, it.value(), level + 1);
-      first = false;
-    }
-    out << '\n' << close_pad << '}';
-  } else if (v.is_array() && !v.empty() && !fits_one_line(v)) {
-    out << "[\n";
-    for (std::size_t i = 0; i < v.size(); ++i) {
-      out << (i == 0 ? "" : ",\n") << pad;
-      write_pretty(out, v[i], level + 1);
-    }
-    out << '\n' << close_pad << ']';
-  } else {
-    write_inline(out, v);
-  }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -531,11 +452,7 @@ int run_jump_text(const std::string& text, std::ostream& out, std::ostream& err,
     const OrderedJson result = evaluate(parse_document(text));
     // Everything is formatted before anything is written: no partial JSON on failure.
     std::ostringstream buffer;
-    if (options.compact) {
-      buffer << result.dump(-1, ' ', false, OrderedJson::error_handler_t::replace);
-    } else {
-      write_pretty(buffer, result, 0);
-    }
+    write_json(buffer, result, options.compact);
     buffer << '\n';
     out << buffer.str() << std::flush;
     if (!out) {

@@ -1,14 +1,22 @@
-# Runs `bflow demo --output OUTPUT_DIR` and checks that it drew a non-empty PNG whose path is the
-# last line printed (ctest: cmake -P).
+# Runs `bflow demo --output OUTPUT_DIR [--scene SCENE]` and checks that it drew a non-empty PNG
+# whose path is the last line printed (ctest: cmake -P).
 #   BFLOW       the executable
 #   OUTPUT_DIR  the directory for the demo's files (emptied first)
+#   SCENE       optional: biped (the default, demo_biped.png) or pwconst (demo_circle.png)
 file(REMOVE_RECURSE "${OUTPUT_DIR}")
-execute_process(COMMAND "${BFLOW}" demo --output "${OUTPUT_DIR}"
+if(NOT DEFINED SCENE OR SCENE STREQUAL "biped")
+  set(scene_args "")
+  set(png_name demo_biped.png)
+else()
+  set(scene_args --scene "${SCENE}")
+  set(png_name demo_circle.png)
+endif()
+execute_process(COMMAND "${BFLOW}" demo --output "${OUTPUT_DIR}" ${scene_args}
                 RESULT_VARIABLE code OUTPUT_VARIABLE out ERROR_VARIABLE err)
 if(NOT code EQUAL 0)
   message(FATAL_ERROR "bflow demo: exit code ${code}\nstdout: ${out}\nstderr: ${err}")
 endif()
-set(png "${OUTPUT_DIR}/demo_circle.png")
+set(png "${OUTPUT_DIR}/${png_name}")
 if(NOT EXISTS "${png}")
   message(FATAL_ERROR "bflow demo did not write ${png}\nstdout: ${out}")
 endif()
@@ -17,7 +25,7 @@ file(READ "${png}" magic LIMIT 8 HEX)
 if(size EQUAL 0 OR NOT magic STREQUAL "89504e470d0a1a0a")
   message(FATAL_ERROR "${png} is not a PNG (size ${size}, first bytes ${magic})")
 endif()
-if(NOT out MATCHES "All checks passed\\.\n" OR NOT out MATCHES "demo_circle\\.png\n$")
+if(NOT out MATCHES "All checks passed\\.\n" OR NOT out MATCHES "${png_name}\n$")
   message(FATAL_ERROR "bflow demo: unexpected output:\n${out}")
 endif()
 message(STATUS "${png}: ${size} bytes")

@@ -9,6 +9,8 @@
 #ifndef BFLOW_EXAMPLES_PIECEWISE_CONSTANT_H_
 #define BFLOW_EXAMPLES_PIECEWISE_CONSTANT_H_
 
+#include <cstdint>
+#include <random>
 #include <string>
 #include <utility>
 
@@ -52,7 +54,30 @@ class PiecewiseConstantField {
     return PiecewiseConstantField(std::move(table));
   }
 
-  /** The non-linear two-dimensional case shown by `bflow demo`. */
+  /** A random Delta for tests and `bflow flow --scene pwconst --param seed=S`: every entry
+      uniform in (-0.7, 1.5), drawn column by column (column b.bits() is Delta(b)) from
+      std::mt19937_64 seeded with `seed`. The raw 64-bit draws are mapped to (0, 1) by hand,
+      not by std::uniform_real_distribution (whose algorithm the standard leaves open), so a
+      seed gives the same table with every standard library.
+      @throws InvalidArgument unless d in [1, 16]. */
+  static PiecewiseConstantField random(int d, std::uint64_t seed) {
+    if (d < 1 || d > 16) {
+      throw InvalidArgument("PiecewiseConstantField::random: d must be in [1, 16], got " +
+                            std::to_string(d));
+    }
+    std::mt19937_64 rng(seed);
+    Eigen::MatrixXd table(d, Eigen::Index{1} << d);
+    for (Eigen::Index w = 0; w < table.cols(); ++w) {
+      for (int i = 0; i < d; ++i) {
+        // The top 53 bits, centred in their interval: u in (0, 1).
+        const double u = (static_cast<double>(rng() >> 11) + 0.5) * 0x1.0p-53;
+        table(i, w) = -0.7 + 2.2 * u;
+      }
+    }
+    return PiecewiseConstantField(std::move(table));
+  }
+
+  /** The non-linear two-dimensional case shown by `bflow demo --scene pwconst`. */
   static PiecewiseConstantField planar_demo() {
     Eigen::MatrixXd table(2, 4);
     table.col(0) << 0.0, 0.0;    // "--"

@@ -1,0 +1,108 @@
+#include "demo_util.h"
+
+#include <spawn.h>
+#include <sys/wait.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <system_error>
+
+#include "cli_util.h"
+
+extern char** environ;  // NOLINT: POSIX, for posix_spawnp
+
+namespace bflow::cli {
+
+namespace fs = std::filesystem;
+
+std::string vector_text(const Eigen::Ref<const Eigen::VectorXd>& v) {
+  std::string text = "(";
+  for (Eigen::Index i = 0; i < v.size(); ++i) {
+    const double shown = std::fabs(v[i]) < 5e-7 ? 0.0 : v[i];
+    text += formatted("%9.6f", shown) + (i + 1 < v.size() ? ", " : ")");
+  }
+  return text;
+}
+
+std::string order_text(const std::vector<int>& order) {
+  std::string text = "(";
+  for (std::size_t k = 0; k < order.size(); ++k) {
+    text += std::to_string(order[k]) + (k + 1 < order.size() ? "," : ")");
+  }
+  return text;
+}
+
+bool print_checks(std::ostream& out, const std::vector<Check>& checks) {
+  out << "\nChecks against independent computations (value against its bound):\n";
+  bool all_passed = true;
+  for (const Check& check : checks) {
+    const bool passed = check.lower_bound ? check.value >= check.bound : check.value <= check.bound;
+    all_passed = all_passed && passed;
+    const char* relation = check.lower_bound ? (passed ? ">=" : "< ") : (passed ? "<=" : "> ");
+    out << formatted("  %-6s %.1e %s %.0e  %s\n", passed ? "ok" : "FAILED", check.value, relation,
+                     check.bound, check.what.c_str());
+  }
+  out << (all_passed ? "All checks passed.\n" : "SOME CHECKS FAILED.\n");
+  return all_passed;
+}
+
+void make_directory(const fs::path& dir) {
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec || !fs::is_directory(dir)) {
+    throw DemoError("demo: cannot create directory " + quote(dir.string(), 200) + ": " +
+                    (ec ? ec.message() : std::string("a file of that name exists")));
+  }
+}
+
+void write_file(const fs::path& path, const std::string& contents) {
+  std::ofstream file(path, std::ios::binary);
+  if (file) file << contents;
+  if (file) file.close();
+  if (!file) {
+    throw DemoError("demo: cannot write " + quote(path.string(), 200) + ": " +
+                    std::strerror(errno));
+  }
+}
+
+void run_gnuplot(const fs::path& dir, const std::string& script, const std::string& png) {
+  const std::string command =
+      "gnuplot " + script + " (in directory " + quote(dir.string(), 200) + ")";
+  std::error_code ec;
+  fs::remove(dir / png, ec);  // a stale plot must not pass for a new one
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addchdir_np(&actions, dir.c_str());
+  std::string program = "gnuplot";
+  std::string script_arg = script;
+  char* argv[] = {program.data(), script_arg.data(), nullptr};
+  pid_t pid = 0;
+  const int spawn_error = posix_spawnp(&pid, program.c_str(), &actions, nullptr, argv, environ);
+  posix_spawn_file_actions_destroy(&actions);
+  if (spawn_error != 0) {
+    throw DemoError("demo: cannot run " + command + ": " + std::strerror(spawn_error) +
+                    "; install gnuplot (Debian: gnuplot-nox) or pass --no-plot");
+  }
+  int status = 0;
+  while (waitpid(pid, &status, 0) < 0) {
+    if (errno != EINTR) {
+      throw DemoError("demo: waiting for " + command + " failed: " + std::strerror(errno));
+    }
+  }
+  if (WIFSIGNALED(status)) {
+    throw DemoError("demo: " + command + " was killed by signal " +
+                    std::to_string(WTERMSIG(status)));
+  }
+  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+    throw DemoError("demo: " + command + " failed with exit status " +
+                    std::to_string(WEXITSTATUS(status)) + " (gnuplot's message is above)");
+  }
+  const auto size = fs::file_size(dir / png, ec);
+  if (ec || size == 0) {
+    throw DemoError("demo: " + command + " exited normally but did not write " + png);
+  }
+}
+
+}  // namespace bflow::cli

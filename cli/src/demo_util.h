@@ -1,0 +1,67 @@
+// Helpers shared by the scenes of `bflow demo`: formatted text, files, checks and gnuplot.
+#ifndef BFLOW_CLI_DEMO_UTIL_H_
+#define BFLOW_CLI_DEMO_UTIL_H_
+
+#include <cstdio>
+#include <filesystem>
+#include <ostream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "cli_commands.h"
+
+namespace bflow::cli {
+
+/** A failure of the demo (a file, gnuplot); run_demo() prints it and returns 1. */
+class DemoError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/** snprintf into a string (at most 255 characters). */
+template <typename... Args>
+std::string formatted(const char* format, Args... args) {
+  char buffer[256];
+  std::snprintf(buffer, sizeof buffer, format, args...);
+  return buffer;
+}
+
+/** "( 1.000000,  0.500000)"; entries below 5e-7 in magnitude print as 0 (rounding noise such
+    as cos(90 deg) = 6e-17 would print as "-0.000000"). */
+std::string vector_text(const Eigen::Ref<const Eigen::VectorXd>& v);
+
+/** "(0,1)". */
+std::string order_text(const std::vector<int>& order);
+
+/** A self-check: passed when value <= bound, or value >= bound for a lower bound. */
+struct Check {
+  std::string what;
+  double value;
+  double bound;
+  bool lower_bound = false;
+};
+
+/** Prints one line per check and a verdict; returns true when all passed. */
+bool print_checks(std::ostream& out, const std::vector<Check>& checks);
+
+/** Creates `dir` (and its parents). @throws DemoError naming it. */
+void make_directory(const std::filesystem::path& dir);
+
+/** Writes `contents` to `path`. @throws DemoError naming the file and the reason. */
+void write_file(const std::filesystem::path& path, const std::string& contents);
+
+/** Runs `gnuplot SCRIPT` in `dir` and checks that it wrote a non-empty `png` there (a stale
+    one is removed first). @throws DemoError naming the command on failure. */
+void run_gnuplot(const std::filesystem::path& dir, const std::string& script,
+                 const std::string& png);
+
+/** The two demo scenes (run_demo() dispatches and catches). */
+int demo_pwconst(const DemoOptions& options, std::ostream& out, std::ostream& err);
+int demo_biped(const DemoOptions& options, std::ostream& out, std::ostream& err);
+
+}  // namespace bflow::cli
+
+#endif  // BFLOW_CLI_DEMO_UTIL_H_

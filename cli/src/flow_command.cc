@@ -1,0 +1,456 @@
+// `bflow flow`: simulates a scene across its switching surfaces and prints the B-derivative of
+// its flow on the requested directions (format in docs/cli.md).
+//
+// Every option is validated before anything is simulated, so that a rejection names the option
+// ("--dx[1]: has 3 numbers, expected d = 2"). One run of bflow::flow_derivative() gives the
+// whole derivative (transition matrices and jump maps), which is then evaluated on every
+// direction; --fd adds finite differences of the simulated flow (bflow::fd::compare), the
+// independent check. Nothing is written to `out` unless the whole result is computed, except
+// the partial record of a simulation that stops early (exit code 1).
+#include <cerrno>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <exception>
+#include <new>
+#include <optional>
+#include <ostream>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "bflow/core/biped.h"
+#include "bflow/core/errors.h"
+#include "bflow/core/flow_derivative.h"
+#include "bflow/core/jump_map.h"
+#include "bflow/core/signs.h"
+#include "bflow/examples/piecewise_constant.h"
+#include "bflow/integrators/finite_differences.h"
+#include "bflow/integrators/hybrid_flow.h"
+#include "bflow/integrators/model_adapter.h"
+#include "cli_commands.h"
+#include "cli_json.h"
+#include "cli_util.h"
+
+namespace bflow::cli {
+namespace {
+
+// Bad input; the message starts with the option. Exit code 2.
+class InputError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// A result that cannot be printed honestly. Exit code 1.
+class OutputError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+[[noreturn]] void fail(const std::string& option, const std::string& problem) {
+  throw InputError(option + ": " + problem);
+}
+
+std::string trimmed(const std::string& text) {
+  const auto first = text.find_first_not_of(" \t");
+  if (first == std::string::npos) return "";
+  const auto last = text.find_last_not_of(" \t");
+  return text.substr(first, last - first + 1);
+}
+
+// A whole string read by strtod, finite.
+double parse_number(const std::string& raw, const std::string& option) {
+  const std::string text = trimmed(raw);
+  if (text.empty()) fail(option, "expected a number, got an empty string");
+  char* end = nullptr;
+  errno = 0;
+  const double value = std::strtod(text.c_str(), &end);
+  if (end != text.c_str() + text.size()) fail(option, quote(text) + " is not a number");
+  if (errno == ERANGE && std::fabs(value) > 1.0) {
+    fail(option, quote(text) + " is out of the range of a double");
+  }
+  if (!std::isfinite(value)) fail(option, quote(text) + " is not a finite number");
+  return value;
+}
+
+// A whole string of decimal digits, at most `max`.
+std::uint64_t parse_unsigned(const std::string& raw, const std::string& option, std::uint64_t max) {
+  const std::string text = trimmed(raw);
+  if (text.empty() || text.find_first_not_of("0123456789") != std::string::npos) {
+    fail(option, quote(raw) + " is not a non-negative integer");
+  }
+  errno = 0;
+  const unsigned long long value = std::strtoull(text.c_str(), nullptr, 10);
+  if (errno == ERANGE || value > max) {
+    fail(option, quote(raw) + " is too large (at most " + std::to_string(max) + ")");
+  }
+  return value;
+}
+
+// "a,b,c" with exactly `dim` numbers.
+Eigen::VectorXd parse_vector(const std::string& text, const std::string& option, int dim) {
+  std::vector<std::string> items;
+  std::size_t start = 0;
+  while (true) {
+    const std::size_t comma = text.find(',', start);
+    items.push_back(text.substr(start, comma == std::string::npos ? comma : comma - start));
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  if (static_cast<int>(items.size()) != dim) {
+    fail(option, "has " + std::to_string(items.size()) + " number" +
+                     (items.size() == 1 ? "" : "s") + ", expected d = " + std::to_string(dim) +
+                     " (comma-separated)");
+  }
+  Eigen::VectorXd v(dim);
+  for (int i = 0; i < dim; ++i) {
+    v[i] = parse_number(items[static_cast<std::size_t>(i)], option + "[" + std::to_string(i) + "]");
+  }
+  return v;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Scenes.
+
+struct PwconstParams {
+  int d = 2;
+  std::optional<double> delta;
+  std::optional<std::uint64_t> seed;
+};
+
+constexpr double kDefaultDelta = 0.25;
+
+// Messages in the style of bflow::set_param: `pwconst parameter "d" must be ...`.
+PwconstParams pwconst_params(const std::vector<std::pair<std::string, std::string>>& params) {
+  PwconstParams p;
+  for (const auto& [key, raw] : params) {
+    const std::string name = "pwconst parameter " + quote(key);
+    const std::string value = trimmed(raw);
+    const bool digits =
+        !value.empty() && value.find_first_not_of("0123456789") == std::string::npos;
+    if (key == "d") {
+      errno = 0;
+      const unsigned long long d = digits ? std::strtoull(value.c_str(), nullptr, 10) : 0;
+      if (d < 1 || d > 16 || errno == ERANGE) {
+        fail("--param", name + " must be an integer in [1, 16], got " + quote(raw));
+      }
+      p.d = static_cast<int>(d);
+    } else if (key == "delta") {
+      char* end = nullptr;
+      const double delta = std::strtod(value.c_str(), &end);
+      if (value.empty() || end != value.c_str() + value.size()) {
+        fail("--param", name + " = " + quote(raw) + " is not a number");
+      }
+      if (!(std::fabs(delta) < 1.0)) {
+        fail("--param", name +
+                            " must be in (-1, 1) (every component of Delta(b) = -delta b must "
+                            "exceed -1), got " +
+                            quote(raw));
+      }
+      p.delta = delta;
+    } else if (key == "seed") {
+      errno = 0;
+      const unsigned long long seed = digits ? std::strtoull(value.c_str(), nullptr, 10) : 0;
+      if (!digits || errno == ERANGE) {
+        fail("--param", name + " must be an integer in [0, 2^64), got " + quote(raw));
+      }
+      p.seed = seed;
+    } else {
+      fail("--param", "unknown pwconst parameter " + quote(key) + " (known: d, delta, seed)");
+    }
+  }
+  if (p.delta && p.seed) {
+    fail("--param", "give delta (the linear case) or seed (a random Delta), not both");
+  }
+  return p;
+}
+
+examples::PiecewiseConstantField make_pwconst(const PwconstParams& p) {
+  if (p.seed) return examples::PiecewiseConstantField::random(p.d, *p.seed);
+  return examples::PiecewiseConstantField::linear(p.d, p.delta.value_or(kDefaultDelta));
+}
+
+BipedParams biped_params(const std::vector<std::pair<std::string, std::string>>& params) {
+  BipedParams p;
+  for (const auto& [key, value] : params) {
+    try {
+      set_param(p, key, value);
+    } catch (const InvalidArgument& e) {
+      std::string message = e.what();
+      const std::string prefix = "set_param: ";
+      if (message.rfind(prefix, 0) == 0) message.erase(0, prefix.size());
+      fail("--param", message);
+    }
+  }
+  return p;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The run.
+
+struct Request {
+  double t = 0.0;
+  std::optional<std::string> x0_text;
+  std::vector<std::string> dx_texts;
+  FlowOptions flow;
+  bool fd = false;
+};
+
+void check_finite(const Eigen::Ref<const Eigen::MatrixXd>& values, const std::string& what) {
+  if (!values.allFinite()) {
+    throw OutputError("flow: " + what + " is not finite (overflow in the computation)");
+  }
+}
+
+OrderedJson events_json(const std::vector<EventRecord>& events) {
+  OrderedJson list = OrderedJson::array();
+  for (std::size_t i = 0; i < events.size(); ++i) {
+    const EventRecord& e = events[i];
+    check_finite(e.rho, "events[" + std::to_string(i) + "].rho");
+    OrderedJson margins = OrderedJson::array();
+    for (std::size_t k = 0; k < e.surfaces.size(); ++k) {
+      margins.push_back(
+          OrderedJson{{"before", e.margin_before.at(k)}, {"after", e.margin_after.at(k)}});
+    }
+    OrderedJson item = OrderedJson::object();
+    item["t"] = e.t;
+    item["surfaces"] = e.surfaces;
+    item["rho"] = vector_json(e.rho);
+    item["sides_before"] = e.sides_before.str();
+    item["sides_after"] = e.sides_after.str();
+    item["margins"] = std::move(margins);
+    list.push_back(std::move(item));
+  }
+  return list;
+}
+
+// The crossing order at each event of the tangent that arrives there, in model surface indices.
+std::vector<std::vector<int>> crossing_orders(const FlowDerivative& derivative,
+                                              const std::vector<EventRecord>& events,
+                                              const Eigen::VectorXd& dx) {
+  std::vector<std::vector<int>> orders;
+  Eigen::VectorXd v = derivative.transitions()[0] * dx;
+  for (std::size_t i = 0; i < derivative.jumps().size(); ++i) {
+    const JumpMap& jump = derivative.jumps()[i];
+    std::vector<int> order = jump.order(v).order;
+    for (int& k : order) k = events[i].surfaces.at(static_cast<std::size_t>(k));
+    orders.push_back(std::move(order));
+    v = derivative.transitions()[i + 1] * jump.apply(v);
+  }
+  return orders;
+}
+
+struct Evaluation {
+  OrderedJson result;
+  int code = kExitOk;
+  std::string error;  // with code 1
+};
+
+Evaluation evaluate(const SegmentModel& model, const Eigen::VectorXd& x0,
+                    const std::vector<Eigen::VectorXd>& directions, const Request& request,
+                    OrderedJson result) {
+  result["x0"] = vector_json(x0);
+  // A run without tangents first: an early stop is reported with what was reached.
+  const FlowResult plain = simulate(model, x0, request.t, request.flow);
+  if (!plain.ok()) {
+    result["status"] = to_string(plain.status);
+    result["message"] = plain.message;
+    result["t_reached"] = plain.t;
+    result["events"] = events_json(plain.events);
+    return {std::move(result), kExitFailure,
+            "flow: the simulation stopped at t = " + format_number(plain.t) + " before t = " +
+                format_number(request.t) + " (" + to_string(plain.status) + "): " + plain.message};
+  }
+  FlowResult trajectory;
+  const FlowDerivative derivative =
+      flow_derivative(model, x0, request.t, request.flow, &trajectory);
+  check_finite(trajectory.x, "x_t");
+  result["x_t"] = vector_json(trajectory.x);
+  result["events"] = events_json(trajectory.events);
+  OrderedJson list = OrderedJson::array();
+  for (std::size_t k = 0; k < directions.size(); ++k) {
+    const std::string name = "directions[" + std::to_string(k) + "]";
+    const Eigen::VectorXd& dx = directions[k];
+    const Eigen::VectorXd image = derivative.apply(dx);
+    const Eigen::MatrixXd jacobian = derivative.active_jacobian(dx);
+    check_finite(image, name + ".image");
+    check_finite(jacobian, name + ".jacobian");
+    OrderedJson item = OrderedJson::object();
+    item["dx"] = vector_json(dx);
+    item["image"] = vector_json(image);
+    item["orders"] = crossing_orders(derivative, trajectory.events, dx);
+    item["jacobian"] = rows_json(jacobian);
+    if (request.fd) {
+      const fd::Report report = fd::compare(model, x0, request.t, dx, image, request.flow);
+      const fd::ReportRow& best = report.best_one_sided();
+      OrderedJson rows = OrderedJson::array();
+      for (const fd::ReportRow& row : report.rows) {
+        rows.push_back(OrderedJson{{"alpha", row.alpha},
+                                   {"one_sided_error", row.one_sided_error},
+                                   {"central_error", row.central_error}});
+      }
+      OrderedJson fd_json = OrderedJson::object();
+      fd_json["one_sided"] = vector_json(best.one_sided);
+      fd_json["central"] = vector_json(best.central);
+      fd_json["alpha"] = best.alpha;
+      fd_json["rows"] = std::move(rows);
+      item["fd"] = std::move(fd_json);
+    }
+    list.push_back(std::move(item));
+  }
+  result["directions"] = std::move(list);
+  return {std::move(result), kExitOk, ""};
+}
+
+Evaluation run(const FlowCommandOptions& options) {
+  // Scene and parameters.
+  if (options.scene.empty()) fail("--scene", "required; the scenes are pwconst and biped");
+  if (options.scene != "pwconst" && options.scene != "biped") {
+    fail("--scene", "unknown scene " + quote(options.scene) + "; the scenes are pwconst and biped");
+  }
+  std::vector<std::pair<std::string, std::string>> params;
+  for (const std::string& text : options.params) {
+    const auto equals = text.find('=');
+    if (equals == std::string::npos || equals == 0) {
+      fail("--param", quote(text) + " is not key=value");
+    }
+    const std::string key = text.substr(0, equals);
+    for (const auto& earlier : params) {
+      if (earlier.first == key) fail("--param", quote(key) + " is given twice");
+    }
+    params.emplace_back(key, text.substr(equals + 1));
+  }
+  const bool biped = options.scene == "biped";
+  std::optional<PwconstParams> pwconst;
+  BipedParams biped_p;
+  if (biped) {
+    biped_p = biped_params(params);
+  } else {
+    pwconst = pwconst_params(params);
+  }
+
+  // Time and integrator.
+  Request request;
+  request.t = biped ? 0.6 : 1.0;
+  if (options.t) {
+    request.t = parse_number(*options.t, "--t");
+    if (!(request.t >= 0.0)) fail("--t", "must be >= 0, got " + format_number(request.t));
+  }
+  if (options.rtol) {
+    request.flow.integrator.rtol = parse_number(*options.rtol, "--rtol");
+    if (!(request.flow.integrator.rtol > 0.0)) {
+      fail("--rtol", "must be > 0, got " + format_number(request.flow.integrator.rtol));
+    }
+  }
+  if (options.atol) {
+    request.flow.integrator.atol = parse_number(*options.atol, "--atol");
+    if (!(request.flow.integrator.atol > 0.0)) {
+      fail("--atol", "must be > 0, got " + format_number(request.flow.integrator.atol));
+    }
+  }
+  try {
+    request.flow.backend = parse_backend(options.integrator);
+  } catch (const InvalidArgument& e) {
+    fail("--integrator", e.what());
+  }
+  if (options.max_steps) {
+    const std::uint64_t steps = parse_unsigned(*options.max_steps, "--max-steps", 1000000000);
+    if (steps < 1) fail("--max-steps", "must be >= 1, got 0");
+    request.flow.integrator.max_steps = static_cast<long>(steps);
+  }
+  request.x0_text = options.x0;
+  request.dx_texts = options.dx;
+  request.fd = options.fd;
+
+  OrderedJson head = OrderedJson::object();
+  head["scene"] = options.scene;
+  OrderedJson params_json = OrderedJson::object();
+  if (biped) {
+    params_json["variant"] = biped_variant_name(biped_p.variant);
+    params_json["m"] = biped_p.m;
+    params_json["J"] = biped_p.J;
+    params_json["g"] = biped_p.g;
+    params_json["leg_length"] = biped_p.leg_length;
+    params_json["psi"] = biped_p.psi;
+    params_json["kappa"] = biped_p.kappa;
+    params_json["beta"] = biped_p.beta;
+  } else {
+    params_json["d"] = pwconst->d;
+    if (pwconst->seed) {
+      params_json["seed"] = *pwconst->seed;
+    } else {
+      params_json["delta"] = pwconst->delta.value_or(kDefaultDelta);
+    }
+  }
+  head["params"] = std::move(params_json);
+  head["integrator"] = to_string(request.flow.backend);
+  head["rtol"] = request.flow.integrator.rtol;
+  head["atol"] = request.flow.integrator.atol;
+  head["t"] = request.t;
+
+  // x0 and the directions, now that d is known; then the run.
+  const auto with_model = [&request, &head](const SegmentModel& model,
+                                            const Eigen::VectorXd& default_x0) {
+    const int d = model.states();
+    const Eigen::VectorXd x0 =
+        request.x0_text ? parse_vector(*request.x0_text, "--x0", d) : default_x0;
+    std::vector<Eigen::VectorXd> directions;
+    for (std::size_t k = 0; k < request.dx_texts.size(); ++k) {
+      directions.push_back(parse_vector(request.dx_texts[k], "--dx[" + std::to_string(k) + "]", d));
+    }
+    if (directions.empty()) {
+      for (int i = 0; i < d; ++i) directions.push_back(Eigen::VectorXd::Unit(d, i));
+    }
+    return evaluate(model, x0, directions, request, head);
+  };
+  if (biped) {
+    return visit_biped(biped_p, [&with_model](const auto& scene) {
+      const auto model = adapt(scene);
+      return with_model(model, Eigen::VectorXd(biped_initial_state()));
+    });
+  }
+  const examples::PiecewiseConstantField field = make_pwconst(*pwconst);
+  const auto model = adapt(field);
+  // rho- = -F_--(0)/2 reaches rho+ = F_++(0)/2 through rho = 0 in unit time ([B] Sec. 3.1).
+  return with_model(model, Eigen::VectorXd(-0.5 * field.limits().col(0)));
+}
+
+}  // namespace
+
+int run_flow(const FlowCommandOptions& options, std::ostream& out, std::ostream& err) {
+  try {
+    const Evaluation evaluation = run(options);
+    std::ostringstream buffer;
+    write_json(buffer, evaluation.result, options.compact);
+    buffer << '\n';
+    out << buffer.str() << std::flush;
+    if (!out) {
+      report_error(err, "output: cannot write the result");
+      return kExitFailure;
+    }
+    if (evaluation.code != kExitOk) report_error(err, evaluation.error);
+    return evaluation.code;
+  } catch (const InputError& e) {
+    report_error(err, e.what());
+    return kExitBadInput;
+  } catch (const OutputError& e) {
+    report_error(err, e.what());
+    return kExitFailure;
+  } catch (const InvalidArgument& e) {
+    // Sliding, grazing, an integrator that is not built, x0 on a surface, ...
+    report_error(err, std::string("flow: ") + e.what());
+    return kExitBadInput;
+  } catch (const std::bad_alloc&) {
+    report_error(err, "flow: out of memory");
+    return kExitFailure;
+  } catch (const std::exception& e) {
+    report_error(err, std::string("flow: internal: ") + e.what());
+    return kExitFailure;
+  }
+}
+
+}  // namespace bflow::cli

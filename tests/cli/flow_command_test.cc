@@ -1,0 +1,457 @@
+// `bflow flow` in-process: the JSON holds the library's numbers (closed forms for the linear
+// piecewise-constant field, the jump module for a random one, finite differences for the
+// biped), and every malformed option gets one precise error line with exit code 2.
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+
+#include "bflow/core/biped.h"
+#include "bflow/core/jump_map.h"
+#include "bflow/examples/piecewise_constant.h"
+#include "cli_commands.h"
+
+namespace bflow::cli {
+namespace {
+
+using ::testing::ElementsAre;
+using ::testing::HasSubstr;
+using ::testing::StartsWith;
+using Json = nlohmann::json;
+
+struct Outcome {
+  int code;
+  std::string out;
+  std::string err;
+};
+
+Outcome flow(const FlowCommandOptions& options) {
+  std::ostringstream out, err;
+  const int code = run_flow(options, out, err);
+  return {code, out.str(), err.str()};
+}
+
+Outcome command_line(std::vector<std::string> args) {
+  args.insert(args.begin(), "bflow");
+  std::vector<const char*> argv;
+  for (const auto& a : args) argv.push_back(a.c_str());
+  std::istringstream in;
+  std::ostringstream out, err;
+  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
+  return {code, out.str(), err.str()};
+}
+
+// Parses a successful run.
+Json result_of(const FlowCommandOptions& options) {
+  const Outcome o = flow(options);
+  EXPECT_EQ(o.code, 0) << o.err;
+  EXPECT_EQ(o.err, "");
+  return Json::parse(o.out);
+}
+
+Eigen::VectorXd vector_of(const Json& v) {
+  Eigen::VectorXd out(static_cast<Eigen::Index>(v.size()));
+  for (std::size_t i = 0; i < v.size(); ++i) out[static_cast<Eigen::Index>(i)] = v[i].get<double>();
+  return out;
+}
+
+Eigen::MatrixXd matrix_of(const Json& rows) {
+  Eigen::MatrixXd out(static_cast<Eigen::Index>(rows.size()),
+                      static_cast<Eigen::Index>(rows[0].size()));
+  for (std::size_t r = 0; r < rows.size(); ++r) {
+    out.row(static_cast<Eigen::Index>(r)) = vector_of(rows[r]).transpose();
+  }
+  return out;
+}
+
+std::string text_of(const Eigen::VectorXd& v) {
+  std::ostringstream text;
+  text.precision(17);
+  for (Eigen::Index i = 0; i < v.size(); ++i) text << (i ? "," : "") << v[i];
+  return text.str();
+}
+
+FlowCommandOptions pwconst(std::vector<std::string> params) {
+  FlowCommandOptions options;
+  options.scene = "pwconst";
+  options.params = std::move(params);
+  return options;
+}
+
+FlowCommandOptions biped(std::vector<std::string> params) {
+  FlowCommandOptions options;
+  options.scene = "biped";
+  options.params = std::move(params);
+  return options;
+}
+
+// [B] (3.2): from rho- = -F_--(0)/2 for unit time, Delta(b) = -delta b gives
+// B = (1 - delta)/(1 + delta) I; all three surfaces are crossed together at t = 1/2.
+TEST(FlowCommandTest, LinearPiecewiseConstantIsTheClosedForm) {
+  const double delta = 0.25;
+  const double gain = (1.0 - delta) / (1.0 + delta);  // 0.6
+  const Json out = result_of(pwconst({"d=3", "delta=0.25"}));
+  EXPECT_EQ(out["scene"], "pwconst");
+  EXPECT_EQ(out["params"], Json({{"d", 3}, {"delta", 0.25}}));
+  EXPECT_EQ(out["integrator"], "dopri5");
+  EXPECT_EQ(out["t"], 1.0);
+  EXPECT_EQ(vector_of(out["x0"]), Eigen::VectorXd::Constant(3, -0.625));
+  // The field is constant between events, so the simulation is exact up to rounding.
+  EXPECT_LE((vector_of(out["x_t"]) - Eigen::VectorXd::Constant(3, 0.5 * (1 - delta))).norm(),
+            1e-12);
+  ASSERT_EQ(out["events"].size(), 1u);
+  const Json& event = out["events"][0];
+  EXPECT_NEAR(event["t"].get<double>(), 0.5, 1e-12);
+  EXPECT_THAT(event["surfaces"].get<std::vector<int>>(), ElementsAre(0, 1, 2));
+  EXPECT_LE(vector_of(event["rho"]).norm(), 1e-12);
+  EXPECT_EQ(event["sides_before"], "---");
+  EXPECT_EQ(event["sides_after"], "+++");
+  ASSERT_EQ(event["margins"].size(), 3u);
+  for (const Json& margin : event["margins"]) {
+    // eta_j = e_j, F = (1 +- delta) 1: eta . F / (|eta| |F|) = 1/sqrt(3) on both sides.
+    EXPECT_NEAR(margin["before"].get<double>(), 1.0 / std::sqrt(3.0), 1e-15);
+    EXPECT_NEAR(margin["after"].get<double>(), 1.0 / std::sqrt(3.0), 1e-15);
+  }
+  // The default directions are e_0, e_1, e_2.
+  ASSERT_EQ(out["directions"].size(), 3u);
+  for (int i = 0; i < 3; ++i) {
+    SCOPED_TRACE(i);
+    const Json& direction = out["directions"][static_cast<std::size_t>(i)];
+    const Eigen::VectorXd dx = Eigen::VectorXd::Unit(3, i);
+    EXPECT_EQ(vector_of(direction["dx"]), dx);
+    EXPECT_LE((vector_of(direction["image"]) - gain * dx).norm(), 1e-12);
+    EXPECT_LE((matrix_of(direction["jacobian"]) - gain * Eigen::MatrixXd::Identity(3, 3)).norm(),
+              1e-12);
+    // e_i is ahead along surface i only, so surface i is crossed first.
+    ASSERT_EQ(direction["orders"].size(), 1u);
+    EXPECT_EQ(direction["orders"][0][0], i);
+    EXPECT_FALSE(direction.contains("fd"));
+  }
+  EXPECT_FALSE(out.contains("status"));
+}
+
+TEST(FlowCommandTest, DefaultsAreDeltaQuarterInTwoDimensions) {
+  const Json out = result_of(pwconst({}));
+  EXPECT_EQ(out["params"], Json({{"d", 2}, {"delta", 0.25}}));
+  EXPECT_EQ(out["t"], 1.0);
+  EXPECT_EQ(out["directions"].size(), 2u);
+  EXPECT_EQ(out["rtol"], 1e-8);
+  EXPECT_EQ(out["atol"], 1e-10);
+}
+
+TEST(FlowCommandTest, RandomDeltaIsFixedBySeedAndInRange) {
+  const auto a = examples::PiecewiseConstantField::random(4, 11);
+  const auto b = examples::PiecewiseConstantField::random(4, 11);
+  const auto c = examples::PiecewiseConstantField::random(4, 12);
+  EXPECT_EQ(a.delta(), b.delta());
+  EXPECT_NE(a.delta(), c.delta());
+  EXPECT_EQ(a.delta().rows(), 4);
+  EXPECT_EQ(a.delta().cols(), 16);
+  EXPECT_GT(a.delta().minCoeff(), -0.7);
+  EXPECT_LT(a.delta().maxCoeff(), 1.5);
+}
+
+// A random Delta: the derivative of the simulated flow is the jump module's B at rho = 0 built
+// from the same table (the transitions before and after are the identity: F is constant).
+TEST(FlowCommandTest, SeededPiecewiseConstantIsTheJumpModulesB) {
+  const int d = 3;
+  const std::uint64_t seed = 7;
+  const auto field = examples::PiecewiseConstantField::random(d, seed);
+  const JumpMap jump(Eigen::MatrixXd::Identity(d, d), field.limits());
+  std::vector<Eigen::VectorXd> directions = {Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0),
+                                             Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(-1, 2, 0.5),
+                                             Eigen::Vector3d(0.3, -0.2, -1)};
+  FlowCommandOptions options = pwconst({"d=3", "seed=7"});
+  for (const Eigen::VectorXd& dx : directions) options.dx.push_back(text_of(dx));
+  const Json out = result_of(options);
+  EXPECT_EQ(out["params"], Json({{"d", 3}, {"seed", 7}}));
+  // The default start is rho- = -F_--(0)/2 exactly.
+  EXPECT_EQ(vector_of(out["x0"]), Eigen::VectorXd(-0.5 * field.limits().col(0)));
+  ASSERT_EQ(out["events"].size(), 1u);
+  EXPECT_EQ(out["events"][0]["surfaces"].size(), 3u);
+  ASSERT_EQ(out["directions"].size(), directions.size());
+  std::vector<std::vector<int>> seen_orders;
+  for (std::size_t k = 0; k < directions.size(); ++k) {
+    SCOPED_TRACE(k);
+    const Json& direction = out["directions"][k];
+    const Eigen::VectorXd& dx = directions[k];
+    const Eigen::VectorXd b = jump.apply(dx);
+    // Integration is exact up to rounding; the event time and rho carry ~1e-16 errors that
+    // B, with entries O(10), amplifies: 1e-11 relative leaves a wide margin.
+    EXPECT_LE((vector_of(direction["image"]) - b).norm(), 1e-11 * b.norm());
+    EXPECT_LE((matrix_of(direction["jacobian"]) - jump.active_jacobian(dx)).norm(),
+              1e-11 * jump.active_jacobian(dx).norm());
+    EXPECT_EQ(direction["orders"][0].get<std::vector<int>>(), jump.order(dx).order);
+    seen_orders.push_back(jump.order(dx).order);
+  }
+  // The directions visit several pieces: B is not one matrix.
+  std::sort(seen_orders.begin(), seen_orders.end());
+  EXPECT_GE(std::unique(seen_orders.begin(), seen_orders.end()) - seen_orders.begin(), 3);
+}
+
+TEST(FlowCommandTest, FiniteDifferencesGiveOneRowPerStep) {
+  FlowCommandOptions options = pwconst({"d=2", "seed=5"});
+  options.dx = {"1,0", "-0.5,2"};
+  options.fd = true;
+  const Json out = result_of(options);
+  ASSERT_EQ(out["directions"].size(), 2u);
+  for (const Json& direction : out["directions"]) {
+    ASSERT_TRUE(direction.contains("fd"));
+    const Json& fd = direction["fd"];
+    ASSERT_EQ(fd["rows"].size(), 9u);
+    for (std::size_t r = 0; r < 9; ++r) {
+      EXPECT_NEAR(fd["rows"][r]["alpha"].get<double>(), std::pow(10.0, -2.0 - r), 1e-25);
+      EXPECT_TRUE(fd["rows"][r].contains("one_sided_error"));
+      EXPECT_TRUE(fd["rows"][r].contains("central_error"));
+    }
+    double best = 1e300;
+    for (const Json& row : fd["rows"]) best = std::min(best, row["one_sided_error"].get<double>());
+    // The flow is piecewise affine: one-sided differences are exact up to rounding / alpha.
+    EXPECT_LE(best, 1e-10);
+    // "one_sided" and "central" are the differences at the reported alpha, the best one.
+    const auto at = std::find_if(fd["rows"].begin(), fd["rows"].end(),
+                                 [&fd](const Json& row) { return row["alpha"] == fd["alpha"]; });
+    ASSERT_NE(at, fd["rows"].end());
+    EXPECT_EQ((*at)["one_sided_error"].get<double>(), best);
+    const Eigen::VectorXd image = vector_of(direction["image"]);
+    EXPECT_LE((vector_of(fd["one_sided"]) - image).norm(), best * std::max(1.0, image.norm()) * 2);
+    EXPECT_EQ(fd["central"].size(), 2u);
+  }
+}
+
+// The biped of [B] Section 3.2.4 falls from (0, 1, 0, 0, 0, 0) and lands on both feet at once.
+// Conservative and dissipative: the two pieces of the touchdown jump are one matrix ([B]
+// (3.7): the saltations commute), so directions landing foot 0 first and foot 1 first get the
+// same Jacobian; mode-damping: they differ. In every case the derivative agrees with one-sided
+// differences of the simulated flow.
+TEST(FlowCommandTest, BipedVariantsAgreeWithFiniteDifferences) {
+  const BipedTouchdown touchdown = biped_touchdown(BipedParams{});
+  for (const std::string variant : {"conservative", "dissipative", "mode-damping"}) {
+    SCOPED_TRACE(variant);
+    FlowCommandOptions options = biped({"variant=" + variant});
+    options.rtol = "1e-10";
+    options.atol = "1e-12";
+    // Foot 1 first (+theta: foot 1 lowered), foot 0 first (-theta), then smooth directions.
+    options.dx = {"0,0,1,0,0,0", "0,0,-1,0,0,0", "1,0,0,0,0,1", "0,1,0,0,0,0"};
+    options.fd = true;
+    const Json out = result_of(options);
+    EXPECT_EQ(out["params"]["variant"], variant);
+    EXPECT_EQ(out["t"], 0.6);
+    EXPECT_EQ(vector_of(out["x0"]), Eigen::VectorXd(biped_initial_state()));
+    ASSERT_EQ(out["events"].size(), 1u);
+    const Json& event = out["events"][0];
+    EXPECT_THAT(event["surfaces"].get<std::vector<int>>(), ElementsAre(0, 1));
+    EXPECT_EQ(event["sides_before"], "--");
+    EXPECT_EQ(event["sides_after"], "++");
+    // Free fall until touchdown is a quadratic, which dopri5 integrates exactly.
+    EXPECT_NEAR(event["t"].get<double>(), touchdown.time, 1e-12);
+    EXPECT_LE((vector_of(event["rho"]) - Eigen::VectorXd(touchdown.state)).norm(), 1e-11);
+    const Json& up = out["directions"][0];
+    const Json& down = out["directions"][1];
+    EXPECT_THAT(up["orders"][0].get<std::vector<int>>(), ElementsAre(1, 0));
+    EXPECT_THAT(down["orders"][0].get<std::vector<int>>(), ElementsAre(0, 1));
+    const Eigen::MatrixXd j_up = matrix_of(up["jacobian"]);
+    const Eigen::MatrixXd j_down = matrix_of(down["jacobian"]);
+    if (variant == "mode-damping") {
+      EXPECT_GT((j_up - j_down).norm(), 0.1 * j_up.norm()) << "no kink";
+    } else {
+      EXPECT_LE((j_up - j_down).norm(), 1e-12 * j_up.norm());
+    }
+    for (const Json& direction : out["directions"]) {
+      double best = 1e300;
+      for (const Json& row : direction["fd"]["rows"]) {
+        best = std::min(best, row["one_sided_error"].get<double>());
+      }
+      // Measured 3e-8 to 1e-7 (truncation O(alpha) against integration noise / alpha).
+      EXPECT_LT(best, 1e-5) << direction["dx"];
+      EXPECT_LE((matrix_of(direction["jacobian"]) * vector_of(direction["dx"]) -
+                 vector_of(direction["image"]))
+                    .norm(),
+                1e-12 * std::max(1.0, vector_of(direction["image"]).norm()));
+    }
+    // Central differences average both pieces: wrong along +-theta only with the kink.
+    double central = 1e300;
+    for (const Json& row : up["fd"]["rows"]) {
+      central = std::min(central, row["central_error"].get<double>());
+    }
+    if (variant == "mode-damping") {
+      EXPECT_GT(central, 1e-2);
+    } else {
+      EXPECT_LT(central, 1e-5);
+    }
+  }
+}
+
+TEST(FlowCommandTest, BipedDefaultsAreTheRestStartAndSixUnitDirections) {
+  const Json out = result_of(biped({}));
+  EXPECT_EQ(out["params"]["variant"], "mode-damping");
+  EXPECT_EQ(out["params"]["kappa"], 1.0);
+  EXPECT_EQ(out["params"]["leg_length"], 0.5);
+  EXPECT_EQ(out["t"], 0.6);
+  ASSERT_EQ(out["directions"].size(), 6u);
+  for (int i = 0; i < 6; ++i) {
+    EXPECT_EQ(vector_of(out["directions"][static_cast<std::size_t>(i)]["dx"]),
+              Eigen::VectorXd::Unit(6, i));
+  }
+  // Parameters change the scene: a stiffer ground, a later final time.
+  FlowCommandOptions options = biped({"kappa=100", "beta=2.5"});
+  options.t = "0.45";
+  const Json stiff = result_of(options);
+  EXPECT_EQ(stiff["params"]["kappa"], 100.0);
+  EXPECT_EQ(stiff["params"]["beta"], 2.5);
+  EXPECT_EQ(stiff["t"], 0.45);
+  EXPECT_NE(stiff["x_t"], out["x_t"]);
+}
+
+TEST(FlowCommandTest, EarlyStopPrintsStatusAndExitsOne) {
+  FlowCommandOptions options = biped({});
+  options.max_steps = "1";
+  const Outcome o = flow(options);
+  EXPECT_EQ(o.code, 1);
+  EXPECT_THAT(o.err, StartsWith("error: flow: the simulation stopped at t = "));
+  EXPECT_THAT(o.err, HasSubstr("(too many steps): dopri5: 1 steps taken"));
+  EXPECT_EQ(std::count(o.err.begin(), o.err.end(), '\n'), 1);
+  const Json out = Json::parse(o.out);
+  EXPECT_EQ(out["status"], "too many steps");
+  EXPECT_THAT(out["message"].get<std::string>(), HasSubstr("max_steps"));
+  EXPECT_LT(out["t_reached"].get<double>(), 0.6);
+  EXPECT_TRUE(out["events"].is_array());
+  EXPECT_FALSE(out.contains("x_t"));
+  EXPECT_FALSE(out.contains("directions"));
+}
+
+TEST(FlowCommandTest, LibraryRejectionsExitTwoWithFlowPrefix) {
+  // x0 on surface 0: its side is undecided.
+  FlowCommandOptions options = pwconst({});
+  options.x0 = "0,-1";
+  const Outcome o = flow(options);
+  EXPECT_EQ(o.code, 2);
+  EXPECT_EQ(o.out, "");
+  EXPECT_THAT(o.err, StartsWith("error: flow: x0 = [0, -1] has h_0 = 0: its side of surface 0 is "
+                                "undecided"));
+  EXPECT_EQ(std::count(o.err.begin(), o.err.end(), '\n'), 1);
+}
+
+// CVODES is being added: the backend is passed through, and either runs or is reported.
+TEST(FlowCommandTest, IntegratorIsPassedThrough) {
+  for (const std::string name : {"cvodes-bdf", "cvodes-adams"}) {
+    FlowCommandOptions options = pwconst({});
+    options.integrator = name;
+    const Outcome o = flow(options);
+    if (o.code == 0) {
+      EXPECT_EQ(Json::parse(o.out)["integrator"], name);
+    } else {
+      EXPECT_EQ(o.code, 2);
+      EXPECT_EQ(o.err, "error: flow: integrator " + name + " is not built\n");
+    }
+  }
+}
+
+struct BadOption {
+  std::vector<std::string> args;  // after "bflow flow"
+  std::string error;              // the whole line, without "error: " and the newline
+};
+
+TEST(FlowCommandTest, MalformedOptionsExitTwoWithOneLine) {
+  const std::vector<BadOption> cases = {
+      {{}, "--scene: required; the scenes are pwconst and biped"},
+      {{"--scene", "pendulum"},
+       "--scene: unknown scene \"pendulum\"; the scenes are pwconst and biped"},
+      {{"--scene", "biped", "--param", "mass=2"},
+       "--param: unknown biped parameter \"mass\" (known: m, J, g, leg_length, psi, kappa, beta, "
+       "variant)"},
+      {{"--scene", "biped", "--param", "kappa=-1"},
+       "--param: biped parameter \"kappa\" must be > 0, got -1"},
+      {{"--scene", "biped", "--param", "kappa=stiff"},
+       "--param: biped parameter \"kappa\" = \"stiff\" is not a number"},
+      {{"--scene", "biped", "--param", "variant=bouncy"},
+       "--param: biped variant \"bouncy\" is not one of conservative, dissipative, mode-damping"},
+      {{"--scene", "biped", "--param", "kappa"}, "--param: \"kappa\" is not key=value"},
+      {{"--scene", "biped", "--param", "kappa=2", "--param", "kappa=3"},
+       "--param: \"kappa\" is given twice"},
+      {{"--scene", "pwconst", "--param", "kappa=2"},
+       "--param: unknown pwconst parameter \"kappa\" (known: d, delta, seed)"},
+      {{"--scene", "pwconst", "--param", "d=0"},
+       "--param: pwconst parameter \"d\" must be an integer in [1, 16], got \"0\""},
+      {{"--scene", "pwconst", "--param", "d=2.5"},
+       "--param: pwconst parameter \"d\" must be an integer in [1, 16], got \"2.5\""},
+      {{"--scene", "pwconst", "--param", "delta=1"},
+       "--param: pwconst parameter \"delta\" must be in (-1, 1) (every component of Delta(b) = "
+       "-delta b must exceed -1), got \"1\""},
+      {{"--scene", "pwconst", "--param", "seed=-3"},
+       "--param: pwconst parameter \"seed\" must be an integer in [0, 2^64), got \"-3\""},
+      {{"--scene", "pwconst", "--param", "delta=0.1", "--param", "seed=3"},
+       "--param: give delta (the linear case) or seed (a random Delta), not both"},
+      {{"--scene", "pwconst", "--t", "-1"}, "--t: must be >= 0, got -1"},
+      {{"--scene", "pwconst", "--t", "soon"}, "--t: \"soon\" is not a number"},
+      {{"--scene", "pwconst", "--t", "1e999"}, "--t: \"1e999\" is out of the range of a double"},
+      {{"--scene", "pwconst", "--t", "nan"}, "--t: \"nan\" is not a finite number"},
+      {{"--scene", "pwconst", "--rtol", "0"}, "--rtol: must be > 0, got 0"},
+      {{"--scene", "pwconst", "--atol", "-1e-9"}, "--atol: must be > 0, got -1e-09"},
+      {{"--scene", "pwconst", "--integrator", "euler"},
+       "--integrator: integrator \"euler\" is unknown; choose dopri5, cvodes-bdf or cvodes-adams"},
+      {{"--scene", "pwconst", "--max-steps", "0"}, "--max-steps: must be >= 1, got 0"},
+      {{"--scene", "pwconst", "--x0", "1,2,3"},
+       "--x0: has 3 numbers, expected d = 2 (comma-separated)"},
+      {{"--scene", "pwconst", "--x0", "1,x"}, "--x0[1]: \"x\" is not a number"},
+      {{"--scene", "pwconst", "--x0", "1,"}, "--x0[1]: expected a number, got an empty string"},
+      {{"--scene", "biped", "--dx", "1,0,0,0,0,0", "--dx", "1,0"},
+       "--dx[1]: has 2 numbers, expected d = 6 (comma-separated)"},
+      {{"--scene", "pwconst", "--param", "d=3", "--dx", "1,0"},
+       "--dx[0]: has 2 numbers, expected d = 3 (comma-separated)"},
+  };
+  for (const BadOption& c : cases) {
+    std::vector<std::string> args = {"flow"};
+    args.insert(args.end(), c.args.begin(), c.args.end());
+    const Outcome o = command_line(args);
+    std::string joined;
+    for (const auto& a : args) joined += a + " ";
+    EXPECT_EQ(o.code, 2) << joined;
+    EXPECT_EQ(o.out, "") << joined;
+    EXPECT_EQ(o.err, "error: " + c.error + "\n") << joined;
+  }
+}
+
+TEST(FlowCommandTest, CommandLineParsesNegativeNumbersAndRepeatedDirections) {
+  const Outcome o =
+      command_line({"flow", "--scene", "pwconst", "--param", "d=2", "--param", "delta=-0.5", "--dx",
+                    "-1,0", "--dx=0,-2", "--t", "1", "--compact"});
+  ASSERT_EQ(o.code, 0) << o.err;
+  EXPECT_EQ(std::count(o.out.begin(), o.out.end(), '\n'), 1);  // --compact: one line
+  const Json out = Json::parse(o.out);
+  // (1 - delta)/(1 + delta) = 3 for delta = -1/2.
+  EXPECT_LE((vector_of(out["directions"][0]["image"]) - Eigen::Vector2d(-3, 0)).norm(), 1e-12);
+  EXPECT_LE((vector_of(out["directions"][1]["image"]) - Eigen::Vector2d(0, -6)).norm(), 1e-12);
+
+  const Outcome unknown = command_line({"flow", "--scene", "pwconst", "--frobnicate"});
+  EXPECT_EQ(unknown.code, 2);
+  EXPECT_THAT(unknown.err, StartsWith("error: flow: "));
+  EXPECT_THAT(unknown.err, HasSubstr("--frobnicate"));
+  EXPECT_THAT(unknown.err, HasSubstr("(see 'bflow flow --help')"));
+
+  const Outcome help = command_line({"flow", "--help"});
+  EXPECT_EQ(help.code, 0);
+  EXPECT_THAT(help.out, HasSubstr("--scene NAME"));
+  EXPECT_THAT(help.out, HasSubstr("\"directions\""));
+}
+
+TEST(FlowCommandTest, ZeroTimeIsTheIdentity) {
+  FlowCommandOptions options = biped({});
+  options.t = "0";
+  const Json out = result_of(options);
+  EXPECT_EQ(out["events"].size(), 0u);
+  for (const Json& direction : out["directions"]) {
+    EXPECT_EQ(vector_of(direction["image"]), vector_of(direction["dx"]));
+    EXPECT_EQ(direction["orders"].size(), 0u);
+  }
+}
+
+}  // namespace
+}  // namespace bflow::cli
