@@ -5,6 +5,7 @@
 #include <string>
 
 #include "bflow/core/errors.h"
+#include "bflow/integrators/cvodes.h"
 #include "bflow/integrators/dopri5.h"
 
 namespace bflow {
@@ -278,10 +279,11 @@ std::unique_ptr<SegmentIntegrator> make_integrator(Backend backend) {
     case Backend::kDopri5:
       return std::make_unique<Dopri5Integrator>();
     case Backend::kCvodesBdf:
+      return std::make_unique<CvodesIntegrator>(CvodesMethod::kBdf);
     case Backend::kCvodesAdams:
-      break;
+      return std::make_unique<CvodesIntegrator>(CvodesMethod::kAdams);
   }
-  throw InvalidArgument(std::string("integrator ") + to_string(backend) + " is not built");
+  throw InvalidArgument(std::string("integrator ") + to_string(backend) + " is unknown");
 }
 
 }  // namespace bflow

@@ -7,6 +7,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include "bflow/core/biped.h"
 #include "bflow/integrators/finite_differences.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
@@ -162,6 +163,43 @@ TEST(HardCasesTest, ScaledStatesGiveTheSameDerivative) {
         flow_derivative(adapt(Scaled<SixSurfaces>{SixSurfaces{}, s}), s * x0, 1.0, scaled);
     EXPECT_LE((derivative.apply(dx) - expected).norm(), 1e-7 * expected.norm()) << "s=" << s;
   }
+}
+
+// (d) The biped with stiff contacts, kappa = 1e6, on CVODES BDF: the feet touch down together,
+// bounce within milliseconds and lift off together. BDF and Dormand-Prince must agree, and the
+// derivative must match one-sided differences.
+TEST(HardCasesTest, StiffBipedOnCvodesBdf) {
+  BipedParams params;
+  params.variant = BipedVariant::kModeDamping;
+  params.kappa = 1e6;
+  const auto model = adapt(make_biped_mode_damping(params));
+  const Eigen::VectorXd x0 = biped_initial_state();
+  const double t = 0.45;
+  FlowOptions bdf;
+  bdf.backend = Backend::kCvodesBdf;
+  bdf.integrator.rtol = 1e-10;
+  bdf.integrator.atol = 1e-12;
+  FlowResult trajectory;
+  const FlowDerivative derivative = flow_derivative(model, x0, t, bdf, &trajectory);
+  ASSERT_GE(trajectory.events.size(), 2u);
+  EXPECT_EQ(trajectory.events[0].group_size(), 2);
+  EXPECT_EQ(trajectory.events[0].sides_after.str(), "++");
+  EXPECT_EQ(trajectory.events.back().sides_after.str(), "--");
+  FlowOptions dopri = bdf;
+  dopri.backend = Backend::kDopri5;
+  FlowResult reference;
+  const FlowDerivative explicit_derivative = flow_derivative(model, x0, t, dopri, &reference);
+  EXPECT_EQ(reference.events.size(), trajectory.events.size());
+  EXPECT_LE((reference.x - trajectory.x).norm(), 1e-7 * reference.x.norm());
+  const Eigen::VectorXd dx = (Eigen::VectorXd(6) << 0.3, -0.2, 0.5, 0.1, 0.0, -1.0).finished();
+  const Eigen::VectorXd b = derivative.apply(dx);
+  ASSERT_TRUE(b.allFinite());
+  // Two adaptive methods at rtol 1e-10 through a 1e6-stiff contact: agreement to 1e-5.
+  EXPECT_LE((explicit_derivative.apply(dx) - b).norm(), 1e-5 * b.norm());
+  FlowOptions fd_options = bdf;
+  fd_options.simultaneity_window = 1e-13;
+  const Eigen::VectorXd fd = fd::one_sided(model, x0, t, dx, 1e-7, fd_options);
+  EXPECT_LE((fd - b).norm(), 1e-3 * b.norm());
 }
 
 }  // namespace
