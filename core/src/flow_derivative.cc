@@ -59,6 +59,22 @@ Eigen::MatrixXd FlowDerivative::apply_block(const Eigen::Ref<const Eigen::Matrix
   return out;
 }
 
+std::vector<CrossingOrder> FlowDerivative::event_time_shifts(
+    const Eigen::Ref<const Eigen::VectorXd>& dx) const {
+  if (dx.size() != dim_ || !dx.allFinite()) {
+    throw InvalidArgument("FlowDerivative::event_time_shifts: tangent must have " +
+                          std::to_string(dim_) + " finite numbers, got " + format_vector(dx));
+  }
+  std::vector<CrossingOrder> shifts;
+  Eigen::VectorXd v = transitions_[0] * dx;
+  for (std::size_t i = 0; i < jumps_.size(); ++i) {
+    shifts.push_back(jumps_[i].order(v));
+    jumps_[i].apply(v, v);
+    v = transitions_[i + 1] * v;
+  }
+  return shifts;
+}
+
 Eigen::MatrixXd FlowDerivative::active_jacobian(const Eigen::Ref<const Eigen::VectorXd>& dx) const {
   if (dx.size() != dim_ || !dx.allFinite()) {
     throw InvalidArgument("FlowDerivative::active_jacobian: tangent must have " +

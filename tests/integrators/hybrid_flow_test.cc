@@ -106,6 +106,32 @@ TEST(HybridFlowTest, OneSurfaceGivesTheSaltationMatrix) {
   const FlowDerivative derivative = flow_derivative(model, Eigen::VectorXd::Zero(1), 1.0);
   EXPECT_NEAR(derivative.jacobian()(0, 0), 2.0, 1e-13);
   EXPECT_NEAR(derivative.time_derivative()[0], 2.0, 0.0);
+  // Starting delta further on, the crossing comes delta earlier: d t_event / d x0 = -1/F- = -1.
+  const std::vector<CrossingOrder> shifts = derivative.event_time_shifts(Eigen::VectorXd::Ones(1));
+  ASSERT_EQ(shifts.size(), 1u);
+  EXPECT_NEAR(shifts[0].times[0], -1.0, 1e-14);
+}
+
+// Event-time shifts against finite differences of the located event times (the biped-free
+// two-surface case: each surface's own crossing time moves).
+TEST(HybridFlowTest, EventTimeShiftsMatchDifferencesOfTheEventTimes) {
+  Eigen::MatrixXd delta(2, 4);
+  delta << 0.0, -0.5, 0.7, -0.3, 0.0, 0.6, -0.4, -0.3;
+  const auto model = adapt(PiecewiseConstantField(delta));
+  const Eigen::Vector2d x0(-0.5, -0.7);  // surface 0 at t = 0.5, surface 1 later
+  const FlowDerivative derivative = flow_derivative(model, x0, 1.5);
+  const Eigen::Vector2d dx(0.3, -0.8);
+  const std::vector<CrossingOrder> shifts = derivative.event_time_shifts(dx);
+  const double alpha = 1e-7;
+  const FlowResult base = simulate(model, x0, 1.5);
+  const FlowResult moved = simulate(model, x0 + alpha * dx, 1.5);
+  ASSERT_EQ(shifts.size(), 2u);
+  ASSERT_EQ(moved.events.size(), 2u);
+  for (int i = 0; i < 2; ++i) {
+    const double fd = (moved.events[i].t - base.events[i].t) / alpha;
+    // Piecewise-affine flow: exact up to rounding eps / alpha ~ 1e-9.
+    EXPECT_NEAR(shifts[i].times[0], fd, 1e-7) << "event " << i;
+  }
 }
 
 // Hard case (a): two surfaces crossed dt apart. Grouped exactly when dt is inside the window:

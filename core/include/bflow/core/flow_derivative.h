@@ -53,6 +53,11 @@ class FlowDerivative {
   /** D phi_t(x0; dx). @throws InvalidArgument on a size mismatch or non-finite dx. */
   Eigen::VectorXd apply(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
   Eigen::MatrixXd apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx) const;
+  /** First-order shifts of the event times for the perturbation dx, by the implicit function
+      theorem (dt = -eta . v / eta . F, never by differentiating a root finder): for event i,
+      the order in which the perturbed trajectory crosses its surfaces and when, relative to
+      the nominal event time (JumpMap::order of the tangent v arriving at the event). */
+  std::vector<CrossingOrder> event_time_shifts(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
   /** The matrix of the piece active at dx: Phi_m M_sigma_m ... M_sigma_1 Phi_0, with each
       sigma_i the crossing order of the tangent arriving at event i. */
   Eigen::MatrixXd active_jacobian(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
