@@ -86,6 +86,8 @@ class Stepper {
         h_values_(n_),
         g_(n_),
         g_next_(n_),
+        theta_(n_),
+        g_trial_(n_),
         armed_(n_) {}
 
   SegmentResult run(double t0, double t_end, std::vector<T>& x, bool watch) {
@@ -293,7 +295,8 @@ class Stepper {
   bool locate_crossing(const std::vector<T>& x, double h, double& theta_first,
                        std::vector<int>& crossed) {
     surface_g(next_, g_next_);
-    std::vector<double> theta(static_cast<std::size_t>(n_), 2.0);
+    std::vector<double>& theta = theta_;
+    std::fill(theta.begin(), theta.end(), 2.0);
     bool any = false;
     for (int j = 0; j < n_; ++j) {
       if (!armed_[j]) {
@@ -304,7 +307,7 @@ class Stepper {
       // Illinois iteration on [0, 1] with g(0) > 0 >= g(1).
       double lo = 0.0, hi = 1.0, g_lo = g_[j], g_hi = g_next_[j];
       int side = 0;
-      std::vector<double> g(static_cast<std::size_t>(n_));
+      std::vector<double>& g = g_trial_;
       for (int iteration = 0; iteration < 100 && hi - lo > 4e-16; ++iteration) {
         double mid = (lo * g_hi - hi * g_lo) / (g_hi - g_lo);
         if (!(mid > lo && mid < hi)) mid = 0.5 * (lo + hi);
@@ -344,6 +347,7 @@ class Stepper {
   const int n_;
   std::vector<T> k1_, k2_, k3_, k4_, k5_, k6_, k7_, stage_, next_;
   std::vector<double> values_, h_values_, g_, g_next_;
+  std::vector<double> theta_, g_trial_;  // scratch of locate_crossing(), no allocation per step
   std::vector<char> armed_;
   double last_h_ = 0.0;
 };
