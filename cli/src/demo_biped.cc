@@ -139,24 +139,6 @@ std::string short_vector_text(const Eigen::VectorXd& v) {
   return text;
 }
 
-// A point of the circle of perturbations and its image, projected on the plane.
-struct Sample {
-  double angle_deg;
-  Eigen::Vector2d dx;
-  Eigen::Vector2d image;
-  int piece;
-};
-
-void write_samples(std::ostream& out, const std::vector<Sample>& samples) {
-  for (const Sample& s : samples) {
-    out << formatted("%9.4f", s.angle_deg) << ' ' << format_number(s.dx[0]) << ' '
-        << format_number(s.dx[1]) << ' ' << format_number(s.image[0]) << ' '
-        << format_number(s.image[1]) << ' ' << s.piece << '\n';
-  }
-}
-
-std::string gnuplot_color(int piece) { return piece == 0 ? "#DAA520" : "#2E8B57"; }
-
 std::string gnuplot_script(double range) {
   const std::string b0 = "Φ_1 M_{(0,1)} Φ_0";
   const std::string b1 = "Φ_1 M_{(1,0)} Φ_0";

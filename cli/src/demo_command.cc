@@ -56,25 +56,6 @@ int piece_index(const Pieces& pieces, const std::vector<int>& order) {
   throw DemoError("demo: internal: order " + order_text(order) + " is not among the pieces");
 }
 
-// A point on the unit circle with B(dx) and the index of the piece active there.
-struct Sample {
-  double angle_deg;
-  Eigen::Vector2d dx;
-  Eigen::Vector2d image;
-  int piece;
-};
-
-void write_samples(std::ostream& out, const std::vector<Sample>& samples) {
-  for (const Sample& s : samples) {
-    // Shortest round-trip form: the file holds exactly the numbers the library computed.
-    out << formatted("%9.4f", s.angle_deg) << ' ' << format_number(s.dx[0]) << ' '
-        << format_number(s.dx[1]) << ' ' << format_number(s.image[0]) << ' '
-        << format_number(s.image[1]) << ' ' << s.piece << '\n';
-  }
-}
-
-std::string gnuplot_color(int piece) { return piece == 0 ? "#DAA520" : "#2E8B57"; }
-
 std::string gnuplot_script(const Pieces& pieces, double range) {
   const std::string m0 = "M_{" + order_text(pieces[0].order) + "}";
   const std::string m1 = "M_{" + order_text(pieces[1].order) + "}";

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <system_error>
 
+#include "bflow/core/errors.h"
 #include "cli_util.h"
 
 extern char** environ;  // NOLINT: POSIX, for posix_spawnp
@@ -102,6 +103,14 @@ void run_gnuplot(const fs::path& dir, const std::string& script, const std::stri
   const auto size = fs::file_size(dir / png, ec);
   if (ec || size == 0) {
     throw DemoError("demo: " + command + " exited normally but did not write " + png);
+  }
+}
+
+void write_samples(std::ostream& out, const std::vector<Sample>& samples) {
+  for (const Sample& s : samples) {
+    out << formatted("%9.4f", s.angle_deg) << ' ' << format_number(s.dx[0]) << ' '
+        << format_number(s.dx[1]) << ' ' << format_number(s.image[0]) << ' '
+        << format_number(s.image[1]) << ' ' << s.piece << '\n';
   }
 }
 

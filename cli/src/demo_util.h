@@ -62,6 +62,21 @@ void run_gnuplot(const std::filesystem::path& dir, const std::string& script,
 int demo_pwconst(const DemoOptions& options, std::ostream& out, std::ostream& err);
 int demo_biped(const DemoOptions& options, std::ostream& out, std::ostream& err);
 
+/** A point of a circle of perturbations, its image (projected on the plotted plane) and the
+    index of the piece active there. */
+struct Sample {
+  double angle_deg;
+  Eigen::Vector2d dx;
+  Eigen::Vector2d image;
+  int piece;
+};
+
+/** One line per sample; numbers in shortest round-trip form, exactly what the library gave. */
+void write_samples(std::ostream& out, const std::vector<Sample>& samples);
+
+/** Fill colour of piece 0 or 1 in the demo plots. */
+inline std::string gnuplot_color(int piece) { return piece == 0 ? "#DAA520" : "#2E8B57"; }
+
 }  // namespace bflow::cli
 
 #endif  // BFLOW_CLI_DEMO_UTIL_H_
