@@ -57,12 +57,37 @@ template <int N>
 bool all_finite(const ceres::Jet<double, N>& x) {
   return std::isfinite(x.a) && x.v.allFinite();
 }
-// Sum of squared scaled tangent errors and how many terms.
-double tangent_error(double, double) { return 0.0; }
+// Per-direction accumulators of the tangent error norm: for each tangent direction c, the
+// squared Euclidean norms of its local error and of the tangent at the step's two ends. Empty for
+// double.
+template <typename T>
+struct TangentNorm {
+  void clear() {}
+  void add(const T&, const T&, const T&) {}
+  double error(double, double) const { return 0.0; }
+};
 template <int N>
-double tangent_error(const ceres::Jet<double, N>& err, double scale) {
-  return (err.v / scale).squaredNorm() / N;
-}
+struct TangentNorm<ceres::Jet<double, N>> {
+  using Jet = ceres::Jet<double, N>;
+  Eigen::Array<double, N, 1> error_sq, size0_sq, size1_sq;
+  void clear() {
+    error_sq.setZero();
+    size0_sq.setZero();
+    size1_sq.setZero();
+  }
+  void add(const Jet& err, const Jet& x0, const Jet& x1) {
+    error_sq += err.v.array().square();
+    size0_sq += x0.v.array().square();
+    size1_sq += x1.v.array().square();
+  }
+  // max over directions c of |e_c| / (atol + rtol max(|v_c(t)|, |v_c(t + h)|)), Euclidean norms:
+  // each direction is held to rtol relative to its own size, the way a derivative's accuracy is
+  // judged (|D dx - D_ref dx| / |D_ref dx|), not to the state's per-component scale.
+  double error(double rtol, double atol) const {
+    const auto scale = atol + rtol * size0_sq.max(size1_sq).sqrt();
+    return (error_sq.sqrt() / scale).maxCoeff();
+  }
+};
 
 template <typename T>
 class Stepper {
@@ -240,17 +265,21 @@ class Stepper {
     return true;
   }
 
-  double error_norm(const std::vector<T>& x) const {
+  double error_norm(const std::vector<T>& x) {
     double sum = 0;
+    const bool tangents = options_.tangents_in_error_norm;
+    if (tangents) tangent_norm_.clear();
     for (int i = 0; i < d_; ++i) {
       if (!all_finite(next_[i]) || !all_finite(k7_[i])) return NAN;
       const T err = last_h_ * (e1 * k1_[i] + e3 * k3_[i] + e4 * k4_[i] + e5 * k5_[i] + e6 * k6_[i] +
                                e7 * k7_[i]);
       const double s = scale(value_of(x[i]), value_of(next_[i]));
       sum += std::pow(value_of(err) / s, 2);
-      if (options_.tangents_in_error_norm) sum += tangent_error(err, s);
+      if (tangents) tangent_norm_.add(err, x[i], next_[i]);
     }
-    return std::sqrt(sum / d_);
+    const double state = std::sqrt(sum / d_);
+    if (!tangents) return state;
+    return std::max(state, tangent_norm_.error(options_.rtol, options_.atol));
   }
 
   // x(t + theta h) on the dense output of the last accepted step.
@@ -347,6 +376,7 @@ class Stepper {
   const int n_;
   std::vector<T> k1_, k2_, k3_, k4_, k5_, k6_, k7_, stage_, next_;
   std::vector<double> values_, h_values_, g_, g_next_;
+  TangentNorm<T> tangent_norm_;
   std::vector<double> theta_, g_trial_;  // scratch of locate_crossing(), no allocation per step
   std::vector<char> armed_;
   double last_h_ = 0.0;
@@ -438,19 +468,37 @@ SegmentResult Dopri5Integrator::integrate(const SegmentModel& model, const Segme
     result.v = v;
     return result;
   }
-  if (k == 1) {
-    SegmentResult result = run_chunk<Jet1>(model, request, options, request.t_end, 0, 1, true, &v);
-    result.v = v;
-    return result;
-  }
   // The first chunk finds where the segment ends; the others integrate to exactly there.
-  SegmentResult result =
-      run_chunk<JetChunk>(model, request, options, request.t_end, 0,
-                          static_cast<int>(std::min<Eigen::Index>(k, kTangentChunk)), true, &v);
-  for (Eigen::Index first = kTangentChunk; first < k; first += kTangentChunk) {
+  SegmentResult result;
+  for (Eigen::Index first = 0; first < k; first += kTangentChunk) {
     const int width = static_cast<int>(std::min<Eigen::Index>(kTangentChunk, k - first));
-    const SegmentResult chunk =
-        run_chunk<JetChunk>(model, request, options, result.t, first, width, false, &v);
+    const bool watch = first == 0;
+    const double t_end = watch ? request.t_end : result.t;
+    SegmentResult chunk;
+    switch (tangent_width(width)) {
+      case 1:
+        chunk = run_chunk<Jet1>(model, request, options, t_end, first, width, watch, &v);
+        break;
+      case 2:
+        chunk = run_chunk<Jet2>(model, request, options, t_end, first, width, watch, &v);
+        break;
+      case 4:
+        chunk = run_chunk<Jet4>(model, request, options, t_end, first, width, watch, &v);
+        break;
+      case 6:
+        chunk = run_chunk<Jet6>(model, request, options, t_end, first, width, watch, &v);
+        break;
+      default:
+        chunk = run_chunk<JetChunk>(model, request, options, t_end, first, width, watch, &v);
+        break;
+    }
+    if (watch) {
+      result = std::move(chunk);
+      const bool stopped = result.status == IntegrationStatus::kReachedEnd ||
+                           result.status == IntegrationStatus::kCrossing;
+      if (!stopped) break;  // a failure: the other chunks would fail the same way
+      continue;
+    }
     result.field_evaluations += chunk.field_evaluations;
     if (chunk.status != IntegrationStatus::kReachedEnd) {
       result.status = chunk.status;
@@ -462,17 +510,16 @@ SegmentResult Dopri5Integrator::integrate(const SegmentModel& model, const Segme
   return result;
 }
 
-template SegmentResult internal::dopri5_segment<double>(const SegmentModel&, Signs, double, double,
-                                                        const std::vector<double>&,
-                                                        const IntegratorOptions&,
-                                                        std::vector<double>*, bool);
-template SegmentResult internal::dopri5_segment<Jet1>(const SegmentModel&, Signs, double, double,
-                                                      const std::vector<Jet1>&,
-                                                      const IntegratorOptions&, std::vector<Jet1>*,
-                                                      bool);
-template SegmentResult internal::dopri5_segment<JetChunk>(const SegmentModel&, Signs, double,
-                                                          double, const std::vector<JetChunk>&,
-                                                          const IntegratorOptions&,
-                                                          std::vector<JetChunk>*, bool);
+#define BFLOW_DOPRI5_INSTANTIATE(T)                                                                \
+  template SegmentResult internal::dopri5_segment<T>(                                              \
+      const SegmentModel&, Signs, double, double, const std::vector<T>&, const IntegratorOptions&, \
+      std::vector<T>*, bool);
+BFLOW_DOPRI5_INSTANTIATE(double)
+BFLOW_DOPRI5_INSTANTIATE(Jet1)
+BFLOW_DOPRI5_INSTANTIATE(Jet2)
+BFLOW_DOPRI5_INSTANTIATE(Jet4)
+BFLOW_DOPRI5_INSTANTIATE(Jet6)
+BFLOW_DOPRI5_INSTANTIATE(JetChunk)
+#undef BFLOW_DOPRI5_INSTANTIATE
 
 }  // namespace bflow

@@ -157,6 +157,81 @@ TEST(Dopri5Test, FifthOrderConvergenceAtFixedSteps) {
   }
 }
 
+// A nonlinear field in three states, to exercise the Jet arithmetic of every width.
+struct Nonlinear {
+  static constexpr int kStates = 3;
+  static constexpr int kSurfaces = 0;
+  template <typename T>
+  void field(const T* x, Signs, T* xdot) const {
+    using std::sin;
+    xdot[0] = x[1] * x[2] - 0.2 * x[0];
+    xdot[1] = sin(x[0]) - 0.5 * x[1];
+    xdot[2] = -x[0] * x[1] + 0.1 * x[2] * x[2];
+  }
+  template <typename T>
+  void surfaces(const T*, T*) const {}
+};
+
+// k directions run in chunks of up to eight, each in the narrowest Jet width (1, 2, 4, 6, 8):
+// with the state alone in the error norm every chunk takes the first chunk's steps, so each
+// column equals the same column integrated alone (Jet lanes are independent), for any k.
+TEST(Dopri5Test, EveryChunkWidthGivesTheTangentsOfSingleDirections) {
+  const auto model = adapt(Nonlinear{});
+  const Eigen::Vector3d x0(0.4, -0.3, 0.8);
+  IntegratorOptions o;
+  o.rtol = 1e-9;
+  o.atol = 1e-11;
+  Dopri5Integrator integrator;
+  for (int k : {1, 2, 3, 4, 5, 6, 7, 8, 9, 13, 17}) {
+    const Eigen::MatrixXd v0 = Eigen::MatrixXd::Random(3, k);
+    const SegmentResult block = integrator.integrate(model, {Signs(0), 0.0, 2.0, x0, v0}, o);
+    ASSERT_EQ(block.status, IntegrationStatus::kReachedEnd) << block.message;
+    ASSERT_EQ(block.v.cols(), k);
+    for (int c = 0; c < k; ++c) {
+      const SegmentResult single =
+          integrator.integrate(model, {Signs(0), 0.0, 2.0, x0, v0.col(c)}, o);
+      EXPECT_EQ(single.steps, block.steps) << "k = " << k;
+      EXPECT_LE((single.v.col(0) - block.v.col(c)).norm(), 1e-14 * single.v.col(0).norm())
+          << "k = " << k << ", column " << c;
+    }
+  }
+}
+
+// From x0 = 0 the linear system's state stays exactly 0, so the state's error estimate is 0 and a
+// state-only norm lets the steps grow unchecked, while the tangents (exp(At) V) are anything but
+// small. With the tangents in the norm each direction is held to rtol relative to its size.
+TEST(Dopri5Test, TangentsInTheErrorNormHoldTheDerivativeToTheToleranceWhereTheStateIsBlind) {
+  const auto model = adapt(Linear{});
+  const double t = 2.5;
+  const Eigen::Matrix3d exp_at = (Linear::matrix() * t).exp();
+  const Eigen::Matrix3d v0 = Eigen::Matrix3d::Identity();
+  Dopri5Integrator integrator;
+  auto worst_column_error = [&](const SegmentResult& r) {
+    double worst = 0;
+    for (int c = 0; c < 3; ++c) {
+      worst = std::max(worst, (r.v.col(c) - exp_at.col(c)).norm() / exp_at.col(c).norm());
+    }
+    return worst;
+  };
+  for (double rtol : {1e-6, 1e-8, 1e-10}) {
+    IntegratorOptions o;
+    o.rtol = rtol;
+    o.atol = 1e-3 * rtol;
+    const SegmentResult blind =
+        integrator.integrate(model, {Signs(0), 0.0, t, Eigen::Vector3d::Zero(), v0}, o);
+    o.tangents_in_error_norm = true;
+    const SegmentResult held =
+        integrator.integrate(model, {Signs(0), 0.0, t, Eigen::Vector3d::Zero(), v0}, o);
+    ASSERT_EQ(held.status, IntegrationStatus::kReachedEnd) << held.message;
+    EXPECT_EQ(blind.x.norm(), 0.0);
+    EXPECT_EQ(held.x.norm(), 0.0);
+    // The global error of a tolerance-controlled run: within a small multiple of rtol.
+    EXPECT_LE(worst_column_error(held), 10 * rtol) << "rtol " << rtol;
+    EXPECT_GT(worst_column_error(blind), 1e3 * rtol) << "rtol " << rtol;
+    EXPECT_GT(held.steps, blind.steps);
+  }
+}
+
 TEST(Dopri5Test, FailuresAreStatusesWithMessages) {
   const auto model = adapt(Linear{});
   IntegratorOptions o;

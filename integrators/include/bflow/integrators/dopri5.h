@@ -5,7 +5,9 @@
 // Step control uses the state only (the Jet values), unless tangents_in_error_norm is set; the
 // step size is a plain double and is never differentiated. With the state alone in the norm,
 // every chunk of tangents takes exactly the same steps, so a d x k block integrated in chunks
-// of eight sees one trajectory.
+// of eight sees one trajectory. With the tangents in the norm, each tangent direction is held
+// to rtol relative to its own size (max over directions c of |e_c| / (atol + rtol |v_c|) in
+// Euclidean norms), and a later chunk may take other steps than the first, to the same end time.
 //
 // Events follow segment.h: after each accepted step the watched g_j = s_j h_j are evaluated;
 // a sign change from > 0 to <= 0 is located on the dense output (Illinois method on the
@@ -18,8 +20,8 @@
 
 namespace bflow {
 
-/** Dormand-Prince 5(4) backend. Tangents are carried by Jet<double, 1> for one direction and
-    Jet<double, 8> chunks otherwise. */
+/** Dormand-Prince 5(4) backend. k tangent directions are carried in chunks of at most eight,
+    each by the narrowest compiled Jet that holds it (segment.h: widths 1, 2, 4, 6, 8). */
 class Dopri5Integrator final : public SegmentIntegrator {
  public:
   SegmentResult integrate(const SegmentModel& model, const SegmentRequest& request,
@@ -27,7 +29,7 @@ class Dopri5Integrator final : public SegmentIntegrator {
 };
 
 namespace internal {
-/** The templated core, explicitly instantiated for double, Jet1 and JetChunk in dopri5.cc.
+/** The templated core, explicitly instantiated for double and every TangentJet width.
     x0 holds the state and, for Jets, the tangent directions in the derivative parts. */
 template <typename T>
 SegmentResult dopri5_segment(const SegmentModel& model, Signs sides, double t0, double t_end,

@@ -21,6 +21,9 @@ class ModelAdapter final : public SegmentModel {
   int surfaces() const override { return model_surfaces(model_); }
   void field(const double* x, Signs b, double* xdot) const override { model_.field(x, b, xdot); }
   void field(const Jet1* x, Signs b, Jet1* xdot) const override { model_.field(x, b, xdot); }
+  void field(const Jet2* x, Signs b, Jet2* xdot) const override { model_.field(x, b, xdot); }
+  void field(const Jet4* x, Signs b, Jet4* xdot) const override { model_.field(x, b, xdot); }
+  void field(const Jet6* x, Signs b, Jet6* xdot) const override { model_.field(x, b, xdot); }
   void field(const JetChunk* x, Signs b, JetChunk* xdot) const override {
     model_.field(x, b, xdot);
   }

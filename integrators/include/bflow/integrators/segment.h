@@ -24,10 +24,23 @@
 
 namespace bflow {
 
-/** Jet widths the integrators are compiled for: one direction, and chunks of eight. */
+/** Jet widths the integrators are compiled for: 1, 2, 4, 6 and 8 tangent directions. A block
+    of k directions runs in chunks of at most kTangentChunk, each in the narrowest compiled width
+    that holds it (tangent_width()), so that no derivative lane is computed for nothing beyond
+    the rounding up to an even width. */
 inline constexpr int kTangentChunk = 8;
-using Jet1 = ceres::Jet<double, 1>;
-using JetChunk = ceres::Jet<double, kTangentChunk>;
+template <int N>
+using TangentJet = ceres::Jet<double, N>;
+using Jet1 = TangentJet<1>;
+using Jet2 = TangentJet<2>;
+using Jet4 = TangentJet<4>;
+using Jet6 = TangentJet<6>;
+using JetChunk = TangentJet<kTangentChunk>;
+
+/** The narrowest compiled Jet width for k directions (1 <= k <= kTangentChunk). */
+constexpr int tangent_width(long k) {
+  return k <= 1 ? 1 : k <= 2 ? 2 : k <= 4 ? 4 : k <= 6 ? 6 : 8;
+}
 
 /** A model seen through virtual calls, so that integrators compile once (see model_adapter.h
     for the adapter of a templated bflow model). */
@@ -38,6 +51,9 @@ class SegmentModel {
   virtual int surfaces() const = 0;
   virtual void field(const double* x, Signs b, double* xdot) const = 0;
   virtual void field(const Jet1* x, Signs b, Jet1* xdot) const = 0;
+  virtual void field(const Jet2* x, Signs b, Jet2* xdot) const = 0;
+  virtual void field(const Jet4* x, Signs b, Jet4* xdot) const = 0;
+  virtual void field(const Jet6* x, Signs b, Jet6* xdot) const = 0;
   virtual void field(const JetChunk* x, Signs b, JetChunk* xdot) const = 0;
   /** f = F_b(x) and FV = DF_b(x) V for a d x k block V, by Jets in chunks (no differences). */
   virtual void field_tangents(const Eigen::Ref<const Eigen::VectorXd>& x, Signs b,
@@ -71,7 +87,12 @@ struct IntegratorOptions {
   /** Smallest step relative to max(1, |t|) before giving up with kStepSizeUnderflow. */
   double min_step = 1e-14;
   long max_steps = 1000000;
-  /** Include the tangents in the error norm (the step size itself is never differentiated). */
+  /** Include the tangents in the error norm: each tangent direction's local error is held to
+      rtol relative to that direction's size (plus atol), so that rtol bounds the relative error
+      of the derivative as it bounds the state's, also where the state's own error estimate is
+      blind to the tangents (a symmetric trajectory). Off by default: the state alone sets the
+      steps, and tangents cost only their arithmetic. The step size itself is never
+      differentiated. dopri5 only; CVODES always has its sensitivities in the error test. */
   bool tangents_in_error_norm = false;
 };
 
