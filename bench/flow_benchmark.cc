@@ -50,14 +50,8 @@
 #include <benchmark/benchmark.h>
 #include <Eigen/Core>
 
-// GCC 12 at -O3 folds SoftContact::add_force<double, 1> into the identical <double, 2> body
-// (identical code folding) and then reports the one-contact scene's contact[0] as "partly
-// outside array bounds" of a two-element array: a false -Warray-bounds, kept from -Werror here.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Warray-bounds"
 #include "bflow/core/biped.h"
 #include "bflow/core/scene.h"
-#pragma GCC diagnostic pop
 #include "bflow/core/signs.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
@@ -310,6 +304,15 @@ class WithoutSurfaces final : public SegmentModel {
     inner_.field(x, off_, xdot);
   }
   void field(const bflow::Jet1* x, bflow::Signs, bflow::Jet1* xdot) const override {
+    inner_.field(x, off_, xdot);
+  }
+  void field(const bflow::Jet2* x, bflow::Signs, bflow::Jet2* xdot) const override {
+    inner_.field(x, off_, xdot);
+  }
+  void field(const bflow::Jet4* x, bflow::Signs, bflow::Jet4* xdot) const override {
+    inner_.field(x, off_, xdot);
+  }
+  void field(const bflow::Jet6* x, bflow::Signs, bflow::Jet6* xdot) const override {
     inner_.field(x, off_, xdot);
   }
   void field(const bflow::JetChunk* x, bflow::Signs, bflow::JetChunk* xdot) const override {
