@@ -1,0 +1,111 @@
+// Filippov systems for the FESD engine ([F] Sections 2.3-2.6 and 6.2-6.4).
+//
+// A piecewise-smooth system (PSS) has n_c switching functions c(x) and n_f modes f_i(x). Which
+// mode holds where is a sign matrix S (rows r, n_c columns, entries -1, 0, +1) and a map from
+// rows to modes: row r describes the set {x : S_rj c_j(x) > 0 for every j with S_rj != 0}, and
+// mode i holds on the union of the rows mapped to it. With every entry nonzero and one row per
+// mode, the rows are the 2^n_c base regions of [F] Definition 1; zeros and several rows per mode
+// are the unions of [F] Section 6.2 (Table 3).
+//
+// Two ways to make the Filippov inclusion algebraic:
+//  * Heaviside step ([F] (20)-(22)): selections a_j in gamma(c_j(x)) in [0, 1] and the convex
+//    multipliers
+//        theta_i(a) = sum over rows r of mode i of prod over j with S_rj != 0 of
+//                     ((1 - S_rj) / 2 + S_rj a_j),
+//    which are >= 0 and sum to 1 for a in [0, 1]^n_c ([F] Proposition 5; unions: Section 6.2).
+//  * Stewart ([F] (25)-(28)): theta from the LP with indicator g(x) = -S c(x) ([F] (26)), which
+//    needs every base region as a row (no zeros, one row per mode).
+//
+// Example ([F] Example 4): n_c = 2, rows (+1, 0), (-1, +1), (-1, -1), modes {0, 0, 1}: mode 0 on
+// {c_1 > 0} u {c_1 < 0, c_2 > 0}, theta_0 = a_1 + (1 - a_1) a_2, theta_1 = (1 - a_1)(1 - a_2).
+#ifndef BFLOW_CORE_FILIPPOV_H_
+#define BFLOW_CORE_FILIPPOV_H_
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace bflow {
+
+/** S and the mode of each row. */
+class SignMatrix {
+ public:
+  /** Base regions: all 2^n_c sign patterns, row r has S_rj = +1 iff bit (n_c - 1 - j) of r is 0
+      (so row 0 is all +, the last row all -, as [F] (9)), one mode per row.
+      @throws InvalidArgument unless 1 <= n_c <= 16. */
+  static SignMatrix dense(int n_c);
+
+  /** @throws InvalidArgument if an entry is not -1, 0 or +1, two rows describe intersecting
+      sets (rows that no sign pattern tells apart), modes.size() != rows, a mode index is out of
+      [0, n_f) or some mode has no row. */
+  SignMatrix(Eigen::MatrixXi s, std::vector<int> mode_of_row);
+
+  int rows() const { return static_cast<int>(s_.rows()); }
+  int switches() const { return static_cast<int>(s_.cols()); }
+  int modes() const { return modes_; }
+  const Eigen::MatrixXi& matrix() const { return s_; }
+  const std::vector<int>& mode_of_row() const { return mode_of_row_; }
+  /** True when the rows are exactly the 2^n_c base regions, one per mode (Stewart applies). */
+  bool is_dense() const;
+
+  /** theta(a) of the step representation, n_f values. */
+  template <typename T>
+  void multipliers(const T* a, T* theta) const {
+    for (int i = 0; i < modes_; ++i) theta[i] = T(0.0);
+    for (int r = 0; r < rows(); ++r) {
+      T term(1.0);
+      for (int j = 0; j < switches(); ++j) {
+        const int sign = s_(r, j);
+        if (sign > 0) term *= a[j];
+        if (sign < 0) term *= 1.0 - a[j];
+      }
+      theta[mode_of_row_[static_cast<std::size_t>(r)]] += term;
+    }
+  }
+
+  /** Stewart's indicator g(x) = -S c ([F] (26)), one entry per row.
+      @pre is_dense() */
+  template <typename T>
+  void indicator(const T* c, T* g) const {
+    for (int r = 0; r < rows(); ++r) {
+      T sum(0.0);
+      for (int j = 0; j < switches(); ++j) sum -= double(s_(r, j)) * c[j];
+      g[r] = sum;
+    }
+  }
+
+  /** Lifting variables beta that [F] Algorithm 1 introduces with depth n_d, counted as it
+      does: for j = 1 .. n_c the rows with exactly j nonzero entries are finished, and for
+      j = n_d .. n_c - 1 every distinct prefix S_{r, 1..j} of an unfinished row gets one beta.
+      Dense S: 2^n_c - 2^n_d ([F] Table 4). n_d <= 0 or n_d >= n_c: no lifting, 0.
+      @throws InvalidArgument for n_d == 1 (a product of one factor cannot be lifted). */
+  int lifting_variables(int depth) const;
+
+ private:
+  Eigen::MatrixXi s_;
+  std::vector<int> mode_of_row_;
+  int modes_ = 0;
+};
+
+enum class DcsFormulation { kStep, kStewart };
+const char* to_string(DcsFormulation formulation);
+/** "step" or "stewart". @throws InvalidArgument naming the text. */
+DcsFormulation parse_dcs_formulation(const std::string& text);
+
+/** Per-stage algebraic problem size of a DCS ([F] Table 4). */
+struct DcsSize {
+  int modes = 0;            ///< n_f
+  int lifting = 0;          ///< n_beta
+  int algebraic = 0;        ///< n_alg
+  int complementarity = 0;  ///< n_comp
+  int equalities = 0;       ///< n_eq
+};
+
+/** Table 4 for S: Stewart needs is_dense(); step uses S's own n_f and lifting depth n_d
+    (0 = no lifting). @throws InvalidArgument for Stewart on a non-dense S or n_d == 1. */
+DcsSize dcs_size(const SignMatrix& s, DcsFormulation formulation, int lifting_depth = 0);
+
+}  // namespace bflow
+
+#endif  // BFLOW_CORE_FILIPPOV_H_
