@@ -1,0 +1,205 @@
+// Finite Elements with Switch Detection (FESD) for Filippov systems written as step inclusions
+// ([F] Sections 2.4-2.5, 4 and 5): where the event-driven engine (hybrid_flow.h) stops because
+// a trajectory slides, FESD integrates through.
+//
+// Model. A step inclusion x' in f(x, a), a_j in gamma(c_j(x)), with gamma the set-valued
+// Heaviside step (gamma(c) = {1} for c > 0, {0} for c < 0, [0, 1] at 0), written once:
+//
+//   struct M {
+//     static constexpr int kStates = 2, kSwitches = 1;
+//     template <typename T> void switching(const T* x, T* c) const;          // c(x)
+//     template <typename T> void field(const T* x, const T* a, T* xdot) const; // f(x, a)
+//   };
+//
+// A piecewise-smooth system is the special case f(x, a) = sum_i theta_i(a) f_i(x) with theta
+// from a sign matrix (core/filippov.h). Time enters as a state (a clock t' = 1).
+//
+// Discretisation of one integration step [t, t + H] ([F] (33), (36)-(43)): N_FE finite elements
+// of free length h_n (sum h_n = H), each an s-stage collocation method (butcher.h) on the DCS
+// (22) with the selections a, and lambda^p, lambda^n of the step LP (16):
+//   stage values X_nm = x_n + h_n sum_k A_mk f(X_nk, a_nk),  x_{n+1} = x_n + h_n sum_k b_k f(...)
+//   c(X_nm) = lambda^p_nm - lambda^n_nm,  0 <= a <= 1,  lambda^p, lambda^n >= 0,
+// the cross complementarity (37) between every point of an element, including its start
+// lambda_{n,0} (the end of the previous element, (36); at the step's start from x by (17)), and
+// for Gauss-Legendre (c_s < 1) an extra point at the element's end ((42)-(43)). The step
+// equilibration (39) enters the objective: sum_n eta_n (h_n - h_{n-1})^2, eta_n the indicator of
+// Section 4.4, normalised per switching function (nu / (nu + 1e-12)), so that elements without
+// a switch between them get equal lengths. With `standard`, the h_n are fixed to H / N_FE and
+// complementarity holds stage by stage only ((34), standard time-stepping).
+//
+// Solution. Each step is a homotopy of Scholtes-relaxed NLPs (products <= sigma, sigma from
+// sigma_initial down to sigma_final, times sigma_factor, or sigma^1.5 when superlinear), solved
+// by IPOPT with exact first derivatives from Jets and a limited-memory Hessian, each NLP warm-
+// started from the previous one. A step that does not converge ends the run with a status that
+// quotes the complementarity residual and IPOPT's message.
+//
+// Sensitivity. On the converged active set the step's equations are square in its unknowns
+// (each complementarity pair fixed to its active branch, equal lengths where no switch); the
+// implicit function theorem gives dx(t + H)/dx(t), and the product over steps dx(T)/dx0
+// ([F] Theorem 18).
+#ifndef BFLOW_INTEGRATORS_FESD_H_
+#define BFLOW_INTEGRATORS_FESD_H_
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "bflow/core/errors.h"
+#include "bflow/core/filippov.h"
+#include "bflow/core/signs.h"
+#include "bflow/integrators/butcher.h"
+#include "bflow/integrators/segment.h"
+
+namespace bflow {
+
+/** A step inclusion seen through virtual calls (double and Jet chunks), so FESD compiles once. */
+class StepModel {
+ public:
+  virtual ~StepModel() = default;
+  virtual int states() const = 0;
+  virtual int switches() const = 0;
+  virtual void switching(const double* x, double* c) const = 0;
+  virtual void switching(const JetChunk* x, JetChunk* c) const = 0;
+  virtual void field(const double* x, const double* a, double* xdot) const = 0;
+  virtual void field(const JetChunk* x, const JetChunk* a, JetChunk* xdot) const = 0;
+};
+
+template <typename Model>
+class StepModelAdapter final : public StepModel {
+ public:
+  explicit StepModelAdapter(Model model) : model_(std::move(model)) {}
+  int states() const override { return Model::kStates; }
+  int switches() const override { return Model::kSwitches; }
+  void switching(const double* x, double* c) const override { model_.switching(x, c); }
+  void switching(const JetChunk* x, JetChunk* c) const override { model_.switching(x, c); }
+  void field(const double* x, const double* a, double* xdot) const override {
+    model_.field(x, a, xdot);
+  }
+  void field(const JetChunk* x, const JetChunk* a, JetChunk* xdot) const override {
+    model_.field(x, a, xdot);
+  }
+  const Model& model() const { return model_; }
+
+ private:
+  Model model_;
+};
+
+template <typename Model>
+StepModelAdapter<Model> adapt_step(Model model) {
+  return StepModelAdapter<Model>(std::move(model));
+}
+
+/** A piecewise-smooth system (modes f_i and a sign matrix, core/filippov.h) as a step inclusion:
+    f(x, a) = sum_i theta_i(a) f_i(x) ([F] (20)-(22); unions of base regions as in Section 6.2).
+    The model provides kStates, kSwitches, kModes, `switching<T>(x, c)` and
+    `modes<T>(x, F)` writing the d x n_f values column by column (F[i * d + k] = f_i(x)_k). */
+template <typename Pss>
+class PiecewiseSmoothAsStep {
+ public:
+  static constexpr int kStates = Pss::kStates;
+  static constexpr int kSwitches = Pss::kSwitches;
+  static constexpr int kModes = Pss::kModes;
+
+  /** @throws InvalidArgument if S has other than kSwitches columns or kModes modes. */
+  PiecewiseSmoothAsStep(Pss pss, SignMatrix s) : pss_(std::move(pss)), s_(std::move(s)) {
+    if (s_.switches() != kSwitches || s_.modes() != kModes) {
+      throw InvalidArgument("PiecewiseSmoothAsStep: S has " + std::to_string(s_.switches()) +
+                            " columns and " + std::to_string(s_.modes()) + " modes, the model " +
+                            std::to_string(kSwitches) + " switching functions and " +
+                            std::to_string(kModes) + " modes");
+    }
+  }
+  template <typename T>
+  void switching(const T* x, T* c) const {
+    pss_.switching(x, c);
+  }
+  template <typename T>
+  void field(const T* x, const T* a, T* xdot) const {
+    T theta[kModes];
+    T f[kModes * kStates];
+    s_.multipliers(a, theta);
+    pss_.modes(x, f);
+    for (int k = 0; k < kStates; ++k) {
+      xdot[k] = T(0.0);
+      for (int i = 0; i < kModes; ++i) xdot[k] += theta[i] * f[i * kStates + k];
+    }
+  }
+  const SignMatrix& sign_matrix() const { return s_; }
+
+ private:
+  Pss pss_;
+  SignMatrix s_;
+};
+
+/** A step inclusion seen by the event-driven engine (hybrid_flow.h): surface j is c_j, side + of
+    surface j is a_j = 1. Where trajectories cross transversally both engines apply and agree. */
+template <typename Model>
+struct EventDrivenView {
+  static constexpr int kStates = Model::kStates;
+  static constexpr int kSurfaces = Model::kSwitches;
+  Model model;
+  template <typename T>
+  void field(const T* x, Signs b, T* xdot) const {
+    T a[kSurfaces];
+    for (int j = 0; j < kSurfaces; ++j) a[j] = T(b.plus(j) ? 1.0 : 0.0);
+    model.field(x, a, xdot);
+  }
+  template <typename T>
+  void surfaces(const T* x, T* h) const {
+    model.switching(x, h);
+  }
+};
+
+struct FesdOptions {
+  CollocationScheme scheme = CollocationScheme::kRadauIIA;
+  int stages = 2;         ///< n_s, 1..9
+  int elements = 3;       ///< N_FE per integration step
+  int steps = 1;          ///< N_sim integration steps over [0, T]
+  bool standard = false;  ///< standard time-stepping (34): fixed h, no switch detection
+  double sigma_initial = 1.0;
+  double sigma_final = 1e-12;
+  double sigma_factor = 0.1;  ///< linear update sigma <- factor sigma
+  bool superlinear = true;    ///< sigma <- min(factor sigma, sigma^1.5)
+  double nlp_tolerance = 1e-13;
+  int max_nlp_iterations = 500;
+  bool sensitivities = true;
+  int print_level = 0;  ///< IPOPT's print_level (0 silent)
+};
+
+enum class FesdStatus { kConverged, kStepFailed, kInvalidModel };
+const char* to_string(FesdStatus status);
+
+struct FesdResult {
+  FesdStatus status = FesdStatus::kConverged;
+  std::string message;
+  Eigen::VectorXd x_end;
+  /** Times of the finite-element boundaries, 0 .. T (N_sim N_FE + 1 values). */
+  std::vector<double> grid;
+  /** State at each grid time, d x grid.size(). */
+  Eigen::MatrixXd states;
+  /** h of each finite element. */
+  std::vector<double> step_sizes;
+  /** Grid times where some switching function's active set changes (a switch detected). */
+  std::vector<double> switch_times;
+  /** Per finite element and switching function: +1 (c > 0, a = 1), -1 (c < 0, a = 0), 0 (on
+      the surface: sliding, a in [0, 1]). */
+  std::vector<std::vector<int>> active_sets;
+  /** Largest complementarity product at the final sigma, over all steps. */
+  double max_complementarity = 0.0;
+  /** IPOPT iterations of each integration step (summed over its homotopy). */
+  std::vector<int> nlp_iterations;
+  /** dx(T)/dx0, d x d (empty unless options.sensitivities). */
+  Eigen::MatrixXd sensitivity;
+  bool ok() const { return status == FesdStatus::kConverged; }
+};
+
+/** Integrates x' in f(x, a) from x0 over [0, t_end] by FESD.
+    @throws InvalidArgument for bad options or a non-finite x0 (quoting the values). */
+FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
+                         double t_end, const FesdOptions& options = {});
+
+}  // namespace bflow
+
+#endif  // BFLOW_INTEGRATORS_FESD_H_
