@@ -24,7 +24,7 @@ constexpr const char* kMainFooter = R"(Exit codes:
      or failing)
   2  bad input or usage: the one line on stderr, "error: <field>: <problem>", names it
 
-Run 'bflow jump --help' and 'bflow flow --help' for the formats. Documentation: docs/cli.md.)";
+Run 'bflow jump --help', 'bflow flow --help' and 'bflow fesd --help' for the formats. Documentation: docs/cli.md.)";
 
 constexpr const char* kJumpFooter =
     R"(Input, one JSON object (n surfaces meet at a point rho in d dimensions):
@@ -189,14 +189,51 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                    "Write the data and the gnuplot script but do not run gnuplot");
     demo->footer(kDemoFooter);
 
+    FesdCommandOptions fesd_options;
+    CLI::App* fesd = app.add_subcommand(
+        "fesd",
+        "Simulate a Filippov example with sliding by Finite Elements with Switch Detection "
+        "(IPOPT) and print x(T), switch times and dx(T)/dx0 (JSON)");
+    fesd->add_option("--example", fesd_options.example,
+                     "irma, crossing, sliding-enter, sliding-leave or spontaneous (required)")
+        ->type_name("NAME");
+    fesd->add_option("--formulation", fesd_options.formulation, "step or stewart")
+        ->type_name("NAME")
+        ->capture_default_str();
+    fesd->add_option("--scheme", fesd_options.scheme, "radau (Radau IIA) or gauss (Gauss-Legendre)")
+        ->type_name("NAME")
+        ->capture_default_str();
+    fesd->add_option("--stages", fesd_options.stages, "Runge-Kutta stages n_s, 1..9")
+        ->type_name("S")
+        ->capture_default_str();
+    fesd->add_option("--nfe", fesd_options.nfe, "Finite elements per integration step")
+        ->type_name("N")
+        ->capture_default_str();
+    fesd->add_option("--nsim", fesd_options.nsim,
+                     "Integration steps over [0, T] (default: irma 20, the others 4)")
+        ->type_name("M");
+    fesd->add_option("--T", fesd_options.t,
+                     "Horizon (default: irma 100, sliding-leave 2, the others 1)")
+        ->type_name("T");
+    fesd->add_flag("--standard", fesd_options.standard,
+                   "Standard time-stepping: fixed steps, no switch detection");
+    fesd->add_flag("--trajectory", fesd_options.trajectory,
+                   "Add the grid, the states, the step sizes and the active sets");
+    fesd->add_flag("--sizes", fesd_options.sizes,
+                   "Print the problem sizes of Stewart's and the step reformulation ([F] Table 4)");
+    fesd->add_option("--lifting", fesd_options.lifting, "Lifting depth n_d for --sizes (0: none)")
+        ->type_name("ND");
+    fesd->add_flag("--compact", fesd_options.compact, "Print the result on one line");
+
     if (argc <= 1) {
-      report_error(err, "a command is required: jump, flow or demo (see 'bflow --help')");
+      report_error(err, "a command is required: jump, flow, demo or fesd (see 'bflow --help')");
       return kExitBadInput;
     }
     const std::string command = argv[1];
-    if (command[0] != '-' && command != "jump" && command != "flow" && command != "demo") {
+    if (command[0] != '-' && command != "jump" && command != "flow" && command != "demo" &&
+        command != "fesd") {
       report_error(err, "unknown command " + quote(command) +
-                            "; the commands are jump, flow and demo (see 'bflow --help')");
+                            "; the commands are jump, flow, demo and fesd (see 'bflow --help')");
       return kExitBadInput;
     }
     std::vector<std::string> args;
@@ -210,7 +247,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
       std::string message = e.what();
       if (message.empty()) message = e.get_name();
       std::string name;
-      for (const CLI::App* sub : {jump, flow, demo}) {
+      for (const CLI::App* sub : {jump, flow, demo, fesd}) {
         if (sub->parsed()) name = sub->get_name();
       }
       const std::string where = name.empty() ? "" : name + ": ";
@@ -220,6 +257,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     }
     if (jump->parsed()) return run_jump_file(input, in, out, err, jump_options);
     if (flow->parsed()) return run_flow(flow_options, out, err);
+    if (fesd->parsed()) return run_fesd(fesd_options, out, err);
     return run_demo(demo_options, out, err);
   } catch (const std::exception& e) {
     report_error(err, std::string("internal: ") + e.what());

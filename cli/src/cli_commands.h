@@ -104,6 +104,30 @@ struct DemoOptions {
     when a self-check fails, a file cannot be written, or gnuplot fails. Never throws. */
 int run_demo(const DemoOptions& options, std::ostream& out, std::ostream& err);
 
+/** `bflow fesd`: the options as given on the command line. */
+struct FesdCommandOptions {
+  /** irma, crossing, sliding-enter, sliding-leave or spontaneous; required. */
+  std::string example;
+  std::string formulation = "step";  ///< step or stewart
+  std::string scheme = "radau";      ///< radau or gauss
+  int stages = 2;                    ///< n_s, 1..9
+  int nfe = 3;                       ///< finite elements per integration step
+  int nsim = 0;                      ///< integration steps; 0: the example's default
+  double t = 0.0;                    ///< horizon; 0: the example's default
+  bool standard = false;             ///< standard time-stepping, no switch detection
+  bool trajectory = false;           ///< add the grid, states, step sizes and active sets
+  bool sizes = false;                ///< print [F] Table 4 for the example instead
+  int lifting = 0;                   ///< lifting depth n_d for --sizes (0: none)
+  bool compact = false;
+};
+
+/** `bflow fesd`: simulates a built-in Filippov example by FESD (bflow::fesd_simulate) and
+    prints x(T), the switch times, the complementarity residual, the CPU time and the
+    sensitivity dx(T)/dx0 as JSON (see docs/cli.md); with `sizes`, the problem sizes of
+    Stewart's and the step reformulation ([F] Table 4). Exit code 2 for a bad option, 1 when an
+    integration step does not converge. Never throws. */
+int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream& err);
+
 /** The whole command line (argv[0] is ignored): parses it and dispatches. Never throws. */
 int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& out,
             std::ostream& err);
