@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <cstdlib>
 #include <limits>
 #include <string>
 #include <utility>
@@ -623,17 +622,6 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   app->Options()->SetIntegerValue("max_iter", options.max_nlp_iterations);
   app->Options()->SetStringValue("mu_strategy", "adaptive");
   app->Options()->SetNumericValue("bound_relax_factor", 0.0);
-  if (const char* extra = std::getenv("BFLOW_FESD_EXPERIMENT")) {
-    std::string e(extra);
-    if (e.find("monotone") != std::string::npos)
-      app->Options()->SetStringValue("mu_strategy", "monotone");
-    if (e.find("noscale") != std::string::npos)
-      app->Options()->SetStringValue("nlp_scaling_method", "none");
-    if (e.find("relax") != std::string::npos)
-      app->Options()->SetNumericValue("bound_relax_factor", 1e-8);
-    if (e.find("hist") != std::string::npos)
-      app->Options()->SetIntegerValue("limited_memory_max_history", 30);
-  }
   if (app->Initialize() != Ipopt::Solve_Succeeded) {
     throw InvalidArgument("fesd: IPOPT failed to initialise");
   }
