@@ -253,6 +253,7 @@ class StepNlp final : public Ipopt::TNLP {
   }
 
   void set_sigma(double sigma) { sigma_ = sigma; }
+  void set_solution(const Eigen::VectorXd& w) { w_ = w; }
   // The last converged iterate, kept so that a failed solve can be retried from it.
   void save() { saved_ = {w_, z_l_, z_u_, lambda_}; }
   void restore() {
@@ -575,6 +576,90 @@ Eigen::MatrixXd step_sensitivity(const StepNlp& nlp, const Layout& l, const Eige
   return dw.middleRows(l.var(l.elements - 1, l.off_x), l.d);
 }
 
+// A step without a switch, solved by Newton's method on the FESD equations with the active set
+// predicted from the step's start (`sides`: +1, -1 or 0 per switching function, for every point
+// of every element): a = 1 and lambda^n = 0 on +, a = 0 and lambda^p = 0 on -, lambda^p =
+// lambda^n = 0 when sliding, and equal element lengths. The system is square; its solution is an
+// FESD solution (every complementarity product exactly 0) if the free members come out
+// nonnegative and the free selections inside [0, 1]. Returns false otherwise (a switch inside
+// the step, or no convergence): the caller then solves the step's NLPs.
+bool newton_step(const StepNlp& nlp, const Layout& l, const std::vector<int>& sides, double step,
+                 Eigen::VectorXd& w, int* iterations) {
+  const int nv = l.variables();
+  std::vector<std::pair<int, double>> fixed;
+  for (int n = 0; n < l.elements; ++n) {
+    for (int m = 0; m < l.points; ++m) {
+      for (int j = 0; j < l.nc; ++j) {
+        const int ia = l.var(n, l.off_a + m * l.nc + j);
+        const int ip = l.var(n, l.off_p + m * l.nc + j);
+        const int iq = l.var(n, l.off_q + m * l.nc + j);
+        const int side = sides[static_cast<std::size_t>(j)];
+        if (side > 0) {
+          fixed.push_back({ia, 1.0});
+          fixed.push_back({iq, 0.0});
+        } else if (side < 0) {
+          fixed.push_back({ia, 0.0});
+          fixed.push_back({ip, 0.0});
+        } else {
+          fixed.push_back({ip, 0.0});
+          fixed.push_back({iq, 0.0});
+        }
+      }
+    }
+  }
+  for (const auto& [index, value] : fixed) w[index] = value;
+  Eigen::MatrixXd jac(nv, nv);
+  Eigen::VectorXd residual(nv);
+  for (int it = 0; it < 20; ++it) {
+    jac.setZero();
+    int row = 0;
+    for (int n = 0; n < l.elements; ++n) {
+      Eigen::VectorXd values;
+      const Eigen::MatrixXd local = nlp.element_jacobian(w.data(), n, &values);
+      for (int r = 0; r < l.equalities; ++r, ++row) {
+        residual[row] = values[r];
+        for (int k = 0; k < l.local; ++k) {
+          const int g = l.global(n, k);
+          if (g >= 0) jac(row, g) += local(r, k);
+        }
+      }
+    }
+    for (const auto& [index, value] : fixed) {
+      residual[row] = w[index] - value;
+      jac(row++, index) = 1.0;
+    }
+    double sum = 0;
+    for (int n = 0; n < l.elements; ++n) {
+      sum += w[l.var(n, 0)];
+      jac(row, l.var(n, 0)) = 1.0;
+    }
+    residual[row++] = sum - step;
+    for (int n = 1; n < l.elements; ++n, ++row) {
+      residual[row] = w[l.var(n, 0)] - w[l.var(n - 1, 0)];
+      jac(row, l.var(n, 0)) = 1.0;
+      jac(row, l.var(n - 1, 0)) = -1.0;
+    }
+    BFLOW_ASSERT(row == nv);
+    const Eigen::PartialPivLU<Eigen::MatrixXd> lu(jac);
+    const Eigen::VectorXd delta = lu.solve(-residual);
+    if (!delta.allFinite()) return false;
+    w += delta;
+    *iterations = it + 1;
+    if (delta.lpNorm<Eigen::Infinity>() <= 1e-14 * (1.0 + w.lpNorm<Eigen::Infinity>())) break;
+    if (it == 19) return false;
+  }
+  // The predicted active set is right only if the free members are feasible.
+  for (int n = 0; n < l.elements; ++n) {
+    for (int k = 0; k < l.points * l.nc; ++k) {
+      const double a = w[l.var(n, l.off_a + k)];
+      if (w[l.var(n, l.off_p + k)] < 0.0 || w[l.var(n, l.off_q + k)] < 0.0 || a < 0.0 || a > 1.0) {
+        return false;
+      }
+    }
+  }
+  return true;
+}
+
 void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
                    double t_end, const FesdOptions& o) {
   if (x0.size() != model.states()) {
@@ -640,7 +725,31 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
     double sigma = options.sigma_initial, last_sigma = sigma;
     bool first = true;
     int retries = 0;
-    while (true) {
+    // Predicted sides: from c(x) where it is clearly nonzero, else the last element's.
+    bool solved_by_newton = false;
+    if (options.newton && !options.standard) {
+      Eigen::VectorXd c(l.nc);
+      model.switching(x.data(), c.data());
+      std::vector<int> sides(static_cast<std::size_t>(l.nc));
+      bool known = true;
+      for (int j = 0; j < l.nc; ++j) {
+        if (std::abs(c[j]) > active_tol) {
+          sides[static_cast<std::size_t>(j)] = c[j] > 0 ? 1 : -1;
+        } else if (!previous_sides.empty()) {
+          sides[static_cast<std::size_t>(j)] = previous_sides[static_cast<std::size_t>(j)];
+        } else {
+          known = false;
+        }
+      }
+      Eigen::VectorXd w = nlp->solution();
+      int newton_iterations = 0;
+      if (known && newton_step(*nlp, l, sides, step, w, &newton_iterations)) {
+        nlp->set_solution(w);
+        solved_by_newton = true;
+        ++result.newton_steps;
+      }
+    }
+    while (!solved_by_newton) {
       nlp->set_sigma(sigma);
       // Intermediate problems only need to be solved to the accuracy sigma allows.
       const double tol = sigma <= options.sigma_final

@@ -55,6 +55,27 @@ TEST(FesdTest, EnteringSlidingIsLocatedToTheOrderOfTheScheme) {
   expect_exact<examples::SlidingEnterCase>("sliding-enter", o, 1e-9);
 }
 
+// Steps without a switch are solved by Newton's method on the predicted active set; the IPOPT
+// homotopy alone must reach the same FESD solution, and Newton must actually be used.
+TEST(FesdTest, NewtonOnThePredictedActiveSetAgreesWithTheHomotopy) {
+  FesdOptions o;
+  o.stages = 4;
+  o.steps = 8;
+  o.elements = 2;
+  const FesdResult fast = run_case<examples::SlidingEnterCase>("sliding-enter", o);
+  o.newton = false;
+  const FesdResult slow = run_case<examples::SlidingEnterCase>("sliding-enter", o);
+  ASSERT_TRUE(fast.ok()) << fast.message;
+  ASSERT_TRUE(slow.ok()) << slow.message;
+  EXPECT_GE(fast.newton_steps, 6);  // all but the first step and the one with the switch
+  EXPECT_EQ(slow.newton_steps, 0);
+  EXPECT_LE((fast.x_end - slow.x_end).cwiseAbs().maxCoeff(), 1e-10);
+  ASSERT_EQ(fast.switch_times.size(), slow.switch_times.size());
+  EXPECT_NEAR(fast.switch_times[0], slow.switch_times[0], 1e-10);
+  ASSERT_EQ(fast.sensitivity.size(), slow.sensitivity.size());
+  EXPECT_LE((fast.sensitivity - slow.sensitivity).cwiseAbs().maxCoeff(), 1e-8);
+}
+
 // x' in sign(x) from 0 has infinitely many solutions: stay at 0, or leave at any t_s with
 // |x| = t - t_s. Whichever FESD returns must be one of them.
 TEST(FesdTest, SpontaneousSwitchReturnsOneOfTheSolutions) {

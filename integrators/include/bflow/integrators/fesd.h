@@ -27,7 +27,9 @@
 // a switch between them get equal lengths. With `standard`, the h_n are fixed to H / N_FE and
 // complementarity holds stage by stage only ((34), standard time-stepping).
 //
-// Solution. Each step is a homotopy of Scholtes-relaxed NLPs (products <= sigma, sigma from
+// Solution. A step is first tried by Newton's method on the FESD equations with the active set
+// predicted from its start (no switch inside the step); when that prediction fails, the step is
+// a homotopy of Scholtes-relaxed NLPs (products <= sigma, sigma from
 // sigma_initial down to sigma_final, times sigma_factor, or sigma^1.5 when superlinear), solved
 // by IPOPT with exact first derivatives from Jets and a limited-memory Hessian, each NLP warm-
 // started from the previous one. A step that does not converge ends the run with a status that
@@ -164,6 +166,9 @@ struct FesdOptions {
   bool superlinear = true;    ///< sigma <- min(factor sigma, sigma^1.5)
   double nlp_tolerance = 1e-13;
   int max_nlp_iterations = 500;
+  /** Try each step first by Newton's method on the active set predicted from its start (no
+      switch inside); the IPOPT homotopy runs only when that prediction fails. */
+  bool newton = true;
   bool sensitivities = true;
   int print_level = 0;  ///< IPOPT's print_level (0 silent)
 };
@@ -188,7 +193,9 @@ struct FesdResult {
   std::vector<std::vector<int>> active_sets;
   /** Largest complementarity product at the final sigma, over all steps. */
   double max_complementarity = 0.0;
-  /** IPOPT iterations of each integration step (summed over its homotopy). */
+  /** Integration steps solved by Newton's method on the predicted active set (no IPOPT). */
+  int newton_steps = 0;
+  /** IPOPT iterations of each integration step (summed over its homotopy; 0 for Newton). */
   std::vector<int> nlp_iterations;
   /** dx(T)/dx0, d x d (empty unless options.sensitivities). */
   Eigen::MatrixXd sensitivity;
