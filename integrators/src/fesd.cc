@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <deque>
 #include <limits>
 #include <string>
 #include <utility>
@@ -718,9 +719,16 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   Eigen::MatrixXd sensitivity = Eigen::MatrixXd::Identity(l.d, l.d);
   bool sensitivities = options.sensitivities;
   std::vector<int> previous_sides;
-  for (int k = 0; k < options.steps; ++k) {
-    const double t0 = k * step;
-    Ipopt::SmartPtr<StepNlp> nlp = new StepNlp(model, tab, l, options, x, step);
+  // Integration steps still to take, as (length, times halved); a step whose homotopy fails is
+  // replaced by its two halves, at most kMaxHalvings times.
+  constexpr int kMaxHalvings = 4;
+  std::deque<std::pair<double, int>> pending(static_cast<std::size_t>(options.steps),
+                                             std::make_pair(step, 0));
+  double t0 = 0.0;
+  while (!pending.empty()) {
+    const auto [length, halvings] = pending.front();
+    pending.pop_front();
+    Ipopt::SmartPtr<StepNlp> nlp = new StepNlp(model, tab, l, options, x, length);
     int iterations = 0;
     double sigma = options.sigma_initial, last_sigma = sigma;
     bool first = true;
@@ -743,10 +751,23 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       }
       Eigen::VectorXd w = nlp->solution();
       int newton_iterations = 0;
-      if (known && newton_step(*nlp, l, sides, step, w, &newton_iterations)) {
+      if (known && newton_step(*nlp, l, sides, length, w, &newton_iterations)) {
         nlp->set_solution(w);
         solved_by_newton = true;
         ++result.newton_steps;
+      } else if (known && w.allFinite()) {
+        // A switch inside the step: the no-switch solution still follows the trajectory up to
+        // it, a better start for the homotopy than the held state.
+        for (int n = 0; n < l.elements; ++n) {
+          w[l.var(n, 0)] = length / l.elements;
+          for (int i = 0; i < l.points * l.nc; ++i) {
+            double& a = w[l.var(n, l.off_a + i)];
+            a = std::clamp(a, 0.0, 1.0);
+            w[l.var(n, l.off_p + i)] = std::max(w[l.var(n, l.off_p + i)], 0.0);
+            w[l.var(n, l.off_q + i)] = std::max(w[l.var(n, l.off_q + i)], 0.0);
+          }
+        }
+        nlp->set_solution(w);
       }
     }
     while (!solved_by_newton) {
@@ -783,13 +804,20 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
         sigma = std::sqrt(sigma * last_sigma);
         continue;
       }
+      if (!solved && halvings < kMaxHalvings) {
+        pending.push_front({length / 2, halvings + 1});
+        pending.push_front({length / 2, halvings + 1});
+        ++result.halved_steps;
+        break;
+      }
       if (!solved) {
         result.status = FesdStatus::kStepFailed;
-        result.message =
-            "fesd: integration step " + std::to_string(k) + " at t = " + format_number(t0) +
-            " did not converge at sigma = " + format_number(sigma) + ": IPOPT status " +
-            std::to_string(static_cast<int>(status)) + ", complementarity residual " +
-            format_number(nlp->complementarity(nlp->solution()));
+        result.message = "fesd: the integration step at t = " + format_number(t0) + " of length " +
+                         format_number(length) + " (halved " + std::to_string(halvings) +
+                         " times) did not converge at sigma = " + format_number(sigma) +
+                         ": IPOPT status " + std::to_string(static_cast<int>(status)) +
+                         ", complementarity residual " +
+                         format_number(nlp->complementarity(nlp->solution()));
         result.x_end = x;
         result.nlp_iterations.push_back(iterations);
         return result;
@@ -802,6 +830,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       if (options.superlinear) next = std::min(next, std::pow(sigma, 1.5));
       sigma = std::max(next, options.sigma_final);
     }
+    if (!solved_by_newton && last_sigma > options.sigma_final) continue;  // halved
     const Eigen::VectorXd& w = nlp->solution();
     result.nlp_iterations.push_back(iterations);
     result.max_complementarity = std::max(result.max_complementarity, nlp->complementarity(w));
@@ -810,7 +839,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       const double h = w[l.var(n, 0)];
       t += h;
       result.step_sizes.push_back(h);
-      result.grid.push_back(n + 1 == l.elements ? t0 + step : t);
+      result.grid.push_back(n + 1 == l.elements ? t0 + length : t);
       states.push_back(w.segment(l.var(n, l.off_x), l.d));
       std::vector<int> sides(static_cast<std::size_t>(l.nc));
       for (int j = 0; j < l.nc; ++j)
@@ -826,12 +855,14 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       const Eigen::MatrixXd s = step_sensitivity(*nlp, l, w, active_tol, &why);
       if (s.size() == 0) {
         sensitivities = false;
-        result.message = "fesd: no sensitivity at step " + std::to_string(k) + ": " + why;
+        result.message =
+            "fesd: no sensitivity at the step from t = " + format_number(t0) + ": " + why;
       } else {
         sensitivity = s * sensitivity;
       }
     }
     x = w.segment(l.var(l.elements - 1, l.off_x), l.d);
+    t0 += length;
   }
   result.x_end = x;
   result.states.resize(l.d, static_cast<Eigen::Index>(states.size()));

@@ -32,8 +32,9 @@
 // a homotopy of Scholtes-relaxed NLPs (products <= sigma, sigma from
 // sigma_initial down to sigma_final, times sigma_factor, or sigma^1.5 when superlinear), solved
 // by IPOPT with exact first derivatives from Jets and a limited-memory Hessian, each NLP warm-
-// started from the previous one. A step that does not converge ends the run with a status that
-// quotes the complementarity residual and IPOPT's message.
+// started from the previous one. A step whose homotopy fails is replaced by its two halves (up to
+// four times); one that still does not converge ends the run with a status that quotes the
+// complementarity residual and IPOPT's status.
 //
 // Sensitivity. On the converged active set the step's equations are square in its unknowns
 // (each complementarity pair fixed to its active branch, equal lengths where no switch); the
@@ -193,6 +194,9 @@ struct FesdResult {
   std::vector<std::vector<int>> active_sets;
   /** Largest complementarity product at the final sigma, over all steps. */
   double max_complementarity = 0.0;
+  /** Integration steps whose homotopy failed and that were replaced by their two halves (at
+      most four times in a row); the grid then has more elements than N_sim N_FE. */
+  int halved_steps = 0;
   /** Integration steps solved by Newton's method on the predicted active set (no IPOPT). */
   int newton_steps = 0;
   /** IPOPT iterations of each integration step (summed over its homotopy; 0 for Newton). */
