@@ -130,7 +130,8 @@ int main(int argc, char** argv) {
     std::printf("| %s | %d | %.2f |\n", series[k].name.c_str(), series[k].order, slope(results[k]));
   }
   if (!plot) return 0;
-  std::string script = "set terminal pngcairo size 900,650 font ',11'\nset output '" + out_dir +
+  std::string script = "set terminal pngcairo size 900,650 font ',11' noenhanced\nset output '" +
+                       out_dir +
                        "/fesd_order.png'\nset logscale xy\nset format y '1e%L'\nset grid\n"
                        "set key outside right\nset xlabel 'h = T / (N_sim N_FE) [min]'\n"
                        "set ylabel 'max |x(100) - x_exact(100)|'\n"
@@ -141,8 +142,11 @@ int main(int argc, char** argv) {
   }
   script += "\n";
   for (const auto& points : results) {
-    for (const Point& p : points)
-      script += std::to_string(p.h) + " " + std::to_string(std::max(p.error, 1e-16)) + "\n";
+    for (const Point& p : points) {
+      char line[64];
+      std::snprintf(line, sizeof line, "%.6e %.6e\n", p.h, std::max(p.error, 1e-16));
+      script += line;
+    }
     script += "e\n";
   }
   FILE* gnuplot = popen("gnuplot", "w");
