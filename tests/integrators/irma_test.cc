@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include "bflow/integrators/fesd.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
 
@@ -32,7 +33,7 @@ TEST(IrmaTest, EventDrivenEngineMeetsTheExactSwitchTimesAndState) {
   const Irma irma;
   const double t_end = 100.0;
   const examples::IrmaSolution exact = examples::exact_irma(irma, Irma::initial_state(), t_end);
-  const auto model = adapt(examples::IrmaModel{irma});
+  const auto model = adapt(EventDrivenView<Irma>{irma});
   FlowOptions options;
   options.integrator.rtol = 1e-12;
   options.integrator.atol = 1e-15;

@@ -14,8 +14,9 @@
 // No rate depends on a step of its own variable (x2's thresholds steer x3, x4, x5, and so on),
 // so every crossing is transversal and nothing slides: with the steps fixed, each x_i relaxes
 // exponentially to r_i / k_i, and the exact solution is a chain of exponentials whose switch
-// times are logarithms (exact_irma). The same system is an event-driven bflow model
-// (IrmaModel: surface j is c_j, side + is a_j = 1), so both engines meet on it.
+// times are logarithms (exact_irma). Seen through bflow::EventDrivenView (fesd.h: surface j is
+// c_j, side + is a_j = 1) the same system runs on the event-driven engine, so both engines meet
+// on it.
 #ifndef BFLOW_EXAMPLES_IRMA_H_
 #define BFLOW_EXAMPLES_IRMA_H_
 
@@ -27,7 +28,6 @@
 #include <Eigen/Core>
 
 #include "bflow/core/errors.h"
-#include "bflow/core/signs.h"
 
 namespace bflow::examples {
 
@@ -66,24 +66,6 @@ struct Irma {
     double xdot[kStates];
     field(zero, a.data(), xdot);
     return {xdot[0], xdot[1], xdot[2], xdot[3], xdot[4]};
-  }
-};
-
-/** IRMA as an event-driven bflow model: surface j is c_j(x), side + of surface j is a_j = 1. */
-struct IrmaModel {
-  static constexpr int kStates = Irma::kStates;
-  static constexpr int kSurfaces = Irma::kSwitches;
-  Irma irma;
-
-  template <typename T>
-  void field(const T* x, Signs b, T* xdot) const {
-    T a[kSurfaces];
-    for (int j = 0; j < kSurfaces; ++j) a[j] = T(b.plus(j) ? 1.0 : 0.0);
-    irma.field(x, a, xdot);
-  }
-  template <typename T>
-  void surfaces(const T* x, T* h) const {
-    irma.switching(x, h);
   }
 };
 
