@@ -88,7 +88,11 @@ void element_residual(const StepModel& model, const ButcherTableau& tab, const L
   const T* a = blk + l.off_a;
   const T* p = blk + l.off_p;
   const T* q = blk + l.off_q;
-  std::vector<T> f(static_cast<std::size_t>(s * d)), c(static_cast<std::size_t>(nc));
+  // Scratch kept per thread and scalar type: this runs for every Jacobian chunk and every IPOPT
+  // evaluation, so it allocates only when the sizes grow.
+  thread_local std::vector<T> f, c;
+  f.resize(static_cast<std::size_t>(s * d));
+  c.resize(static_cast<std::size_t>(nc));
   for (int m = 0; m < s; ++m) model.field(stage + m * d, a + m * nc, f.data() + m * d);
   T* eq = out;
   for (int m = 0; m < s; ++m) {
@@ -490,78 +494,96 @@ int element_side(const Layout& l, const Eigen::VectorXd& w, int n, int j, double
   return 0;
 }
 
+// One integration step's FESD equations with the active set fixed: the element equalities, each
+// fixed complementarity variable (index, value), sum h_n = H, and h_n = h_{n-1} at the listed
+// boundaries n. assemble() writes the residual and the Jacobians in w and in the step's start x.
+struct FixedActiveSet {
+  std::vector<std::pair<int, double>> fixed;
+  std::vector<int> equal_lengths;
+
+  int rows(const Layout& l) const {
+    return l.elements * l.equalities + static_cast<int>(fixed.size()) + 1 +
+           static_cast<int>(equal_lengths.size());
+  }
+
+  void assemble(const StepNlp& nlp, const Layout& l, const Eigen::VectorXd& w, double step,
+                Eigen::MatrixXd& jac_w, Eigen::MatrixXd& jac_x, Eigen::VectorXd& residual) const {
+    const int count = rows(l);
+    jac_w.setZero(count, l.variables());
+    jac_x.setZero(count, l.d);
+    residual.resize(count);
+    int row = 0;
+    Eigen::VectorXd values;
+    for (int n = 0; n < l.elements; ++n) {
+      const Eigen::MatrixXd local = nlp.element_jacobian(w.data(), n, &values);
+      for (int r = 0; r < l.equalities; ++r, ++row) {
+        residual[row] = values[r];
+        for (int k = 0; k < l.local; ++k) {
+          const int g = l.global(n, k);
+          if (g >= 0) {
+            jac_w(row, g) += local(r, k);
+          } else if (k < l.d) {
+            jac_x(row, k) += local(r, k);
+          }
+        }
+      }
+    }
+    for (const auto& [index, value] : fixed) {
+      residual[row] = w[index] - value;
+      jac_w(row++, index) = 1.0;
+    }
+    double sum = 0;
+    for (int n = 0; n < l.elements; ++n) {
+      sum += w[l.var(n, 0)];
+      jac_w(row, l.var(n, 0)) = 1.0;
+    }
+    residual[row++] = sum - step;
+    for (int n : equal_lengths) {
+      residual[row] = w[l.var(n, 0)] - w[l.var(n - 1, 0)];
+      jac_w(row, l.var(n, 0)) = 1.0;
+      jac_w(row++, l.var(n - 1, 0)) = -1.0;
+    }
+  }
+};
+
 // dx_end/dx_start by the implicit function theorem on the converged active set, or an empty
 // matrix with *why set when the fixed-active-set system is not square or is singular.
 Eigen::MatrixXd step_sensitivity(const StepNlp& nlp, const Layout& l, const Eigen::VectorXd& w,
-                                 double tol, std::string* why) {
+                                 double step, double tol, std::string* why) {
   const int nv = l.variables();
-  std::vector<Eigen::RowVectorXd> rows_w;
-  std::vector<Eigen::RowVectorXd> rows_x;
-  auto add = [&](Eigen::RowVectorXd rw, Eigen::RowVectorXd rx) {
-    rows_w.push_back(std::move(rw));
-    rows_x.push_back(std::move(rx));
-  };
+  FixedActiveSet active;
   for (int n = 0; n < l.elements; ++n) {
-    const Eigen::MatrixXd jac = nlp.element_jacobian(w.data(), n, nullptr);
-    for (int r = 0; r < l.equalities; ++r) {
-      Eigen::RowVectorXd rw = Eigen::RowVectorXd::Zero(nv), rx = Eigen::RowVectorXd::Zero(l.d);
-      for (int k = 0; k < l.local; ++k) {
-        const int g = l.global(n, k);
-        if (g >= 0) {
-          rw[g] += jac(r, k);
-        } else if (k < l.d) {
-          rx[k] += jac(r, k);
-        }
-      }
-      add(std::move(rw), std::move(rx));
-    }
-    // Active branches of each point's pairs.
     for (int m = 0; m < l.points; ++m) {
       for (int j = 0; j < l.nc; ++j) {
         const int ia = l.var(n, l.off_a + m * l.nc + j);
-        const int ip = l.var(n, l.off_p + m * l.nc + j);
-        const int iq = l.var(n, l.off_q + m * l.nc + j);
-        for (int idx : {ia, ip, iq}) {
-          const double value = w[idx];
-          const bool fixed = idx == ia ? (value <= tol || value >= 1.0 - tol) : value <= tol;
-          if (!fixed) continue;
-          Eigen::RowVectorXd rw = Eigen::RowVectorXd::Zero(nv);
-          rw[idx] = 1.0;
-          add(std::move(rw), Eigen::RowVectorXd::Zero(l.d));
+        if (w[ia] <= tol) active.fixed.push_back({ia, 0.0});
+        if (w[ia] >= 1.0 - tol) active.fixed.push_back({ia, 1.0});
+        for (int off : {l.off_p, l.off_q}) {
+          const int idx = l.var(n, off + m * l.nc + j);
+          if (w[idx] <= tol) active.fixed.push_back({idx, 0.0});
         }
       }
     }
-  }
-  {
-    Eigen::RowVectorXd rw = Eigen::RowVectorXd::Zero(nv);
-    for (int n = 0; n < l.elements; ++n) rw[l.var(n, 0)] = 1.0;
-    add(std::move(rw), Eigen::RowVectorXd::Zero(l.d));
   }
   for (int n = 1; n < l.elements; ++n) {
     bool same = true;
     for (int j = 0; j < l.nc; ++j) {
       same = same && element_side(l, w, n - 1, j, tol) == element_side(l, w, n, j, tol);
     }
-    if (!same) continue;
-    Eigen::RowVectorXd rw = Eigen::RowVectorXd::Zero(nv);
-    rw[l.var(n, 0)] = 1.0;
-    rw[l.var(n - 1, 0)] = -1.0;
-    add(std::move(rw), Eigen::RowVectorXd::Zero(l.d));
+    if (same) active.equal_lengths.push_back(n);
   }
   // A switch that falls on the step's end, or a pair that is degenerate at the solution (both
   // members zero), adds an equation that the others already imply: the system is then tall but
   // consistent, and its least-squares solution is the derivative.
-  const int count = static_cast<int>(rows_w.size());
+  const int count = active.rows(l);
   if (count < nv) {
     *why = "the fixed-active-set system has " + std::to_string(count) + " equations for " +
            std::to_string(nv) + " unknowns (no switch condition for a free element length)";
     return {};
   }
-  Eigen::MatrixXd gw(count, nv), gx(count, l.d);
-  for (int r = 0; r < count; ++r) {
-    gw.row(r) = rows_w[static_cast<std::size_t>(r)];
-    gx.row(r) = rows_x[static_cast<std::size_t>(r)];
-  }
+  Eigen::MatrixXd gw, gx;
+  Eigen::VectorXd residual;
+  active.assemble(nlp, l, w, step, gw, gx, residual);
   const Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(gw);
   if (qr.rank() < nv) {
     *why = "the fixed-active-set system is singular (rank " + std::to_string(qr.rank()) + " of " +
@@ -569,9 +591,10 @@ Eigen::MatrixXd step_sensitivity(const StepNlp& nlp, const Layout& l, const Eige
     return {};
   }
   const Eigen::MatrixXd dw = qr.solve(-gx);
-  const double residual = (gw * dw + gx).norm();
-  if (!(residual <= 1e-8 * std::max(1.0, gx.norm()))) {
-    *why = "the fixed-active-set system is inconsistent (residual " + format_number(residual) + ")";
+  const double inconsistency = (gw * dw + gx).norm();
+  if (!(inconsistency <= 1e-8 * std::max(1.0, gx.norm()))) {
+    *why = "the fixed-active-set system is inconsistent (residual " + format_number(inconsistency) +
+           ")";
     return {};
   }
   return dw.middleRows(l.var(l.elements - 1, l.off_x), l.d);
@@ -586,9 +609,9 @@ Eigen::MatrixXd step_sensitivity(const StepNlp& nlp, const Layout& l, const Eige
 // the step, or no convergence): the caller then solves the step's NLPs.
 bool newton_step(const StepNlp& nlp, const Layout& l, const std::vector<int>& sides, double step,
                  Eigen::VectorXd& w, int* iterations) {
-  const int nv = l.variables();
-  std::vector<std::pair<int, double>> fixed;
+  FixedActiveSet active;
   for (int n = 0; n < l.elements; ++n) {
+    if (n > 0) active.equal_lengths.push_back(n);
     for (int m = 0; m < l.points; ++m) {
       for (int j = 0; j < l.nc; ++j) {
         const int ia = l.var(n, l.off_a + m * l.nc + j);
@@ -596,51 +619,24 @@ bool newton_step(const StepNlp& nlp, const Layout& l, const std::vector<int>& si
         const int iq = l.var(n, l.off_q + m * l.nc + j);
         const int side = sides[static_cast<std::size_t>(j)];
         if (side > 0) {
-          fixed.push_back({ia, 1.0});
-          fixed.push_back({iq, 0.0});
+          active.fixed.push_back({ia, 1.0});
+          active.fixed.push_back({iq, 0.0});
         } else if (side < 0) {
-          fixed.push_back({ia, 0.0});
-          fixed.push_back({ip, 0.0});
+          active.fixed.push_back({ia, 0.0});
+          active.fixed.push_back({ip, 0.0});
         } else {
-          fixed.push_back({ip, 0.0});
-          fixed.push_back({iq, 0.0});
+          active.fixed.push_back({ip, 0.0});
+          active.fixed.push_back({iq, 0.0});
         }
       }
     }
   }
-  for (const auto& [index, value] : fixed) w[index] = value;
-  Eigen::MatrixXd jac(nv, nv);
-  Eigen::VectorXd residual(nv);
+  BFLOW_ASSERT(active.rows(l) == l.variables());
+  for (const auto& [index, value] : active.fixed) w[index] = value;
+  Eigen::MatrixXd jac, jac_x;
+  Eigen::VectorXd residual;
   for (int it = 0; it < 20; ++it) {
-    jac.setZero();
-    int row = 0;
-    for (int n = 0; n < l.elements; ++n) {
-      Eigen::VectorXd values;
-      const Eigen::MatrixXd local = nlp.element_jacobian(w.data(), n, &values);
-      for (int r = 0; r < l.equalities; ++r, ++row) {
-        residual[row] = values[r];
-        for (int k = 0; k < l.local; ++k) {
-          const int g = l.global(n, k);
-          if (g >= 0) jac(row, g) += local(r, k);
-        }
-      }
-    }
-    for (const auto& [index, value] : fixed) {
-      residual[row] = w[index] - value;
-      jac(row++, index) = 1.0;
-    }
-    double sum = 0;
-    for (int n = 0; n < l.elements; ++n) {
-      sum += w[l.var(n, 0)];
-      jac(row, l.var(n, 0)) = 1.0;
-    }
-    residual[row++] = sum - step;
-    for (int n = 1; n < l.elements; ++n, ++row) {
-      residual[row] = w[l.var(n, 0)] - w[l.var(n - 1, 0)];
-      jac(row, l.var(n, 0)) = 1.0;
-      jac(row, l.var(n - 1, 0)) = -1.0;
-    }
-    BFLOW_ASSERT(row == nv);
+    active.assemble(nlp, l, w, step, jac, jac_x, residual);
     const Eigen::PartialPivLU<Eigen::MatrixXd> lu(jac);
     const Eigen::VectorXd delta = lu.solve(-residual);
     if (!delta.allFinite()) return false;
@@ -852,7 +848,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
     }
     if (sensitivities) {
       std::string why;
-      const Eigen::MatrixXd s = step_sensitivity(*nlp, l, w, active_tol, &why);
+      const Eigen::MatrixXd s = step_sensitivity(*nlp, l, w, length, active_tol, &why);
       if (s.size() == 0) {
         sensitivities = false;
         result.message =
