@@ -1,7 +1,7 @@
 #include "bflow/core/filippov.h"
 
 #include <algorithm>
-#include <set>
+#include <map>
 
 #include "bflow/core/errors.h"
 
@@ -91,30 +91,55 @@ bool SignMatrix::is_dense() const {
   return (s_.array() != 0).all();  // no two rows overlap, so 2^n_c full rows are all patterns
 }
 
-int SignMatrix::lifting_variables(int depth) const {
+SignMatrix::Lifting SignMatrix::lifting(int depth) const {
   if (depth == 1) {
     throw InvalidArgument("lifting depth n_d must be >= 2 (or 0 for none), got 1");
   }
   const int n_c = switches();
-  if (depth <= 0 || depth >= n_c) return 0;
+  const bool lift = depth >= 2 && depth < n_c;
+  Lifting out;
+  out.row_products.resize(static_cast<std::size_t>(rows()));
+  std::vector<Product> partial(static_cast<std::size_t>(rows()));
   std::vector<bool> finished(static_cast<std::size_t>(rows()), false);
-  int count = 0;
-  for (int j = 1; j <= n_c; ++j) {
-    for (int r = 0; r < rows(); ++r) {
-      if ((s_.row(r).array() != 0).count() == j) finished[static_cast<std::size_t>(r)] = true;
-    }
-    if (j >= depth && j <= n_c - 1) {
-      std::set<std::vector<int>> prefixes;
-      for (int r = 0; r < rows(); ++r) {
-        if (finished[static_cast<std::size_t>(r)]) continue;
-        std::vector<int> prefix(static_cast<std::size_t>(j));
-        for (int k = 0; k < j; ++k) prefix[static_cast<std::size_t>(k)] = s_(r, k);
-        prefixes.insert(prefix);
-      }
-      count += static_cast<int>(prefixes.size());
+  std::vector<int> last(static_cast<std::size_t>(rows()), -1);
+  for (int r = 0; r < rows(); ++r) {
+    for (int j = 0; j < n_c; ++j) {
+      if (s_(r, j) != 0) last[static_cast<std::size_t>(r)] = j;
     }
   }
-  return count;
+  for (int j = 0; j < n_c; ++j) {
+    for (int r = 0; r < rows(); ++r) {
+      const auto ur = static_cast<std::size_t>(r);
+      if (finished[ur]) continue;
+      if (s_(r, j) != 0) {
+        partial[ur].push_back({s_(r, j) > 0 ? Factor::kAlpha : Factor::kOneMinusAlpha, j});
+      }
+      if (last[ur] <= j) {
+        out.row_products[ur] = partial[ur];
+        finished[ur] = true;
+      }
+    }
+    if (!lift || j + 1 < depth || j + 1 > n_c - 1) continue;
+    std::map<std::vector<int>, int> beta_of_prefix;
+    for (int r = 0; r < rows(); ++r) {
+      const auto ur = static_cast<std::size_t>(r);
+      if (finished[ur]) continue;
+      std::vector<int> prefix;
+      for (int k = 0; k <= j; ++k) prefix.push_back(s_(r, k));
+      auto [it, fresh] = beta_of_prefix.emplace(prefix, out.betas());
+      if (fresh) out.beta_products.push_back(partial[ur]);
+      partial[ur] = {{Factor::kBeta, it->second}};
+    }
+  }
+  return out;
+}
+
+int SignMatrix::lifting_variables(int depth) const { return lifting(depth).betas(); }
+
+std::vector<double> SignMatrix::vertex(int row) const {
+  std::vector<double> a(static_cast<std::size_t>(switches()));
+  for (int j = 0; j < switches(); ++j) a[static_cast<std::size_t>(j)] = s_(row, j) > 0 ? 1.0 : 0.0;
+  return a;
 }
 
 const char* to_string(DcsFormulation formulation) {

@@ -97,6 +97,70 @@ TEST(SignMatrixTest, LiftingCountsAndTable4) {
   EXPECT_EQ(step.equalities, 4 + 12 + 16);
 }
 
+// [F] Example 5: n_c = 3, n_d = 2 gives beta_1..4 = the four products of (a_1 | 1 - a_1) and
+// (a_2 | 1 - a_2), and theta_i = beta_k times (a_3 | 1 - a_3).
+TEST(SignMatrixTest, LiftingOfExample5IsBilinear) {
+  using F = SignMatrix::Factor;
+  const SignMatrix::Lifting lift = SignMatrix::dense(3).lifting(2);
+  ASSERT_EQ(lift.betas(), 4);
+  ASSERT_EQ(lift.beta_products[0].size(), 2u);
+  EXPECT_EQ(lift.beta_products[0][0].kind, F::kAlpha);
+  EXPECT_EQ(lift.beta_products[0][1].kind, F::kAlpha);
+  EXPECT_EQ(lift.beta_products[1][1].kind, F::kOneMinusAlpha);  // a_1 (1 - a_2)
+  EXPECT_EQ(lift.beta_products[3][0].kind, F::kOneMinusAlpha);
+  for (int r = 0; r < 8; ++r) {
+    const auto& p = lift.row_products[static_cast<std::size_t>(r)];
+    ASSERT_EQ(p.size(), 2u) << r;
+    EXPECT_EQ(p[0].kind, F::kBeta);
+    EXPECT_EQ(p[0].index, r / 2);
+    EXPECT_EQ(p[1].kind, r % 2 ? F::kOneMinusAlpha : F::kAlpha);
+    EXPECT_EQ(p[1].index, 2);
+  }
+}
+
+// The lifted products reproduce theta(a) (an independent evaluation: multipliers()) for dense
+// and union sign matrices and every depth, with no product longer than n_d factors.
+TEST(SignMatrixTest, LiftedMultipliersEqualTheMultiAffineOnes) {
+  Eigen::MatrixXi union_rows(4, 4);
+  union_rows << 1, 0, 0, 0, -1, 1, 1, 0, -1, 1, -1, 0, -1, -1, 0, 0;
+  const std::vector<SignMatrix> matrices{SignMatrix::dense(4), SignMatrix::dense(5),
+                                         SignMatrix(union_rows, {0, 1, 1, 2})};
+  const double a[5] = {0.3, 0.85, 0.1, 0.55, 0.7};
+  for (const SignMatrix& s : matrices) {
+    std::vector<double> expected(static_cast<std::size_t>(s.modes()));
+    s.multipliers(a, expected.data());
+    for (int depth : {0, 2, 3, 4}) {
+      const SignMatrix::Lifting lift = s.lifting(depth);
+      EXPECT_EQ(lift.betas(), s.lifting_variables(depth));
+      std::vector<double> beta(static_cast<std::size_t>(lift.betas()));
+      lift.betas(a, beta.data());
+      std::vector<double> theta(static_cast<std::size_t>(s.modes()), 0.0);
+      for (int r = 0; r < s.rows(); ++r) {
+        const auto& p = lift.row_products[static_cast<std::size_t>(r)];
+        if (depth >= 2) EXPECT_LE(static_cast<int>(p.size()), depth);
+        theta[static_cast<std::size_t>(s.mode_of_row()[static_cast<std::size_t>(r)])] +=
+            SignMatrix::Lifting::product(p, a, beta.data());
+      }
+      for (const auto& p : lift.beta_products) {
+        EXPECT_LE(static_cast<int>(p.size()), std::max(depth, 2));
+      }
+      for (int i = 0; i < s.modes(); ++i) {
+        EXPECT_NEAR(theta[static_cast<std::size_t>(i)], expected[static_cast<std::size_t>(i)],
+                    1e-15)
+            << "n_c " << s.switches() << " depth " << depth << " mode " << i;
+      }
+    }
+  }
+  // The vertex of a row selects that row's mode alone.
+  const SignMatrix u(union_rows, {0, 1, 1, 2});
+  for (int r = 0; r < u.rows(); ++r) {
+    const std::vector<double> v = u.vertex(r);
+    std::vector<double> theta(3);
+    u.multipliers(v.data(), theta.data());
+    EXPECT_EQ(theta[static_cast<std::size_t>(u.mode_of_row()[static_cast<std::size_t>(r)])], 1.0);
+  }
+}
+
 TEST(SignMatrixTest, BadInputNamesTheProblem) {
   using bflow::testing::message_of;
   Eigen::MatrixXi overlap(2, 2);

@@ -75,12 +75,52 @@ class SignMatrix {
     }
   }
 
-  /** Lifting variables beta that [F] Algorithm 1 introduces with depth n_d, counted as it
-      does: for j = 1 .. n_c the rows with exactly j nonzero entries are finished, and for
-      j = n_d .. n_c - 1 every distinct prefix S_{r, 1..j} of an unfinished row gets one beta.
-      Dense S: 2^n_c - 2^n_d ([F] Table 4). n_d <= 0 or n_d >= n_c: no lifting, 0.
+  /** One factor of a lifted product: a_j, 1 - a_j or beta_k. */
+  struct Factor {
+    enum Kind { kAlpha, kOneMinusAlpha, kBeta } kind;
+    int index;
+    template <typename T>
+    T value(const T* a, const T* beta) const {
+      return kind == kAlpha ? a[index] : kind == kOneMinusAlpha ? T(1.0) - a[index] : beta[index];
+    }
+  };
+  using Product = std::vector<Factor>;
+
+  /** The lifted multipliers of [F] Algorithm 1 with depth n_d:
+        beta_k = prod of beta_products[k],   theta_i = sum over rows r of mode i of
+        prod of row_products[r],
+      with at most n_d factors in any product. Columns are taken in order; a row is finished at
+      its last nonzero column, and after column j (n_d <= j <= n_c - 1, 1-based) the
+      unfinished rows that share the prefix S_{r, 1..j} share one new beta, which replaces
+      their product so far. Dense S: 2^n_c - 2^n_d betas ([F] Table 4, Example 5). n_d <= 0 or
+      n_d >= n_c: no betas, each row its full product (the unlifted (21)).
       @throws InvalidArgument for n_d == 1 (a product of one factor cannot be lifted). */
+  struct Lifting {
+    std::vector<Product> beta_products;
+    std::vector<Product> row_products;
+    int betas() const { return static_cast<int>(beta_products.size()); }
+    /** beta from a, in order (each beta_k uses only earlier betas). */
+    template <typename T>
+    void betas(const T* a, T* beta) const {
+      for (std::size_t k = 0; k < beta_products.size(); ++k) {
+        beta[k] = product(beta_products[k], a, beta);
+      }
+    }
+    template <typename T>
+    static T product(const Product& factors, const T* a, const T* beta) {
+      T value(1.0);
+      for (const Factor& f : factors) value *= f.value(a, beta);
+      return value;
+    }
+  };
+  Lifting lifting(int depth) const;
+
+  /** lifting(depth).betas(): the lifting variables of Algorithm 1. */
   int lifting_variables(int depth) const;
+
+  /** A selection vector in row r's region (a_j = 1 where S_rj = +1, else 0): f(x, vertex)
+      is mode_of_row()[r]'s field for any model of the form sum_i theta_i(a) f_i(x). */
+  std::vector<double> vertex(int row) const;
 
  private:
   Eigen::MatrixXi s_;
