@@ -16,6 +16,7 @@
 #include <IpTNLP.hpp>
 
 #include "bflow/core/errors.h"
+#include "fesd_dcs.h"
 
 namespace bflow {
 
@@ -35,65 +36,71 @@ namespace {
 
 constexpr double kInfinity = 1e19;  // IPOPT's default nlp_upper_bound_inf
 
+using fesd_detail::Pair;
+using fesd_detail::PairState;
+using fesd_detail::PointDcs;
+
 // Where each unknown of one integration step lives. Per finite element n (0-based):
-//   [h | X_1..X_s (s d) | x_{n+1} (d) | a (P nc) | lambda^p (P nc) | lambda^n (P nc)]
-// with P = s points (Radau IIA: the last stage is the element's end) or s + 1 (Gauss-Legendre:
-// the stages and the end point of (42)). An element's "local" vector puts its start in front:
-//   [x_n (d) | lambda^p_{n,0} (nc) | lambda^n_{n,0} (nc) | its own block].
+//   [h | X_1..X_s (s d) | x_{n+1} (d) | z_1..z_P (P nz)]
+// with z a point's algebraic variables (fesd_dcs.h) and P = s points (Radau IIA: the last stage
+// is the element's end) or s + 1 (Gauss-Legendre: the stages and the end point of (42)). An
+// element's "local" vector puts its start in front:
+//   [x_n (d) | v of every pair at the start (npairs) | its own block].
 struct Layout {
+  const PointDcs* dcs = nullptr;
   int d = 0, nc = 0, s = 0, points = 0, elements = 0;
+  int nz = 0, neq = 0, npairs = 0;
   bool end_point = false;  // Gauss-Legendre: an extra point at the element's end
-  int off_x = 0, off_a = 0, off_p = 0, off_q = 0, block = 0;
+  int off_x = 0, off_z = 0, block = 0;
   int equalities = 0;  // per element
   int local = 0;
 
-  Layout(int states, int switches, const ButcherTableau& tableau, int n_fe)
-      : d(states), nc(switches), s(tableau.stages), elements(n_fe) {
+  Layout(const PointDcs& point, int states, int switches, const ButcherTableau& tableau, int n_fe)
+      : dcs(&point), d(states), nc(switches), s(tableau.stages), elements(n_fe) {
+    nz = point.size();
+    neq = point.equations();
+    npairs = static_cast<int>(point.pairs().size());
     end_point = !tableau.stiffly_accurate();
     points = s + (end_point ? 1 : 0);
     off_x = 1 + s * d;
-    off_a = off_x + d;
-    off_p = off_a + points * nc;
-    off_q = off_p + points * nc;
-    block = off_q + points * nc;
-    equalities = s * d + d + points * nc;
-    local = d + 2 * nc + block;
+    off_z = off_x + d;
+    block = off_z + points * nz;
+    equalities = s * d + d + points * neq;
+    local = d + npairs + block;
   }
   int variables() const { return elements * block; }
-  int rows_per_element() const { return equalities + 2 * nc; }
+  int rows_per_element() const { return equalities + npairs; }
   int constraints() const { return elements * rows_per_element() + 1; }
   int var(int n, int offset) const { return n * block + offset; }
+  // Global index of z_k at point m of element n.
+  int z(int n, int m, int k) const { return var(n, off_z + m * nz + k); }
   // Global index of local input k of element n, or -1 for a constant (the step's start).
   int global(int n, int k) const {
-    if (k >= d + 2 * nc) return var(n, k - d - 2 * nc);
+    if (k >= d + npairs) return var(n, k - d - npairs);
     if (n == 0) return -1;
     if (k < d) return var(n - 1, off_x + k);
-    if (k < d + nc) return var(n - 1, off_p + (points - 1) * nc + (k - d));
-    return var(n - 1, off_q + (points - 1) * nc + (k - d - nc));
+    return z(n - 1, points - 1, dcs->pairs()[static_cast<std::size_t>(k - d)].v);
   }
 };
 
 // Equalities and aggregated complementarity products of one element from its local vector.
 template <typename T>
-void element_residual(const StepModel& model, const ButcherTableau& tab, const Layout& l,
-                      bool standard, const T* in, T* out) {
-  const int d = l.d, nc = l.nc, s = l.s;
+void element_residual(const ButcherTableau& tab, const Layout& l, bool standard, const T* in,
+                      T* out) {
+  const PointDcs& dcs = *l.dcs;
+  const int d = l.d, s = l.s, nz = l.nz;
   const T* xn = in;
-  const T* p0 = in + d;
-  const T* q0 = in + d + nc;
-  const T* blk = in + d + 2 * nc;
+  const T* v0 = in + d;
+  const T* blk = in + d + l.npairs;
   const T& h = blk[0];
   const T* stage = blk + 1;
   const T* xnext = blk + l.off_x;
-  const T* a = blk + l.off_a;
-  const T* p = blk + l.off_p;
-  const T* q = blk + l.off_q;
+  const T* z = blk + l.off_z;
   // Scratch kept per thread and scalar type: this runs for every Jacobian chunk and every IPOPT
   // evaluation, so it allocates only when the sizes grow.
-  thread_local std::vector<T> f, c;
+  thread_local std::vector<T> f;
   f.resize(static_cast<std::size_t>(s * d));
-  c.resize(static_cast<std::size_t>(nc));
-  for (int m = 0; m < s; ++m) model.field(stage + m * d, a + m * nc, f.data() + m * d);
+  for (int m = 0; m < s; ++m) dcs.field(stage + m * d, z + m * nz, f.data() + m * d);
   T* eq = out;
   for (int m = 0; m < s; ++m) {
     for (int i = 0; i < d; ++i) {
@@ -109,79 +116,92 @@ void element_residual(const StepModel& model, const ButcherTableau& tab, const L
   }
   T* alg = eq + s * d + d;
   for (int m = 0; m < l.points; ++m) {
-    model.switching(m < s ? stage + m * d : xnext, c.data());
-    for (int j = 0; j < nc; ++j) {
-      alg[m * nc + j] = c[static_cast<std::size_t>(j)] - p[m * nc + j] + q[m * nc + j];
-    }
+    dcs.algebraic(m < s ? stage + m * d : xnext, z + m * nz, alg + m * l.neq);
   }
   T* comp = eq + l.equalities;
-  for (int j = 0; j < nc; ++j) {
+  for (int k = 0; k < l.npairs; ++k) {
+    const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
     if (standard) {
       // (34): each point's own pair only.
-      T sa(0.0), sb(0.0);
+      T sum(0.0);
       for (int m = 0; m < l.points; ++m) {
-        sa += a[m * nc + j] * q[m * nc + j];
-        sb += (1.0 - a[m * nc + j]) * p[m * nc + j];
+        sum += PointDcs::member_u(pair, z + m * nz) * z[m * nz + pair.v];
       }
-      comp[j] = sa;
-      comp[nc + j] = sb;
+      comp[k] = sum;
     } else {
       // (35) and (37) summed over all pairs of points of the element, the start included:
-      // sum_m sum_m' a_m q_m' = (sum_m a_m)(sum_m' q_m').
-      T sum_a(0.0), sum_1a(0.0), sum_p = p0[j], sum_q = q0[j];
+      // sum_m sum_m' u_m v_m' = (sum_m u_m)(sum_m' v_m').
+      T sum_u(0.0), sum_v = v0[k];
       for (int m = 0; m < l.points; ++m) {
-        sum_a += a[m * nc + j];
-        sum_1a += 1.0 - a[m * nc + j];
-        sum_p += p[m * nc + j];
-        sum_q += q[m * nc + j];
+        sum_u += PointDcs::member_u(pair, z + m * nz);
+        sum_v += z[m * nz + pair.v];
       }
-      comp[j] = sum_a * sum_q;
-      comp[nc + j] = sum_1a * sum_p;
+      comp[k] = sum_u * sum_v;
     }
   }
 }
 
 // Step equilibration between elements n - 1 and n ((39) with the indicator of Section 4.4):
-// inputs [h_{n-1}, h_n, start p, q of n - 1 (2 nc), p, q of n - 1 (2 P nc), p, q of n (2 P nc),
-// a at the last point of n - 1 (nc), a at the first point of n (nc)].
+// inputs [h_{n-1}, h_n, v of every pair at the start of n - 1 (npairs), z of n - 1 (P nz),
+// z of n (P nz)].
 template <typename T>
 T equilibration_term(const Layout& l, double h_ref, const T* in) {
-  const int nc = l.nc, pts = l.points;
-  const T* start_p = in + 2;
-  const T* start_q = start_p + nc;
-  const T* back_p = start_q + nc;
-  const T* back_q = back_p + pts * nc;
-  const T* fwd_p = back_q + pts * nc;
-  const T* fwd_q = fwd_p + pts * nc;
-  T eta(1.0);
-  for (int j = 0; j < nc; ++j) {
-    T bp = start_p[j], bq = start_q[j], fp(0.0), fq(0.0);
+  const PointDcs& dcs = *l.dcs;
+  const int nz = l.nz, pts = l.points;
+  const T* v0 = in + 2;
+  const T* back = v0 + l.npairs;
+  const T* fwd = back + pts * nz;
+  const T* back_last = back + (pts - 1) * nz;
+  const bool stewart = dcs.kind() == PointDcs::Kind::kStewart;
+  // nu per group: products of backward and forward sums of the v members (for Stewart also the
+  // u members, theta); zero exactly where the group's active set changes.
+  thread_local std::vector<T> nu;
+  nu.assign(static_cast<std::size_t>(dcs.groups()), T(0.0));
+  for (int k = 0; k < l.npairs; ++k) {
+    const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+    T bv = v0[k], fv = back_last[pair.v];  // the forward element starts where the back one ends
+    T bu(0.0), fu(0.0);
     for (int m = 0; m < pts; ++m) {
-      bp += back_p[m * nc + j];
-      bq += back_q[m * nc + j];
-      fp += fwd_p[m * nc + j];
-      fq += fwd_q[m * nc + j];
+      bv += back[m * nz + pair.v];
+      fv += fwd[m * nz + pair.v];
+      if (stewart) {
+        bu += back[m * nz + pair.u];
+        fu += fwd[m * nz + pair.u];
+      }
     }
-    fp += back_p[(pts - 1) * nc + j];  // the forward element starts where the back one ends
-    fq += back_q[(pts - 1) * nc + j];
-    const T nu = bq * fq + bp * fp;
-    eta *= nu / (nu + 1e-6);
+    nu[static_cast<std::size_t>(pair.group)] += bv * fv + bu * fu;
   }
+  T eta(1.0);
+  for (const T& value : nu) eta *= value / (value + 1e-6);
   const T dh = (in[1] - in[0]) / h_ref;
   T value = (eta + 1e-3) * dh * dh;
   // Leaving a sliding arc: the selection is continuous where a trajectory leaves the surface (it
-  // reaches its bound exactly there), so a jump of a_j after an element that slides on c_j is
-  // penalised. This picks the exact leaving time among the boundaries the collocation conditions
-  // allow (they admit any within O(h) of it), and keeps a trajectory on the surface when leaving
-  // is optional (the spontaneous case).
-  const T* back_a = fwd_q + pts * nc;
-  const T* fwd_a = back_a + nc;
-  for (int j = 0; j < nc; ++j) {
-    T lambda(0.0);
-    for (int m = 0; m < pts; ++m) lambda += back_p[m * nc + j] + back_q[m * nc + j];
-    const T sliding = 1e-6 / (1e-6 + lambda);
-    const T jump = fwd_a[j] - back_a[j];
-    value += 1e3 * sliding * jump * jump;
+  // reaches its bound exactly there), so a jump of the selection after an element that slides
+  // is penalised. This picks the exact leaving time among the boundaries the collocation
+  // conditions allow (they admit any within O(h) of it), and keeps a trajectory on the surface
+  // when leaving is optional (the spontaneous case).
+  if (stewart) {
+    // Sliding: more than one mode active (lambda_i = 0) on the back element.
+    T active(-1.0), jump(0.0);
+    for (int k = 0; k < l.npairs; ++k) {
+      const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+      T lambda(0.0);
+      for (int m = 0; m < pts; ++m) lambda += back[m * nz + pair.v];
+      active += 1e-6 / (1e-6 + lambda);
+      const T step = fwd[pair.u] - back_last[pair.u];
+      jump += step * step;
+    }
+    value += 1e3 * active * active * jump;
+  } else {
+    for (int j = 0; j < l.nc; ++j) {
+      const Pair& q = dcs.pairs()[static_cast<std::size_t>(j)];
+      const Pair& p = dcs.pairs()[static_cast<std::size_t>(l.nc + j)];
+      T lambda(0.0);
+      for (int m = 0; m < pts; ++m) lambda += back[m * nz + p.v] + back[m * nz + q.v];
+      const T sliding = 1e-6 / (1e-6 + lambda);
+      const T jump = fwd[q.u] - back_last[q.u];
+      value += 1e3 * sliding * jump * jump;
+    }
   }
   return value;
 }
@@ -191,38 +211,24 @@ std::vector<int> equilibration_inputs(const Layout& l, int n) {
   std::vector<int> idx;
   idx.push_back(l.var(n - 1, 0));
   idx.push_back(l.var(n, 0));
-  for (int which = 0; which < 2; ++which) {  // start p, then start q of element n - 1
-    for (int j = 0; j < l.nc; ++j) {
-      idx.push_back(l.global(n - 1, l.d + which * l.nc + j));
-    }
-  }
+  for (int k = 0; k < l.npairs; ++k) idx.push_back(l.global(n - 1, l.d + k));
   for (int e : {n - 1, n}) {
-    for (int off : {l.off_p, l.off_q}) {
-      for (int k = 0; k < l.points * l.nc; ++k) idx.push_back(l.var(e, off + k));
-    }
+    for (int k = 0; k < l.points * l.nz; ++k) idx.push_back(l.var(e, l.off_z + k));
   }
-  for (int j = 0; j < l.nc; ++j) idx.push_back(l.var(n - 1, l.off_a + (l.points - 1) * l.nc + j));
-  for (int j = 0; j < l.nc; ++j) idx.push_back(l.var(n, l.off_a + j));
   return idx;
 }
 
 // One integration step as an IPOPT problem at relaxation sigma.
 class StepNlp final : public Ipopt::TNLP {
  public:
-  StepNlp(const StepModel& model, const ButcherTableau& tab, const Layout& layout,
-          const FesdOptions& options, Eigen::VectorXd x_start, double step)
-      : model_(model),
-        tab_(tab),
-        l_(layout),
-        options_(options),
-        x_start_(std::move(x_start)),
-        step_(step) {
-    const int nc = l_.nc;
-    Eigen::VectorXd c(nc);
-    model_.switching(x_start_.data(), c.data());
-    p_start_ = c.cwiseMax(0.0);  // (17)
-    q_start_ = (-c).cwiseMax(0.0);
-    // Initial guess: the state held, the selections of the start's sides.
+  StepNlp(const ButcherTableau& tab, const Layout& layout, const FesdOptions& options,
+          Eigen::VectorXd x_start, double step)
+      : tab_(tab), l_(layout), options_(options), x_start_(std::move(x_start)), step_(step) {
+    v_start_.resize(l_.npairs);
+    l_.dcs->start(x_start_.data(), v_start_.data());  // (17)
+    Eigen::VectorXd z(l_.nz);
+    l_.dcs->initial(x_start_.data(), z.data());
+    // Initial guess: the state held, the algebraic variables of the start's sides.
     w_.setZero(l_.variables());
     for (int n = 0; n < l_.elements; ++n) {
       w_[l_.var(n, 0)] = step_ / l_.elements;
@@ -230,13 +236,7 @@ class StepNlp final : public Ipopt::TNLP {
         w_.segment(l_.var(n, 1 + m * l_.d), l_.d) = x_start_;
       }
       w_.segment(l_.var(n, l_.off_x), l_.d) = x_start_;
-      for (int m = 0; m < l_.points; ++m) {
-        for (int j = 0; j < nc; ++j) {
-          w_[l_.var(n, l_.off_a + m * nc + j)] = c[j] > 0 ? 1.0 : c[j] < 0 ? 0.0 : 0.5;
-          w_[l_.var(n, l_.off_p + m * nc + j)] = p_start_[j];
-          w_[l_.var(n, l_.off_q + m * nc + j)] = q_start_[j];
-        }
-      }
+      for (int m = 0; m < l_.points; ++m) w_.segment(l_.z(n, m, 0), l_.nz) = z;
     }
     for (int n = 1; n < l_.elements; ++n)
       equilibration_index_.push_back(equilibration_inputs(l_, n));
@@ -268,8 +268,8 @@ class StepNlp final : public Ipopt::TNLP {
     lambda_ = saved_[3];
   }
   const Eigen::VectorXd& solution() const { return w_; }
-  double start_p(int j) const { return p_start_[j]; }
-  double start_q(int j) const { return q_start_[j]; }
+  // v of pair k at the step's start ((17)).
+  double start_v(int k) const { return v_start_[k]; }
   Ipopt::SolverReturn last_status() const { return status_; }
 
   // Local input vector of element n from w (constants from the step's start).
@@ -283,10 +283,8 @@ class StepNlp final : public Ipopt::TNLP {
         value = w[g];
       } else if (k < l_.d) {
         value = x_start_[k];
-      } else if (k < l_.d + l_.nc) {
-        value = p_start_[k - l_.d];
       } else {
-        value = q_start_[k - l_.d - l_.nc];
+        value = v_start_[k - l_.d];
       }
       in[static_cast<std::size_t>(k)] = T(value);
     }
@@ -302,7 +300,7 @@ class StepNlp final : public Ipopt::TNLP {
       for (int k = 0; k < l_.local; ++k) in[static_cast<std::size_t>(k)].v.setZero();
       const int width = std::min(kTangentChunk, l_.local - first);
       for (int c = 0; c < width; ++c) in[static_cast<std::size_t>(first + c)].v[c] = 1.0;
-      element_residual(model_, tab_, l_, options_.standard, in.data(), out.data());
+      element_residual(tab_, l_, options_.standard, in.data(), out.data());
       for (int r = 0; r < rows; ++r) {
         for (int c = 0; c < width; ++c) jac(r, first + c) = out[static_cast<std::size_t>(r)].v[c];
       }
@@ -334,11 +332,11 @@ class StepNlp final : public Ipopt::TNLP {
     for (int e = 0; e < l_.elements; ++e) {
       x_l[l_.var(e, 0)] = options_.standard ? h0 : 0.0;
       x_u[l_.var(e, 0)] = options_.standard ? h0 : 2.0 * h0;
-      for (int k = 0; k < l_.points * l_.nc; ++k) {
-        x_l[l_.var(e, l_.off_a + k)] = 0.0;
-        x_u[l_.var(e, l_.off_a + k)] = 1.0;
-        x_l[l_.var(e, l_.off_p + k)] = 0.0;
-        x_l[l_.var(e, l_.off_q + k)] = 0.0;
+      for (int pt = 0; pt < l_.points; ++pt) {
+        for (int k = 0; k < l_.nz; ++k) {
+          x_l[l_.z(e, pt, k)] = std::max(l_.dcs->lower(k), -kInfinity);
+          x_u[l_.z(e, pt, k)] = std::min(l_.dcs->upper(k), kInfinity);
+        }
       }
       for (int r = 0; r < l_.rows_per_element(); ++r) {
         const int row = e * l_.rows_per_element() + r;
@@ -366,14 +364,21 @@ class StepNlp final : public Ipopt::TNLP {
     return true;
   }
 
-  bool eval_f(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Number& value) override {
-    value = 0.0;
-    if (options_.standard) return true;
+  // The objective: the step equilibration (39) summed over the element boundaries.
+  double objective(const double* x) const {
+    double value = 0.0;
+    if (options_.standard) return value;
     std::vector<double> in;
     for (const std::vector<int>& idx : equilibration_index_) {
       gather(x, idx, in);
       value += equilibration_term(l_, step_ / l_.elements, in.data());
     }
+    return value;
+  }
+  double objective(const Eigen::VectorXd& w) const { return objective(w.data()); }
+
+  bool eval_f(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Number& value) override {
+    value = objective(x);
     return true;
   }
 
@@ -405,8 +410,7 @@ class StepNlp final : public Ipopt::TNLP {
     std::vector<double> in;
     for (int n = 0; n < l_.elements; ++n) {
       local_inputs(x, n, in);
-      element_residual(model_, tab_, l_, options_.standard, in.data(),
-                       g + n * l_.rows_per_element());
+      element_residual(tab_, l_, options_.standard, in.data(), g + n * l_.rows_per_element());
     }
     double sum = 0;
     for (int n = 0; n < l_.elements; ++n) sum += x[l_.var(n, 0)];
@@ -454,7 +458,7 @@ class StepNlp final : public Ipopt::TNLP {
     std::vector<double> in, out(static_cast<std::size_t>(l_.rows_per_element()));
     for (int n = 0; n < l_.elements; ++n) {
       local_inputs(w.data(), n, in);
-      element_residual(model_, tab_, l_, options_.standard, in.data(), out.data());
+      element_residual(tab_, l_, options_.standard, in.data(), out.data());
       for (int r = l_.equalities; r < l_.rows_per_element(); ++r) {
         worst = std::max(worst, std::abs(out[static_cast<std::size_t>(r)]));
       }
@@ -468,11 +472,10 @@ class StepNlp final : public Ipopt::TNLP {
     for (std::size_t k = 0; k < idx.size(); ++k) out[k] = idx[k] >= 0 ? x[idx[k]] : 0.0;
   }
 
-  const StepModel& model_;
   const ButcherTableau& tab_;
   const Layout& l_;
   const FesdOptions& options_;
-  Eigen::VectorXd x_start_, p_start_, q_start_;
+  Eigen::VectorXd x_start_, v_start_;
   double step_;
   double sigma_ = 1.0;
   Eigen::VectorXd w_, z_l_, z_u_, lambda_;
@@ -482,16 +485,36 @@ class StepNlp final : public Ipopt::TNLP {
   Ipopt::SolverReturn status_ = Ipopt::SUCCESS;
 };
 
-// Side of switching function j on element n: +1 (lambda^p > 0), -1 (lambda^n > 0), 0 (both 0).
-int element_side(const Layout& l, const Eigen::VectorXd& w, int n, int j, double tol) {
-  double p = 0, q = 0;
-  for (int m = 0; m < l.points; ++m) {
-    p = std::max(p, w[l.var(n, l.off_p + m * l.nc + j)]);
-    q = std::max(q, w[l.var(n, l.off_q + m * l.nc + j)]);
+// Sides of the switching functions on element n: +1, -1, or 0 (on the surface).
+std::vector<int> element_sides(const Layout& l, const Eigen::VectorXd& w, int n, double tol) {
+  std::vector<double> vmax(static_cast<std::size_t>(l.npairs), 0.0);
+  for (int k = 0; k < l.npairs; ++k) {
+    const int v = l.dcs->pairs()[static_cast<std::size_t>(k)].v;
+    for (int m = 0; m < l.points; ++m) {
+      vmax[static_cast<std::size_t>(k)] =
+          std::max(vmax[static_cast<std::size_t>(k)], w[l.z(n, m, v)]);
+    }
   }
-  if (p > tol && p >= q) return 1;
-  if (q > tol) return -1;
-  return 0;
+  return l.dcs->sides(vmax, tol);
+}
+
+// Whether h_n lies in (0, h_max] and the algebraic variables of w within their bounds; round-off
+// just outside a bound (a member that is zero at the solution) is clamped.
+bool within_bounds(const Layout& l, Eigen::VectorXd& w, double h_max) {
+  for (int n = 0; n < l.elements; ++n) {
+    const double h = w[l.var(n, 0)];
+    if (!(h > 0.0 && h <= h_max)) return false;
+    for (int m = 0; m < l.points; ++m) {
+      for (int k = 0; k < l.nz; ++k) {
+        double& value = w[l.z(n, m, k)];
+        if (value < l.dcs->lower(k) - 1e-13 || value > l.dcs->upper(k) + 1e-13) {
+          return false;
+        }
+        value = std::clamp(value, l.dcs->lower(k), l.dcs->upper(k));
+      }
+    }
+  }
+  return true;
 }
 
 // One integration step's FESD equations with the active set fixed: the element equalities, each
@@ -554,23 +577,19 @@ Eigen::MatrixXd step_sensitivity(const StepNlp& nlp, const Layout& l, const Eige
   FixedActiveSet active;
   for (int n = 0; n < l.elements; ++n) {
     for (int m = 0; m < l.points; ++m) {
-      for (int j = 0; j < l.nc; ++j) {
-        const int ia = l.var(n, l.off_a + m * l.nc + j);
-        if (w[ia] <= tol) active.fixed.push_back({ia, 0.0});
-        if (w[ia] >= 1.0 - tol) active.fixed.push_back({ia, 1.0});
-        for (int off : {l.off_p, l.off_q}) {
-          const int idx = l.var(n, off + m * l.nc + j);
-          if (w[idx] <= tol) active.fixed.push_back({idx, 0.0});
+      for (const Pair& pair : l.dcs->pairs()) {
+        const int iu = l.z(n, m, pair.u), iv = l.z(n, m, pair.v);
+        if (std::abs(w[iu] - PointDcs::u_zero(pair)) <= tol) {
+          active.fixed.push_back({iu, PointDcs::u_zero(pair)});
         }
+        if (w[iv] <= tol) active.fixed.push_back({iv, 0.0});
       }
     }
   }
   for (int n = 1; n < l.elements; ++n) {
-    bool same = true;
-    for (int j = 0; j < l.nc; ++j) {
-      same = same && element_side(l, w, n - 1, j, tol) == element_side(l, w, n, j, tol);
+    if (element_sides(l, w, n - 1, tol) == element_sides(l, w, n, tol)) {
+      active.equal_lengths.push_back(n);
     }
-    if (same) active.equal_lengths.push_back(n);
   }
   // A switch that falls on the step's end, or a pair that is degenerate at the solution (both
   // members zero), adds an equation that the others already imply: the system is then tall but
@@ -600,38 +619,75 @@ Eigen::MatrixXd step_sensitivity(const StepNlp& nlp, const Layout& l, const Eige
   return dw.middleRows(l.var(l.elements - 1, l.off_x), l.d);
 }
 
-// A step without a switch, solved by Newton's method on the FESD equations with the active set
-// predicted from the step's start (`sides`: +1, -1 or 0 per switching function, for every point
-// of every element): a = 1 and lambda^n = 0 on +, a = 0 and lambda^p = 0 on -, lambda^p =
-// lambda^n = 0 when sliding, and equal element lengths. The system is square; its solution is an
-// FESD solution (every complementarity product exactly 0) if the free members come out
-// nonnegative and the free selections inside [0, 1]. Returns false otherwise (a switch inside
-// the step, or no convergence): the caller then solves the step's NLPs.
-bool newton_step(const StepNlp& nlp, const Layout& l, const std::vector<int>& sides, double step,
-                 Eigen::VectorXd& w, int* iterations) {
+// Newton's method on a step's FESD equations with its active set guessed: the sides of every
+// element (`sides[n]`, +1, -1 or 0 per switching function). On an element each complementarity
+// pair has the member its sides make zero fixed (step: a = 1 and lambda^n = 0 on +, a = 0 and
+// lambda^p = 0 on -, lambda^p = lambda^n = 0 when sliding; Stewart: lambda_i = 0 for the active
+// modes, theta_i = 0 for the others). Neighbouring elements with the same sides have equal
+// lengths; where the sides change, the switch condition replaces that equation:
+//  * a pair whose u becomes free has v = 0 at the boundary (the cross complementarity with the
+//    next element's start: c_j(x_n) = 0 when crossing or entering a sliding arc);
+//  * a pair whose u becomes zero after its group slid has u = 0 at the boundary (the selection
+//    is continuous where a trajectory leaves a surface).
+// Each boundary must get exactly one condition, so that the system is square; at the step's
+// start a pair whose u is free must have v <= tol. Its solution is
+// an FESD solution (every complementarity product 0) if the free members come out within their
+// bounds and 0 < h_n <= 2 H / N_FE. Returns false otherwise (a wrong guess, or no convergence).
+bool solve_guess(const StepNlp& nlp, const Layout& l, const std::vector<std::vector<int>>& sides,
+                 double step, double tol, Eigen::VectorXd& w, int* iterations) {
+  const PointDcs& dcs = *l.dcs;
   FixedActiveSet active;
+  std::vector<bool> taken(static_cast<std::size_t>(l.variables()), false);
+  const auto fix = [&](int index, double value) {
+    if (taken[static_cast<std::size_t>(index)]) return false;
+    taken[static_cast<std::size_t>(index)] = true;
+    active.fixed.push_back({index, value});
+    return true;
+  };
+  std::vector<PairState> before;
   for (int n = 0; n < l.elements; ++n) {
-    if (n > 0) active.equal_lengths.push_back(n);
-    for (int m = 0; m < l.points; ++m) {
-      for (int j = 0; j < l.nc; ++j) {
-        const int ia = l.var(n, l.off_a + m * l.nc + j);
-        const int ip = l.var(n, l.off_p + m * l.nc + j);
-        const int iq = l.var(n, l.off_q + m * l.nc + j);
-        const int side = sides[static_cast<std::size_t>(j)];
-        if (side > 0) {
-          active.fixed.push_back({ia, 1.0});
-          active.fixed.push_back({iq, 0.0});
-        } else if (side < 0) {
-          active.fixed.push_back({ia, 0.0});
-          active.fixed.push_back({ip, 0.0});
-        } else {
-          active.fixed.push_back({ip, 0.0});
-          active.fixed.push_back({iq, 0.0});
+    const std::vector<int>& here = sides[static_cast<std::size_t>(n)];
+    const std::vector<PairState> states = dcs.states(here);
+    if (n == 0) {
+      // The first element's cross complementarity with the step's start: a pair whose u is free
+      // needs v = 0 there (c_j(x) = 0 for a switch at the start).
+      for (int k = 0; k < l.npairs; ++k) {
+        if (states[static_cast<std::size_t>(k)] == PairState::kVZero && nlp.start_v(k) > tol) {
+          return false;
         }
       }
     }
+    for (int m = 0; m < l.points; ++m) {
+      for (int k = 0; k < l.npairs; ++k) {
+        const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+        if (states[static_cast<std::size_t>(k)] == PairState::kUZero) {
+          fix(l.z(n, m, pair.u), PointDcs::u_zero(pair));
+        } else {
+          fix(l.z(n, m, pair.v), 0.0);
+        }
+      }
+    }
+    if (n > 0 && here == sides[static_cast<std::size_t>(n - 1)]) {
+      active.equal_lengths.push_back(n);
+    } else if (n > 0) {
+      const std::vector<int>& prior = sides[static_cast<std::size_t>(n - 1)];
+      int conditions = 0;
+      for (int k = 0; k < l.npairs; ++k) {
+        const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+        const PairState was = before[static_cast<std::size_t>(k)];
+        const PairState is = states[static_cast<std::size_t>(k)];
+        if (was == PairState::kUZero && is == PairState::kVZero) {
+          conditions += fix(l.z(n - 1, l.points - 1, pair.v), 0.0) ? 1 : 0;
+        } else if (was == PairState::kVZero && is == PairState::kUZero &&
+                   dcs.sliding(prior, pair.group)) {
+          conditions += fix(l.z(n - 1, l.points - 1, pair.u), PointDcs::u_zero(pair)) ? 1 : 0;
+        }
+      }
+      if (conditions != 1) return false;
+    }
+    before = states;
   }
-  BFLOW_ASSERT(active.rows(l) == l.variables());
+  if (active.rows(l) != l.variables()) return false;
   for (const auto& [index, value] : active.fixed) w[index] = value;
   Eigen::MatrixXd jac, jac_x;
   Eigen::VectorXd residual;
@@ -641,20 +697,86 @@ bool newton_step(const StepNlp& nlp, const Layout& l, const std::vector<int>& si
     const Eigen::VectorXd delta = lu.solve(-residual);
     if (!delta.allFinite()) return false;
     w += delta;
-    *iterations = it + 1;
+    *iterations += 1;
+    for (const auto& [index, value] : active.fixed) w[index] = value;
     if (delta.lpNorm<Eigen::Infinity>() <= 1e-14 * (1.0 + w.lpNorm<Eigen::Infinity>())) break;
     if (it == 19) return false;
   }
-  // The predicted active set is right only if the free members are feasible.
+  return within_bounds(l, w, 2.0 * step / l.elements);
+}
+
+// A step with one switch (or two at different boundaries), solved by guessing its active set
+// after the no-switch guess failed with solution `tried`: a switching function that `tried`
+// takes across its surface changes to the other side or to sliding, a sliding one leaves to
+// either side, at every element boundary in turn (the step's start included). Each guess is solved
+// by solve_guess; among the FESD solutions found, the one the step equilibration prefers (the NLP's
+// objective) is taken. Returns false when no guess is an FESD solution (the caller then runs the
+// homotopy).
+bool switch_step(const StepModel& model, const StepNlp& nlp, const Layout& l,
+                 const std::vector<int>& sides, const Eigen::VectorXd& tried, double step,
+                 double tol, Eigen::VectorXd& w, int* iterations) {
+  if (l.elements < 2) return false;
+  std::vector<int> changed;
+  Eigen::VectorXd c(l.nc);
+  for (int j = 0; j < l.nc; ++j) {
+    const int side = sides[static_cast<std::size_t>(j)];
+    bool crossed = side == 0;
+    for (int n = 0; n < l.elements && !crossed; ++n) {
+      for (int m = 0; m < l.points && !crossed; ++m) {
+        const int at = m < l.s ? l.var(n, 1 + m * l.d) : l.var(n, l.off_x);
+        model.switching(tried.data() + at, c.data());
+        crossed = side * c[j] < 0.0;
+      }
+    }
+    if (crossed) changed.push_back(j);
+  }
+  if (changed.empty() || changed.size() > 2) return false;
+  // Every assignment of distinct boundaries and new sides to the changed functions.
+  // Boundary 0 is the step's start (a switch exactly there: every element on the new side).
+  std::vector<std::vector<int>> boundaries;
+  for (int k1 = 0; k1 < l.elements; ++k1) {
+    if (changed.size() == 1) {
+      boundaries.push_back({k1});
+      continue;
+    }
+    for (int k2 = 0; k2 < l.elements; ++k2) {
+      if (k2 != k1 || k1 == 0) boundaries.push_back({k1, k2});
+    }
+  }
+  Eigen::VectorXd start = tried;
   for (int n = 0; n < l.elements; ++n) {
-    for (int k = 0; k < l.points * l.nc; ++k) {
-      const double a = w[l.var(n, l.off_a + k)];
-      if (w[l.var(n, l.off_p + k)] < 0.0 || w[l.var(n, l.off_q + k)] < 0.0 || a < 0.0 || a > 1.0) {
-        return false;
+    start[l.var(n, 0)] = step / l.elements;
+    for (int m = 0; m < l.points; ++m) {
+      for (int k = 0; k < l.nz; ++k) {
+        double& value = start[l.z(n, m, k)];
+        value = std::clamp(value, l.dcs->lower(k), l.dcs->upper(k));
       }
     }
   }
-  return true;
+  double best = std::numeric_limits<double>::infinity();
+  const int choices = 1 << changed.size();
+  for (const std::vector<int>& at : boundaries) {
+    for (int choice = 0; choice < choices; ++choice) {
+      std::vector<std::vector<int>> guess(static_cast<std::size_t>(l.elements), sides);
+      for (std::size_t q = 0; q < changed.size(); ++q) {
+        const int j = changed[q];
+        const int old_side = sides[static_cast<std::size_t>(j)];
+        const bool second = (choice >> q) & 1;
+        const int new_side = old_side != 0 ? (second ? 0 : -old_side) : (second ? -1 : 1);
+        for (int n = at[q]; n < l.elements; ++n) {
+          guess[static_cast<std::size_t>(n)][static_cast<std::size_t>(j)] = new_side;
+        }
+      }
+      Eigen::VectorXd candidate = start;
+      if (!solve_guess(nlp, l, guess, step, tol, candidate, iterations)) continue;
+      const double value = nlp.objective(candidate);
+      if (value < best) {
+        best = value;
+        w = candidate;
+      }
+    }
+  }
+  return best < std::numeric_limits<double>::infinity();
 }
 
 void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
@@ -679,6 +801,20 @@ void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorX
         format_number(o.sigma_initial) + ", sigma_final = " + format_number(o.sigma_final) +
         ", sigma_factor = " + format_number(o.sigma_factor));
   }
+  if (o.lifting_depth == 1 || o.lifting_depth < 0) {
+    throw InvalidArgument("fesd: the lifting depth n_d must be 0 (none) or >= 2, got " +
+                          std::to_string(o.lifting_depth));
+  }
+  if (o.formulation == DcsFormulation::kStewart && o.lifting_depth != 0) {
+    throw InvalidArgument("fesd: lifting (n_d = " + std::to_string(o.lifting_depth) +
+                          ") applies to the step formulation only, not to Stewart's");
+  }
+  constexpr int kMaxStewartSwitches = 10;
+  if (o.formulation == DcsFormulation::kStewart && model.switches() > kMaxStewartSwitches) {
+    throw InvalidArgument("fesd: Stewart's formulation has 2^n_c modes per point; n_c = " +
+                          std::to_string(model.switches()) + " is more than " +
+                          std::to_string(kMaxStewartSwitches) + " (use the step formulation)");
+  }
 }
 
 }  // namespace
@@ -687,7 +823,8 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
                          double t_end, const FesdOptions& options) {
   check_options(model, x0, t_end, options);
   const ButcherTableau tab = collocation_tableau(options.scheme, options.stages);
-  const Layout l(model.states(), model.switches(), tab, options.elements);
+  const PointDcs dcs(model, options.formulation, options.lifting_depth);
+  const Layout l(dcs, model.states(), model.switches(), tab, options.elements);
   const double step = t_end / options.steps;
   // Active-set decisions: a complementarity variable counts as zero below this.
   // A complementarity variable counts as zero below this: with products <= sigma_final, the zero
@@ -724,7 +861,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   while (!pending.empty()) {
     const auto [length, halvings] = pending.front();
     pending.pop_front();
-    Ipopt::SmartPtr<StepNlp> nlp = new StepNlp(model, tab, l, options, x, length);
+    Ipopt::SmartPtr<StepNlp> nlp = new StepNlp(tab, l, options, x, length);
     int iterations = 0;
     double sigma = options.sigma_initial, last_sigma = sigma;
     bool first = true;
@@ -735,32 +872,67 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       Eigen::VectorXd c(l.nc);
       model.switching(x.data(), c.data());
       std::vector<int> sides(static_cast<std::size_t>(l.nc));
-      bool known = true;
+      std::vector<int> unknown;
       for (int j = 0; j < l.nc; ++j) {
         if (std::abs(c[j]) > active_tol) {
           sides[static_cast<std::size_t>(j)] = c[j] > 0 ? 1 : -1;
         } else if (!previous_sides.empty()) {
           sides[static_cast<std::size_t>(j)] = previous_sides[static_cast<std::size_t>(j)];
         } else {
-          known = false;
+          unknown.push_back(j);
         }
       }
       Eigen::VectorXd w = nlp->solution();
       int newton_iterations = 0;
-      if (known && newton_step(*nlp, l, sides, length, w, &newton_iterations)) {
+      bool known = unknown.empty();
+      if (!known && unknown.size() <= 2) {
+        // On a surface at the start of the run: the first of sliding, +, - (for every such
+        // function) whose no-switch solution is an FESD solution. Where several are (a
+        // spontaneous switch), the trajectory stays on the surface.
+        int combinations = 1;
+        for (std::size_t k = 0; k < unknown.size(); ++k) combinations *= 3;
+        for (int code = 0; code < combinations && !known; ++code) {
+          int rest = code;
+          for (int j : unknown) {
+            sides[static_cast<std::size_t>(j)] = rest % 3 == 0 ? 0 : rest % 3 == 1 ? 1 : -1;
+            rest /= 3;
+          }
+          Eigen::VectorXd trial = nlp->solution();
+          const std::vector<std::vector<int>> same(static_cast<std::size_t>(l.elements), sides);
+          if (solve_guess(*nlp, l, same, length, active_tol, trial, &newton_iterations)) {
+            known = true;
+            w = trial;
+          }
+        }
+        if (!known) w = nlp->solution();
+      }
+      const std::vector<std::vector<int>> same(static_cast<std::size_t>(l.elements), sides);
+      Eigen::VectorXd switched;
+      if (known && !unknown.empty()) {
         nlp->set_solution(w);
         solved_by_newton = true;
         ++result.newton_steps;
+      } else if (known && solve_guess(*nlp, l, same, length, active_tol, w, &newton_iterations)) {
+        nlp->set_solution(w);
+        solved_by_newton = true;
+        ++result.newton_steps;
+      } else if (known && w.allFinite() &&
+                 switch_step(model, *nlp, l, sides, w, length, active_tol, switched,
+                             &newton_iterations)) {
+        nlp->set_solution(switched);
+        solved_by_newton = true;
+        ++result.newton_steps;
+        ++result.newton_switch_steps;
       } else if (known && w.allFinite()) {
-        // A switch inside the step: the no-switch solution still follows the trajectory up to
-        // it, a better start for the homotopy than the held state.
+        // The no-switch solution still follows the trajectory up to the switch, a better start
+        // for the homotopy than the held state.
         for (int n = 0; n < l.elements; ++n) {
           w[l.var(n, 0)] = length / l.elements;
-          for (int i = 0; i < l.points * l.nc; ++i) {
-            double& a = w[l.var(n, l.off_a + i)];
-            a = std::clamp(a, 0.0, 1.0);
-            w[l.var(n, l.off_p + i)] = std::max(w[l.var(n, l.off_p + i)], 0.0);
-            w[l.var(n, l.off_q + i)] = std::max(w[l.var(n, l.off_q + i)], 0.0);
+          for (int m = 0; m < l.points; ++m) {
+            for (int k = 0; k < l.nz; ++k) {
+              double& value = w[l.z(n, m, k)];
+              value = std::clamp(value, dcs.lower(k), dcs.upper(k));
+            }
           }
         }
         nlp->set_solution(w);
@@ -837,9 +1009,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       result.step_sizes.push_back(h);
       result.grid.push_back(n + 1 == l.elements ? t0 + length : t);
       states.push_back(w.segment(l.var(n, l.off_x), l.d));
-      std::vector<int> sides(static_cast<std::size_t>(l.nc));
-      for (int j = 0; j < l.nc; ++j)
-        sides[static_cast<std::size_t>(j)] = element_side(l, w, n, j, active_tol);
+      std::vector<int> sides = element_sides(l, w, n, active_tol);
       if (!previous_sides.empty() && sides != previous_sides) {
         result.switch_times.push_back(result.grid[result.grid.size() - 2]);
       }

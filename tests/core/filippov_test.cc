@@ -137,7 +137,9 @@ TEST(SignMatrixTest, LiftedMultipliersEqualTheMultiAffineOnes) {
       std::vector<double> theta(static_cast<std::size_t>(s.modes()), 0.0);
       for (int r = 0; r < s.rows(); ++r) {
         const auto& p = lift.row_products[static_cast<std::size_t>(r)];
-        if (depth >= 2) EXPECT_LE(static_cast<int>(p.size()), depth);
+        if (depth >= 2) {
+          EXPECT_LE(static_cast<int>(p.size()), depth);
+        }
         theta[static_cast<std::size_t>(s.mode_of_row()[static_cast<std::size_t>(r)])] +=
             SignMatrix::Lifting::product(p, a, beta.data());
       }

@@ -45,6 +45,8 @@
 
 #include <memory>
 #include <string>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -67,7 +69,18 @@ class StepModel {
   virtual void switching(const JetChunk* x, JetChunk* c) const = 0;
   virtual void field(const double* x, const double* a, double* xdot) const = 0;
   virtual void field(const JetChunk* x, const JetChunk* a, JetChunk* xdot) const = 0;
+  /** The sign matrix of a piecewise-smooth model (its modes and unions, used by the lifted
+      step formulation), or nullptr for a general step inclusion (then the dense S). */
+  virtual const SignMatrix* sign_matrix() const { return nullptr; }
 };
+
+namespace detail {
+template <typename Model, typename = void>
+struct HasSignMatrix : std::false_type {};
+template <typename Model>
+struct HasSignMatrix<Model, std::void_t<decltype(std::declval<const Model&>().sign_matrix())>>
+    : std::true_type {};
+}  // namespace detail
 
 template <typename Model>
 class StepModelAdapter final : public StepModel {
@@ -82,6 +95,13 @@ class StepModelAdapter final : public StepModel {
   }
   void field(const JetChunk* x, const JetChunk* a, JetChunk* xdot) const override {
     model_.field(x, a, xdot);
+  }
+  const SignMatrix* sign_matrix() const override {
+    if constexpr (detail::HasSignMatrix<Model>::value) {
+      return &model_.sign_matrix();
+    } else {
+      return nullptr;
+    }
   }
   const Model& model() const { return model_; }
 
@@ -161,6 +181,13 @@ struct FesdOptions {
   int elements = 3;       ///< N_FE per integration step
   int steps = 1;          ///< N_sim integration steps over [0, T]
   bool standard = false;  ///< standard time-stepping (34): fixed h, no switch detection
+  /** The DCS discretised: the Heaviside step DCS (22) or Stewart's (28) on the 2^n_c base
+      regions (modes f(x, vertex); equal to the step inclusion for f multi-affine in a). */
+  DcsFormulation formulation = DcsFormulation::kStep;
+  /** Step DCS only: 0 eliminates theta (f(x, a) directly); n_d >= 2 keeps theta and the
+      lifting variables beta of Algorithm 1 with depth n_d as unknowns (products of at most n_d
+      factors; n_d >= n_c: theta without beta). */
+  int lifting_depth = 0;
   double sigma_initial = 1.0;
   double sigma_final = 1e-12;
   double sigma_factor = 0.1;  ///< linear update sigma <- factor sigma
@@ -197,8 +224,10 @@ struct FesdResult {
   /** Integration steps whose homotopy failed and that were replaced by their two halves (at
       most four times in a row); the grid then has more elements than N_sim N_FE. */
   int halved_steps = 0;
-  /** Integration steps solved by Newton's method on the predicted active set (no IPOPT). */
+  /** Integration steps solved by Newton's method on a guessed active set (no IPOPT). */
   int newton_steps = 0;
+  /** Of those, the steps with a switch inside (the active set guessed element by element). */
+  int newton_switch_steps = 0;
   /** IPOPT iterations of each integration step (summed over its homotopy; 0 for Newton). */
   std::vector<int> nlp_iterations;
   /** dx(T)/dx0, d x d (empty unless options.sensitivities). */
