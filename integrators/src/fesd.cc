@@ -175,33 +175,22 @@ T equilibration_term(const Layout& l, double h_ref, const T* in) {
   for (const T& value : nu) eta *= value / (value + 1e-6);
   const T dh = (in[1] - in[0]) / h_ref;
   T value = (eta + 1e-3) * dh * dh;
-  // Leaving a sliding arc: the selection is continuous where a trajectory leaves the surface (it
-  // reaches its bound exactly there), so a jump of the selection after an element that slides
-  // is penalised. This picks the exact leaving time among the boundaries the collocation
-  // conditions allow (they admit any within O(h) of it), and keeps a trajectory on the surface
-  // when leaving is optional (the spontaneous case).
-  if (stewart) {
-    // Sliding: more than one mode active (lambda_i = 0) on the back element.
-    T active(-1.0), jump(0.0);
-    for (int k = 0; k < l.npairs; ++k) {
-      const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
-      T lambda(0.0);
-      for (int m = 0; m < pts; ++m) lambda += back[m * nz + pair.v];
-      active += 1e-6 / (1e-6 + lambda);
-      const T step = fwd[pair.u] - back_last[pair.u];
-      jump += step * step;
-    }
-    value += 1e3 * active * active * jump;
-  } else {
-    for (int j = 0; j < l.nc; ++j) {
-      const Pair& q = dcs.pairs()[static_cast<std::size_t>(j)];
-      const Pair& p = dcs.pairs()[static_cast<std::size_t>(l.nc + j)];
-      T lambda(0.0);
-      for (int m = 0; m < pts; ++m) lambda += back[m * nz + p.v] + back[m * nz + q.v];
-      const T sliding = 1e-6 / (1e-6 + lambda);
-      const T jump = fwd[q.u] - back_last[q.u];
-      value += 1e3 * sliding * jump * jump;
-    }
+  // Leaving a sliding arc (step formulation): the selection is continuous where a trajectory
+  // leaves the surface (it reaches its bound exactly there), so a jump of a_j after an element
+  // that slides on c_j is penalised. This picks the exact leaving time among the boundaries the
+  // collocation conditions allow (they admit any within O(h) of it), and keeps a trajectory on
+  // the surface when leaving is optional (the spontaneous case). Stewart's homotopy goes without
+  // it: a penalty on the jumps of theta, weighted by the number of active modes, made IPOPT
+  // fail at every switch; the Newton path imposes the continuity exactly in both formulations.
+  if (stewart) return value;
+  for (int j = 0; j < l.nc; ++j) {
+    const Pair& q = dcs.pairs()[static_cast<std::size_t>(j)];
+    const Pair& p = dcs.pairs()[static_cast<std::size_t>(l.nc + j)];
+    T lambda(0.0);
+    for (int m = 0; m < pts; ++m) lambda += back[m * nz + p.v] + back[m * nz + q.v];
+    const T sliding = 1e-6 / (1e-6 + lambda);
+    const T jump = fwd[q.u] - back_last[q.u];
+    value += 1e3 * sliding * jump * jump;
   }
   return value;
 }
@@ -629,7 +618,9 @@ Eigen::MatrixXd step_sensitivity(const StepNlp& nlp, const Layout& l, const Eige
 //    next element's start: c_j(x_n) = 0 when crossing or entering a sliding arc);
 //  * a pair whose u becomes zero after its group slid has u = 0 at the boundary (the selection
 //    is continuous where a trajectory leaves a surface).
-// Each boundary must get exactly one condition, so that the system is square; at the step's
+// Each boundary must get at least one condition; more (Stewart: the modes that enter together
+// while a surface slides) make the system tall, solved in least squares and accepted only if
+// consistent. At the step's
 // start a pair whose u is free must have v <= tol. Its solution is
 // an FESD solution (every complementarity product 0) if the free members come out within their
 // bounds and 0 < h_n <= 2 H / N_FE. Returns false otherwise (a wrong guess, or no convergence).
@@ -679,28 +670,35 @@ bool solve_guess(const StepNlp& nlp, const Layout& l, const std::vector<std::vec
         if (was == PairState::kUZero && is == PairState::kVZero) {
           conditions += fix(l.z(n - 1, l.points - 1, pair.v), 0.0) ? 1 : 0;
         } else if (was == PairState::kVZero && is == PairState::kUZero &&
-                   dcs.sliding(prior, pair.group)) {
+                   dcs.leaves_sliding(prior, here, pair.group)) {
           conditions += fix(l.z(n - 1, l.points - 1, pair.u), PointDcs::u_zero(pair)) ? 1 : 0;
         }
       }
-      if (conditions != 1) return false;
+      if (conditions < 1) return false;
     }
     before = states;
   }
-  if (active.rows(l) != l.variables()) return false;
+  if (active.rows(l) < l.variables()) return false;
+  const bool tall = active.rows(l) > l.variables();
   for (const auto& [index, value] : active.fixed) w[index] = value;
   Eigen::MatrixXd jac, jac_x;
   Eigen::VectorXd residual;
   for (int it = 0; it < 20; ++it) {
     active.assemble(nlp, l, w, step, jac, jac_x, residual);
-    const Eigen::PartialPivLU<Eigen::MatrixXd> lu(jac);
-    const Eigen::VectorXd delta = lu.solve(-residual);
+    const Eigen::VectorXd delta = tall ? Eigen::VectorXd(jac.colPivHouseholderQr().solve(-residual))
+                                       : Eigen::VectorXd(jac.partialPivLu().solve(-residual));
     if (!delta.allFinite()) return false;
     w += delta;
     *iterations += 1;
     for (const auto& [index, value] : active.fixed) w[index] = value;
     if (delta.lpNorm<Eigen::Infinity>() <= 1e-14 * (1.0 + w.lpNorm<Eigen::Infinity>())) break;
     if (it == 19) return false;
+  }
+  if (tall) {
+    // Least squares: the extra conditions must be implied by the others (Stewart: two modes
+    // entering together where a surface already slides), not contradict them.
+    active.assemble(nlp, l, w, step, jac, jac_x, residual);
+    if (!(residual.lpNorm<Eigen::Infinity>() <= 1e-10)) return false;
   }
   return within_bounds(l, w, 2.0 * step / l.elements);
 }
@@ -712,25 +710,53 @@ bool solve_guess(const StepNlp& nlp, const Layout& l, const std::vector<std::vec
 // by solve_guess; among the FESD solutions found, the one the step equilibration prefers (the NLP's
 // objective) is taken. Returns false when no guess is an FESD solution (the caller then runs the
 // homotopy).
+// The guesses of switch_step for the functions `changed`; the best FESD solution found, if any.
+bool guess_switches(const StepNlp& nlp, const Layout& l, const std::vector<int>& sides,
+                    const std::vector<int>& changed, const Eigen::VectorXd& tried, double step,
+                    double tol, Eigen::VectorXd& w, int* iterations);
+
 bool switch_step(const StepModel& model, const StepNlp& nlp, const Layout& l,
                  const std::vector<int>& sides, const Eigen::VectorXd& tried, double step,
                  double tol, Eigen::VectorXd& w, int* iterations) {
-  if (l.elements < 2) return false;
-  std::vector<int> changed;
+  std::vector<int> crossed, sliding;
   Eigen::VectorXd c(l.nc);
   for (int j = 0; j < l.nc; ++j) {
     const int side = sides[static_cast<std::size_t>(j)];
-    bool crossed = side == 0;
-    for (int n = 0; n < l.elements && !crossed; ++n) {
-      for (int m = 0; m < l.points && !crossed; ++m) {
+    if (side == 0) {
+      sliding.push_back(j);
+      continue;
+    }
+    bool across = false;
+    for (int n = 0; n < l.elements && !across; ++n) {
+      for (int m = 0; m < l.points && !across; ++m) {
         const int at = m < l.s ? l.var(n, 1 + m * l.d) : l.var(n, l.off_x);
         model.switching(tried.data() + at, c.data());
-        crossed = side * c[j] < 0.0;
+        across = side * c[j] < 0.0;
       }
     }
-    if (crossed) changed.push_back(j);
+    if (across) crossed.push_back(j);
   }
-  if (changed.empty() || changed.size() > 2) return false;
+  // The crossed functions alone; else one sliding function leaving; else both kinds.
+  std::vector<std::vector<int>> attempts;
+  if (!crossed.empty()) attempts.push_back(crossed);
+  for (int j : sliding) attempts.push_back({j});
+  if (!crossed.empty() && !sliding.empty()) {
+    std::vector<int> both = crossed;
+    both.insert(both.end(), sliding.begin(), sliding.end());
+    attempts.push_back(both);
+  }
+  for (const std::vector<int>& changed : attempts) {
+    if (changed.size() <= 2 &&
+        guess_switches(nlp, l, sides, changed, tried, step, tol, w, iterations)) {
+      return true;
+    }
+  }
+  return false;
+}
+
+bool guess_switches(const StepNlp& nlp, const Layout& l, const std::vector<int>& sides,
+                    const std::vector<int>& changed, const Eigen::VectorXd& tried, double step,
+                    double tol, Eigen::VectorXd& w, int* iterations) {
   // Every assignment of distinct boundaries and new sides to the changed functions.
   // Boundary 0 is the step's start (a switch exactly there: every element on the new side).
   std::vector<std::vector<int>> boundaries;

@@ -258,13 +258,21 @@ class PointDcs {
     return out;
   }
 
-  // Whether group g slides on an element with these sides (a trajectory leaving it must do so
-  // with a continuous selection).
-  bool sliding(const std::vector<int>& sides, int group) const {
-    if (kind_ != Kind::kStewart) return sides[static_cast<std::size_t>(group)] == 0;
-    const std::vector<PairState> s = states(sides);
-    const int active = static_cast<int>(std::count(s.begin(), s.end(), PairState::kVZero));
-    return active >= 2 && s[static_cast<std::size_t>(group)] == PairState::kVZero;
+  // Whether group g leaves a sliding arc between elements with sides `prior` and `next` (its
+  // selection must then be continuous): a surface it slid on is left, and (Stewart) the mode
+  // lies on the side that is left.
+  bool leaves_sliding(const std::vector<int>& prior, const std::vector<int>& next,
+                      int group) const {
+    if (kind_ != Kind::kStewart) {
+      return prior[static_cast<std::size_t>(group)] == 0 &&
+             next[static_cast<std::size_t>(group)] != 0;
+    }
+    for (int j = 0; j < nc_; ++j) {
+      const int before = prior[static_cast<std::size_t>(j)];
+      const int after = next[static_cast<std::size_t>(j)];
+      if (before == 0 && after != 0 && signs_.matrix()(group, j) != after) return true;
+    }
+    return false;
   }
 
  private:

@@ -1,0 +1,120 @@
+// The three DCS formulations FESD discretises ([F] (22), (28) and the lifting of Section 6.3):
+// each against exact solutions, and against each other.
+#include <cmath>
+#include <string>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "bflow/examples/switching_cases.h"
+#include "bflow/integrators/fesd.h"
+#include "support/error_message.h"
+
+namespace bflow {
+namespace {
+
+// Three switching functions, one slides, one is crossed, one keeps its side:
+//   x1' = (2 - 3 a1) a3,  x2' = 1 + x1 + a2,  c = (x1, x2 - 0.5, x2 + 2),
+// from x = (-0.6, 0): x1 = -0.6 + 2t reaches 0 at t = 0.3 and slides there (a1 = 2/3);
+// x2 = 0.4 t + t^2 until t = 0.3 (0.21), then x2' = 1 up to 0.5 at t = 0.59, then x2' = 2.
+// Piecewise polynomial of degree <= 2, so Radau IIA with 2 stages is exact on every arc.
+struct SlideAndCross {
+  static constexpr int kStates = 2;
+  static constexpr int kSwitches = 3;
+  template <typename T>
+  void switching(const T* x, T* c) const {
+    c[0] = x[0];
+    c[1] = x[1] - T(0.5);
+    c[2] = x[1] + T(2.0);
+  }
+  template <typename T>
+  void field(const T* x, const T* a, T* xdot) const {
+    xdot[0] = (T(2.0) - T(3.0) * a[0]) * a[2];
+    xdot[1] = T(1.0) + x[0] + a[1];
+  }
+};
+
+FesdResult run(DcsFormulation formulation, int lifting_depth, bool newton = true) {
+  FesdOptions o;
+  o.formulation = formulation;
+  o.lifting_depth = lifting_depth;
+  o.steps = 4;  // h = 1/12 per element; the switches fall inside steps
+  o.newton = newton;
+  Eigen::VectorXd x0(2);
+  x0 << -0.6, 0.0;
+  return fesd_simulate(adapt_step(SlideAndCross{}), x0, 1.0, o);
+}
+
+void expect_exact(const FesdResult& r, const std::string& what) {
+  ASSERT_TRUE(r.ok()) << what << ": " << r.message;
+  ASSERT_EQ(r.switch_times.size(), 2u) << what;
+  EXPECT_NEAR(r.switch_times[0], 0.3, 1e-9) << what;
+  EXPECT_NEAR(r.switch_times[1], 0.59, 1e-9) << what;
+  EXPECT_NEAR(r.x_end[0], 0.0, 1e-9) << what;
+  EXPECT_NEAR(r.x_end[1], 1.32, 1e-9) << what;
+  // Sides on the last element: sliding on c1, + on c2 and c3.
+  EXPECT_THAT(r.active_sets.back(), ::testing::ElementsAre(0, 1, 1)) << what;
+}
+
+TEST(FesdFormulationTest, StepStewartAndLiftedAreExactOnSlidingAndCrossing) {
+  const FesdResult step = run(DcsFormulation::kStep, 0);
+  const FesdResult stewart = run(DcsFormulation::kStewart, 0);
+  const FesdResult lifted = run(DcsFormulation::kStep, 2);  // theta and 4 betas as unknowns
+  expect_exact(step, "step");
+  expect_exact(stewart, "stewart");
+  expect_exact(lifted, "lifted");
+  // dx(1)/dx0 by three different sets of equations: the same derivative.
+  ASSERT_EQ(step.sensitivity.size(), 4);
+  ASSERT_EQ(stewart.sensitivity.size(), 4) << stewart.message;
+  ASSERT_EQ(lifted.sensitivity.size(), 4) << lifted.message;
+  EXPECT_LE((stewart.sensitivity - step.sensitivity).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_LE((lifted.sensitivity - step.sensitivity).cwiseAbs().maxCoeff(), 1e-9);
+  // Closed form: x1 reaches 0 at t1 = -x1(0)/2 and stays, x2(t1) = x2(0) - x1(0)/2 - x1(0)^2/4,
+  // then x2' = 1 up to 0.5 and x2' = 2 after: x2(1) = 1.5 + 2 x2(0) - x1(0)^2 / 2. So
+  // dx(1)/dx0 = [[0, 0], [-x1(0), 2]] = [[0, 0], [0.6, 2]].
+  EXPECT_NEAR(step.sensitivity(0, 0), 0.0, 1e-9);
+  EXPECT_NEAR(step.sensitivity(0, 1), 0.0, 1e-9);
+  EXPECT_NEAR(step.sensitivity(1, 0), 0.6, 1e-9);
+  EXPECT_NEAR(step.sensitivity(1, 1), 2.0, 1e-9);
+}
+
+TEST(FesdFormulationTest, StewartHomotopyAlsoReachesTheExactSolution) {
+  expect_exact(run(DcsFormulation::kStewart, 0, /*newton=*/false), "stewart, homotopy only");
+  expect_exact(run(DcsFormulation::kStep, 3, /*newton=*/false), "lifted n_d = 3, homotopy only");
+}
+
+// Example 3's cases in Stewart's formulation (two modes, g = (-c, c)).
+TEST(FesdFormulationTest, StewartOnTheSwitchingCases) {
+  FesdOptions o;
+  o.formulation = DcsFormulation::kStewart;
+  o.steps = 4;
+  for (const char* name : {"crossing", "sliding-leave"}) {
+    const auto exact = examples::exact_switching_case(name);
+    const FesdResult r =
+        std::string(name) == "crossing"
+            ? fesd_simulate(adapt_step(examples::CrossingCase{}), exact.x0, exact.t_end, o)
+            : fesd_simulate(adapt_step(examples::SlidingLeaveCase{}), exact.x0, exact.t_end, o);
+    ASSERT_TRUE(r.ok()) << name << ": " << r.message;
+    ASSERT_EQ(r.switch_times.size(), exact.switch_times.size()) << name;
+    EXPECT_NEAR(r.switch_times[0], exact.switch_times[0], 1e-9) << name;
+    EXPECT_LE((r.x_end - exact.x_end).cwiseAbs().maxCoeff(), 1e-9) << name;
+  }
+}
+
+TEST(FesdFormulationTest, BadFormulationOptionsNameTheProblem) {
+  using bflow::testing::message_of;
+  Eigen::VectorXd x0(2);
+  x0 << -0.6, 0.0;
+  const auto model = adapt_step(SlideAndCross{});
+  FesdOptions o;
+  o.lifting_depth = 1;
+  EXPECT_THAT(message_of([&] { fesd_simulate(model, x0, 1.0, o); }),
+              ::testing::HasSubstr("lifting depth n_d must be 0 (none) or >= 2, got 1"));
+  o.lifting_depth = 2;
+  o.formulation = DcsFormulation::kStewart;
+  EXPECT_THAT(message_of([&] { fesd_simulate(model, x0, 1.0, o); }),
+              ::testing::HasSubstr("applies to the step formulation only"));
+}
+
+}  // namespace
+}  // namespace bflow
