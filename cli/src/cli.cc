@@ -221,7 +221,9 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                    "Add the grid, the states, the step sizes and the active sets");
     fesd->add_flag("--sizes", fesd_options.sizes,
                    "Print the problem sizes of Stewart's and the step reformulation ([F] Table 4)");
-    fesd->add_option("--lifting", fesd_options.lifting, "Lifting depth n_d for --sizes (0: none)")
+    fesd->add_option("--lifting", fesd_options.lifting,
+                     "Step formulation: lifting depth n_d >= 2 of Algorithm 1 (theta and beta as "
+                     "unknowns; 0: none)")
         ->type_name("ND");
     fesd->add_flag("--compact", fesd_options.compact, "Print the result on one line");
 

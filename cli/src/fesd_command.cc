@@ -105,19 +105,14 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
       out << '\n';
       return kExitOk;
     }
-    if (formulation == DcsFormulation::kStewart) {
-      report_error(err,
-                   "--formulation: the Stewart reformulation is not available in this version "
-                   "of the FESD engine; use --formulation step (bflow fesd --sizes compares "
-                   "their problem sizes)");
-      return kExitBadInput;
-    }
     FesdOptions o;
     o.scheme = scheme;
     o.stages = options.stages;
     o.elements = options.nfe;
     o.steps = options.nsim > 0 ? options.nsim : example->steps;
     o.standard = options.standard;
+    o.formulation = formulation;
+    o.lifting_depth = options.lifting;
     const double t_end = options.t > 0 ? options.t : example->t_end;
     const std::clock_t start = std::clock();
     FesdResult r;
@@ -134,7 +129,9 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
     j["steps"] = o.steps;
     j["max_complementarity"] = r.max_complementarity;
     j["cpu_seconds"] = cpu;
+    j["formulation"] = to_string(formulation);
     j["nlp_iterations"] = r.nlp_iterations;
+    j["newton_steps"] = r.newton_steps;
     if (r.sensitivity.size() > 0) j["sensitivity"] = rows_json(r.sensitivity);
     if (!r.ok() || !r.message.empty()) {
       j["status"] = to_string(r.status);

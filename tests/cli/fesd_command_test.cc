@@ -29,6 +29,24 @@ TEST(FesdCommandTest, CrossingPrintsTheExactSwitchAndState) {
   EXPECT_EQ(j["trajectory"]["t"].size(), 13u);  // 4 steps x 3 elements + 1
 }
 
+// x' in -sign(x) + t from x = 0 slides until t = 1 and leaves: x(2) = (2^2 - 1)/2 - (2 - 1) = 0.5.
+TEST(FesdCommandTest, StewartAndLiftedFormulationsGiveTheExactLeavingSolution) {
+  for (const char* formulation : {"stewart", "step"}) {
+    FesdCommandOptions o;
+    o.example = "sliding-leave";
+    o.formulation = formulation;
+    o.lifting = std::string(formulation) == "step" ? 2 : 0;
+    std::ostringstream out, err;
+    ASSERT_EQ(run_fesd(o, out, err), kExitOk) << err.str();
+    const auto j = nlohmann::json::parse(out.str());
+    EXPECT_EQ(j["formulation"].get<std::string>(), formulation);
+    EXPECT_NEAR(j["x_T"][0].get<double>(), 0.5, 1e-9) << formulation;
+    ASSERT_EQ(j["switch_times"].size(), 1u) << formulation;
+    EXPECT_NEAR(j["switch_times"][0].get<double>(), 1.0, 1e-9) << formulation;
+    EXPECT_EQ(j["newton_steps"].get<int>(), 4) << formulation;
+  }
+}
+
 TEST(FesdCommandTest, SizesPrintTable4) {
   FesdCommandOptions o;
   o.example = "irma";
@@ -58,6 +76,12 @@ TEST(FesdCommandTest, BadOptionsAreNamed) {
   o.stages = 0;
   EXPECT_EQ(run_fesd(o, out, err), kExitBadInput);
   EXPECT_THAT(err.str(), ::testing::HasSubstr("stages must be in [1, 9], got 0"));
+  err.str("");
+  o.stages = 2;
+  o.formulation = "stewart";
+  o.lifting = 3;
+  EXPECT_EQ(run_fesd(o, out, err), kExitBadInput);
+  EXPECT_THAT(err.str(), ::testing::HasSubstr("applies to the step formulation only"));
   EXPECT_TRUE(out.str().empty());
 }
 
