@@ -5,8 +5,7 @@
 // through gnuplot (pngcairo), docs/fesd_order.png (error against h) and
 // docs/fesd_work_precision.png (error against CPU time), and prints the fitted slopes: least
 // squares of log error on log h over the points above 1e-13 (round-off is about 1e-15), and
-// over the three
-// finest of them (the asymptotic order).
+// over the three finest of them (the asymptotic order).
 //
 //   fesd_order [--out DIR] [--no-plot] [--quick]      (--quick: N_sim 4, 8, 16 only)
 #include <chrono>
