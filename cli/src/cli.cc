@@ -215,6 +215,8 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     fesd->add_option("--T", fesd_options.t,
                      "Horizon (default: irma 100, sliding-leave 2, the others 1)")
         ->type_name("T");
+    fesd->add_flag("--exact-hessian", fesd_options.exact_hessian,
+                   "IPOPT with the exact Hessian (nested forward AD) instead of limited-memory");
     fesd->add_flag("--standard", fesd_options.standard,
                    "Standard time-stepping: fixed steps, no switch detection");
     fesd->add_flag("--trajectory", fesd_options.trajectory,

@@ -115,9 +115,10 @@ struct FesdCommandOptions {
   int nsim = 0;                      ///< integration steps; 0: the example's default
   double t = 0.0;                    ///< horizon; 0: the example's default
   bool standard = false;             ///< standard time-stepping, no switch detection
+  bool exact_hessian = false;        ///< IPOPT with exact Hessians instead of limited-memory
   bool trajectory = false;           ///< add the grid, states, step sizes and active sets
   bool sizes = false;                ///< print [F] Table 4 for the example instead
-  int lifting = 0;                   ///< lifting depth n_d for --sizes (0: none)
+  int lifting = 0;                   ///< lifting depth n_d (0: none), also for --sizes
   bool compact = false;
 };
 

@@ -113,6 +113,7 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
     o.standard = options.standard;
     o.formulation = formulation;
     o.lifting_depth = options.lifting;
+    o.exact_hessian = options.exact_hessian;
     const double t_end = options.t > 0 ? options.t : example->t_end;
     const std::clock_t start = std::clock();
     FesdResult r;

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <deque>
 #include <limits>
+#include <map>
 #include <string>
 #include <utility>
 #include <vector>
@@ -227,8 +228,14 @@ class StepNlp final : public Ipopt::TNLP {
       w_.segment(l_.var(n, l_.off_x), l_.d) = x_start_;
       for (int m = 0; m < l_.points; ++m) w_.segment(l_.z(n, m, 0), l_.nz) = z;
     }
-    for (int n = 1; n < l_.elements; ++n)
+    for (int n = 1; n < l_.elements; ++n) {
       equilibration_index_.push_back(equilibration_inputs(l_, n));
+      // Its constants: the pairs' v at the step's start (boundary 1 only).
+      std::vector<double> constants(equilibration_index_.back().size(), 0.0);
+      for (int k = 0; k < l_.npairs; ++k) constants[static_cast<std::size_t>(2 + k)] = v_start_[k];
+      equilibration_constants_.push_back(std::move(constants));
+    }
+    if (options_.exact_hessian) build_hessian_structure();
     // Jacobian structure: each element's rows against its non-constant local inputs.
     for (int n = 0; n < l_.elements; ++n) {
       for (int r = 0; r < l_.rows_per_element(); ++r) {
@@ -306,7 +313,7 @@ class StepNlp final : public Ipopt::TNLP {
     n = l_.variables();
     m = l_.constraints();
     nnz_jac = static_cast<Ipopt::Index>(jac_rows_.size());
-    nnz_hess = 0;
+    nnz_hess = static_cast<Ipopt::Index>(hess_rows_.size());
     style = C_STYLE;
     return true;
   }
@@ -358,8 +365,8 @@ class StepNlp final : public Ipopt::TNLP {
     double value = 0.0;
     if (options_.standard) return value;
     std::vector<double> in;
-    for (const std::vector<int>& idx : equilibration_index_) {
-      gather(x, idx, in);
+    for (std::size_t e = 0; e < equilibration_index_.size(); ++e) {
+      gather(x, e, in);
       value += equilibration_term(l_, step_ / l_.elements, in.data());
     }
     return value;
@@ -375,8 +382,9 @@ class StepNlp final : public Ipopt::TNLP {
     std::fill(grad, grad + n, 0.0);
     if (options_.standard) return true;
     std::vector<double> values;
-    for (const std::vector<int>& idx : equilibration_index_) {
-      gather(x, idx, values);
+    for (std::size_t e = 0; e < equilibration_index_.size(); ++e) {
+      const std::vector<int>& idx = equilibration_index_[e];
+      gather(x, e, values);
       const int size = static_cast<int>(idx.size());
       std::vector<JetChunk> in(static_cast<std::size_t>(size));
       for (int first = 0; first < size; first += kTangentChunk) {
@@ -430,6 +438,44 @@ class StepNlp final : public Ipopt::TNLP {
     return true;
   }
 
+  bool eval_h(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Number obj_factor, Ipopt::Index,
+              const Ipopt::Number* lambda, bool, Ipopt::Index nele, Ipopt::Index* rows,
+              Ipopt::Index* cols, Ipopt::Number* values) override {
+    if (values == nullptr) {
+      for (Ipopt::Index k = 0; k < nele; ++k) {
+        rows[k] = hess_rows_[static_cast<std::size_t>(k)];
+        cols[k] = hess_cols_[static_cast<std::size_t>(k)];
+      }
+      return true;
+    }
+    std::fill(values, values + nele, 0.0);
+    std::vector<double> base;
+    std::vector<int> globals(static_cast<std::size_t>(l_.local));
+    for (int n = 0; n < l_.elements; ++n) {
+      local_inputs(x, n, base);
+      for (int k = 0; k < l_.local; ++k) globals[static_cast<std::size_t>(k)] = l_.global(n, k);
+      add_hessian(
+          globals, base, l_.rows_per_element(), lambda + n * l_.rows_per_element(),
+          [&](const HessianScalar* in, HessianScalar* out) {
+            element_residual(tab_, l_, options_.standard, in, out);
+          },
+          values);
+    }
+    if (!options_.standard) {
+      const double h_ref = step_ / l_.elements;
+      for (std::size_t e = 0; e < equilibration_index_.size(); ++e) {
+        gather(x, e, base);
+        add_hessian(
+            equilibration_index_[e], base, 1, &obj_factor,
+            [&](const HessianScalar* in, HessianScalar* out) {
+              out[0] = equilibration_term(l_, h_ref, in);
+            },
+            values);
+      }
+    }
+    return true;
+  }
+
   void finalize_solution(Ipopt::SolverReturn status, Ipopt::Index n, const Ipopt::Number* x,
                          const Ipopt::Number* z_l, const Ipopt::Number* z_u, Ipopt::Index m,
                          const Ipopt::Number*, const Ipopt::Number* lambda, Ipopt::Number,
@@ -456,9 +502,84 @@ class StepNlp final : public Ipopt::TNLP {
   }
 
  private:
-  static void gather(const double* x, const std::vector<int>& idx, std::vector<double>& out) {
+  // The inputs of equilibration term e at x (constants from the step's start).
+  void gather(const double* x, std::size_t e, std::vector<double>& out) const {
+    const std::vector<int>& idx = equilibration_index_[e];
     out.resize(idx.size());
-    for (std::size_t k = 0; k < idx.size(); ++k) out[k] = idx[k] >= 0 ? x[idx[k]] : 0.0;
+    for (std::size_t k = 0; k < idx.size(); ++k) {
+      out[k] = idx[k] >= 0 ? x[idx[k]] : equilibration_constants_[e][k];
+    }
+  }
+
+  // Lower-triangle positions of the Lagrangian's Hessian: every pair of an element's unknowns
+  // and of an equilibration term's unknowns.
+  void build_hessian_structure() {
+    std::map<std::pair<int, int>, int> position;
+    const auto add_block = [&](const std::vector<int>& globals) {
+      for (int a : globals) {
+        for (int b : globals) {
+          if (a < 0 || b < 0 || a < b) continue;
+          if (position.emplace(std::make_pair(a, b), static_cast<int>(position.size())).second) {
+            hess_rows_.push_back(a);
+            hess_cols_.push_back(b);
+          }
+        }
+      }
+    };
+    for (int n = 0; n < l_.elements; ++n) {
+      std::vector<int> globals;
+      for (int k = 0; k < l_.local; ++k) globals.push_back(l_.global(n, k));
+      add_block(globals);
+    }
+    for (const std::vector<int>& idx : equilibration_index_) add_block(idx);
+    hess_position_ = std::move(position);
+  }
+
+  // Adds weight * the Hessian of sum_r weights[r] f_r(in) over the unknowns `globals` (-1 for a
+  // constant) into the lower-triangle values, f evaluated at `base` by `eval`, in blocks of
+  // kHessianChunk x kHessianChunk second derivatives per evaluation.
+  template <typename Eval>
+  void add_hessian(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
+                   const double* weights, Eval eval, double* values) const {
+    std::vector<int> free;
+    for (std::size_t k = 0; k < globals.size(); ++k) {
+      if (globals[k] >= 0) free.push_back(static_cast<int>(k));
+    }
+    const int count = static_cast<int>(free.size());
+    std::vector<HessianScalar> in(globals.size()), out(static_cast<std::size_t>(outputs));
+    for (int first_a = 0; first_a < count; first_a += kHessianChunk) {
+      for (int first_b = first_a; first_b < count; first_b += kHessianChunk) {
+        for (std::size_t k = 0; k < globals.size(); ++k)
+          in[k] = HessianScalar(HessianInner(base[k]));
+        const int width_a = std::min(kHessianChunk, count - first_a);
+        const int width_b = std::min(kHessianChunk, count - first_b);
+        for (int i = 0; i < width_a; ++i) {
+          in[static_cast<std::size_t>(free[static_cast<std::size_t>(first_a + i)])]
+              .value()
+              .derivatives()[i] = 1.0;
+        }
+        for (int j = 0; j < width_b; ++j) {
+          in[static_cast<std::size_t>(free[static_cast<std::size_t>(first_b + j)])]
+              .derivatives()[j] = HessianInner(1.0);
+        }
+        eval(in.data(), out.data());
+        for (int i = 0; i < width_a; ++i) {
+          const int ga =
+              globals[static_cast<std::size_t>(free[static_cast<std::size_t>(first_a + i)])];
+          for (int j = 0; j < width_b; ++j) {
+            const int gb =
+                globals[static_cast<std::size_t>(free[static_cast<std::size_t>(first_b + j)])];
+            // Diagonal blocks hold both (a, b) and (b, a): take each once.
+            if (first_a == first_b && ga < gb) continue;
+            double h = 0.0;
+            for (int r = 0; r < outputs; ++r) {
+              h += weights[r] * out[static_cast<std::size_t>(r)].derivatives()[j].derivatives()[i];
+            }
+            values[hess_position_.at({std::max(ga, gb), std::min(ga, gb)})] += h;
+          }
+        }
+      }
+    }
   }
 
   const ButcherTableau& tab_;
@@ -470,6 +591,9 @@ class StepNlp final : public Ipopt::TNLP {
   Eigen::VectorXd w_, z_l_, z_u_, lambda_;
   std::array<Eigen::VectorXd, 4> saved_;
   std::vector<std::vector<int>> equilibration_index_;
+  std::vector<std::vector<double>> equilibration_constants_;
+  std::vector<Ipopt::Index> hess_rows_, hess_cols_;
+  std::map<std::pair<int, int>, int> hess_position_;
   std::vector<Ipopt::Index> jac_rows_, jac_cols_;
   Ipopt::SolverReturn status_ = Ipopt::SUCCESS;
 };
@@ -861,12 +985,18 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   app->RethrowNonIpoptException(false);
   app->Options()->SetIntegerValue("print_level", options.print_level);
   app->Options()->SetStringValue("sb", "yes");
-  app->Options()->SetStringValue("hessian_approximation", "limited-memory");
+  app->Options()->SetStringValue("hessian_approximation",
+                                 options.exact_hessian ? "exact" : "limited-memory");
   app->Options()->SetNumericValue("tol", options.nlp_tolerance);
   app->Options()->SetNumericValue("acceptable_tol", 1e3 * options.nlp_tolerance);
   app->Options()->SetIntegerValue("max_iter", options.max_nlp_iterations);
   app->Options()->SetStringValue("mu_strategy", "adaptive");
   app->Options()->SetNumericValue("bound_relax_factor", 0.0);
+  for (const auto& [name, value] : options.ipopt_string_options) {
+    if (!app->Options()->SetStringValue(name, value)) {
+      throw InvalidArgument("fesd: IPOPT does not take the string option " + name + " = " + value);
+    }
+  }
   if (app->Initialize() != Ipopt::Solve_Succeeded) {
     throw InvalidArgument("fesd: IPOPT failed to initialise");
   }

@@ -31,7 +31,8 @@
 // predicted from its start (no switch inside the step); when that prediction fails, the step is
 // a homotopy of Scholtes-relaxed NLPs (products <= sigma, sigma from
 // sigma_initial down to sigma_final, times sigma_factor, or sigma^1.5 when superlinear), solved
-// by IPOPT with exact first derivatives from Jets and a limited-memory Hessian, each NLP warm-
+// by IPOPT with exact first derivatives from Jets and a limited-memory or exact Hessian (nested
+// forward AD, `exact_hessian`), each NLP warm-
 // started from the previous one. A step whose homotopy fails is replaced by its two halves (up to
 // four times); one that still does not converge ends the run with a status that quotes the
 // complementarity residual and IPOPT's status.
@@ -50,6 +51,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <unsupported/Eigen/AutoDiff>
 
 #include "bflow/core/errors.h"
 #include "bflow/core/filippov.h"
@@ -59,7 +61,15 @@
 
 namespace bflow {
 
-/** A step inclusion seen through virtual calls (double and Jet chunks), so FESD compiles once. */
+/** Forward-over-forward scalar for exact Hessians of the FESD NLP: Eigen's AutoDiffScalar nested
+    (kHessianChunk directions inside and outside), so a block of second derivatives comes from
+    one evaluation. Models written as templates with T(c) constants compile with it. */
+constexpr int kHessianChunk = 8;
+using HessianInner = Eigen::AutoDiffScalar<Eigen::Matrix<double, kHessianChunk, 1>>;
+using HessianScalar = Eigen::AutoDiffScalar<Eigen::Matrix<HessianInner, kHessianChunk, 1>>;
+
+/** A step inclusion seen through virtual calls (double, Jet chunks and, for exact Hessians,
+    HessianScalar), so FESD compiles once. */
 class StepModel {
  public:
   virtual ~StepModel() = default;
@@ -69,6 +79,8 @@ class StepModel {
   virtual void switching(const JetChunk* x, JetChunk* c) const = 0;
   virtual void field(const double* x, const double* a, double* xdot) const = 0;
   virtual void field(const JetChunk* x, const JetChunk* a, JetChunk* xdot) const = 0;
+  virtual void switching(const HessianScalar* x, HessianScalar* c) const = 0;
+  virtual void field(const HessianScalar* x, const HessianScalar* a, HessianScalar* xdot) const = 0;
   /** The sign matrix of a piecewise-smooth model (its modes and unions, used by the lifted
       step formulation), or nullptr for a general step inclusion (then the dense S). */
   virtual const SignMatrix* sign_matrix() const { return nullptr; }
@@ -94,6 +106,12 @@ class StepModelAdapter final : public StepModel {
     model_.field(x, a, xdot);
   }
   void field(const JetChunk* x, const JetChunk* a, JetChunk* xdot) const override {
+    model_.field(x, a, xdot);
+  }
+  void switching(const HessianScalar* x, HessianScalar* c) const override {
+    model_.switching(x, c);
+  }
+  void field(const HessianScalar* x, const HessianScalar* a, HessianScalar* xdot) const override {
     model_.field(x, a, xdot);
   }
   const SignMatrix* sign_matrix() const override {
@@ -193,12 +211,18 @@ struct FesdOptions {
   double sigma_factor = 0.1;  ///< linear update sigma <- factor sigma
   bool superlinear = true;    ///< sigma <- min(factor sigma, sigma^1.5)
   double nlp_tolerance = 1e-13;
+  /** IPOPT with the exact Hessian of the Lagrangian (nested forward AD on each element and each
+      equilibration term, HessianScalar) instead of its limited-memory approximation. */
+  bool exact_hessian = false;
   int max_nlp_iterations = 500;
   /** Try each step first by Newton's method on the active set predicted from its start (no
       switch inside); the IPOPT homotopy runs only when that prediction fails. */
   bool newton = true;
   bool sensitivities = true;
   int print_level = 0;  ///< IPOPT's print_level (0 silent)
+  /** Further IPOPT string options, set after bflow's (e.g. {"output_file", "ipopt.log"},
+      {"derivative_test", "second-order"}). */
+  std::vector<std::pair<std::string, std::string>> ipopt_string_options;
 };
 
 enum class FesdStatus { kConverged, kStepFailed, kInvalidModel };
