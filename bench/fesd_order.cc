@@ -160,8 +160,9 @@ int main(int argc, char** argv) {
                    : "set xlabel 'h = T / (N_sim N_FE) [min]'\n"
                      "set title 'FESD on IRMA: error against step size'\nplot ";
     for (std::size_t k = 0; k < series.size(); ++k) {
-      script += std::string(k ? ", " : "") + "'-' using 1:2 with linespoints lw 2 title '" +
-                series[k].name + "'";
+      // Work-precision: points only (the runs' costs are not ordered by N_sim).
+      script += std::string(k ? ", " : "") + "'-' using 1:2 with " +
+                (work ? "points ps 1.3" : "linespoints lw 2") + " title '" + series[k].name + "'";
     }
     script += "\n";
     for (const auto& points : results) {
