@@ -23,19 +23,22 @@
 // lambda_{n,0} (the end of the previous element, (36); at the step's start from x by (17)), and
 // for Gauss-Legendre (c_s < 1) an extra point at the element's end ((42)-(43)). The step
 // equilibration (39) enters the objective: sum_n eta_n (h_n - h_{n-1})^2, eta_n the indicator of
-// Section 4.4, normalised per switching function (nu / (nu + 1e-12)), so that elements without
+// Section 4.4, normalised per switching function (nu / (nu + 1e-6)), so that elements without
 // a switch between them get equal lengths. With `standard`, the h_n are fixed to H / N_FE and
-// complementarity holds stage by stage only ((34), standard time-stepping).
+// complementarity holds stage by stage only ((34), standard time-stepping). `formulation` and
+// `lifting_depth` discretise Stewart's DCS (28) or the lifted step DCS (Algorithm 1) instead.
 //
-// Solution. A step is first tried by Newton's method on the FESD equations with the active set
-// predicted from its start (no switch inside the step); when that prediction fails, the step is
-// a homotopy of Scholtes-relaxed NLPs (products <= sigma, sigma from
+// Solution. A step is first solved by Newton's method on the FESD equations with its active set
+// guessed: the sides of its start (no switch), else one switch (or two) at each element boundary
+// in turn, the switch condition replacing that boundary's equal-length equation; among the
+// guesses that are FESD solutions the one with the least step equilibration is taken. When no
+// guess fits, the step is a homotopy of Scholtes-relaxed NLPs (products <= sigma, sigma from
 // sigma_initial down to sigma_final, times sigma_factor, or sigma^1.5 when superlinear), solved
 // by IPOPT with exact first derivatives from Jets and a limited-memory or exact Hessian (nested
-// forward AD, `exact_hessian`), each NLP warm-
-// started from the previous one. A step whose homotopy fails is replaced by its two halves (up to
-// four times); one that still does not converge ends the run with a status that quotes the
-// complementarity residual and IPOPT's status.
+// forward AD, `exact_hessian`), each NLP warm-started from the previous one. A step whose
+// homotopy fails is replaced by its two halves (up to four times); one that still does not
+// converge ends the run with a status that quotes the complementarity residual and IPOPT's
+// status.
 //
 // Sensitivity. On the converged active set the step's equations are square in its unknowns
 // (each complementarity pair fixed to its active branch, equal lengths where no switch); the
