@@ -827,57 +827,7 @@ bool solve_guess(const StepNlp& nlp, const Layout& l, const std::vector<std::vec
   return within_bounds(l, w, 2.0 * step / l.elements);
 }
 
-// A step with one switch (or two at different boundaries), solved by guessing its active set
-// after the no-switch guess failed with solution `tried`: a switching function that `tried`
-// takes across its surface changes to the other side or to sliding, a sliding one leaves to
-// either side, at every element boundary in turn (the step's start included). Each guess is solved
-// by solve_guess; among the FESD solutions found, the one the step equilibration prefers (the NLP's
-// objective) is taken. Returns false when no guess is an FESD solution (the caller then runs the
-// homotopy).
 // The guesses of switch_step for the functions `changed`; the best FESD solution found, if any.
-bool guess_switches(const StepNlp& nlp, const Layout& l, const std::vector<int>& sides,
-                    const std::vector<int>& changed, const Eigen::VectorXd& tried, double step,
-                    double tol, Eigen::VectorXd& w, int* iterations);
-
-bool switch_step(const StepModel& model, const StepNlp& nlp, const Layout& l,
-                 const std::vector<int>& sides, const Eigen::VectorXd& tried, double step,
-                 double tol, Eigen::VectorXd& w, int* iterations) {
-  std::vector<int> crossed, sliding;
-  Eigen::VectorXd c(l.nc);
-  for (int j = 0; j < l.nc; ++j) {
-    const int side = sides[static_cast<std::size_t>(j)];
-    if (side == 0) {
-      sliding.push_back(j);
-      continue;
-    }
-    bool across = false;
-    for (int n = 0; n < l.elements && !across; ++n) {
-      for (int m = 0; m < l.points && !across; ++m) {
-        const int at = m < l.s ? l.var(n, 1 + m * l.d) : l.var(n, l.off_x);
-        model.switching(tried.data() + at, c.data());
-        across = side * c[j] < 0.0;
-      }
-    }
-    if (across) crossed.push_back(j);
-  }
-  // The crossed functions alone; else one sliding function leaving; else both kinds.
-  std::vector<std::vector<int>> attempts;
-  if (!crossed.empty()) attempts.push_back(crossed);
-  for (int j : sliding) attempts.push_back({j});
-  if (!crossed.empty() && !sliding.empty()) {
-    std::vector<int> both = crossed;
-    both.insert(both.end(), sliding.begin(), sliding.end());
-    attempts.push_back(both);
-  }
-  for (const std::vector<int>& changed : attempts) {
-    if (changed.size() <= 2 &&
-        guess_switches(nlp, l, sides, changed, tried, step, tol, w, iterations)) {
-      return true;
-    }
-  }
-  return false;
-}
-
 bool guess_switches(const StepNlp& nlp, const Layout& l, const std::vector<int>& sides,
                     const std::vector<int>& changed, const Eigen::VectorXd& tried, double step,
                     double tol, Eigen::VectorXd& w, int* iterations) {
@@ -927,6 +877,52 @@ bool guess_switches(const StepNlp& nlp, const Layout& l, const std::vector<int>&
     }
   }
   return best < std::numeric_limits<double>::infinity();
+}
+
+// A step with one switch (or two at different boundaries), solved by guessing its active set
+// after the no-switch guess failed with solution `tried`: a switching function that `tried`
+// takes across its surface changes to the other side or to sliding, a sliding one leaves to
+// either side, at every element boundary in turn (the step's start included). Each guess is solved
+// by solve_guess; among the FESD solutions found, the one the step equilibration prefers (the NLP's
+// objective) is taken. Returns false when no guess is an FESD solution (the caller then runs the
+// homotopy).
+bool switch_step(const StepModel& model, const StepNlp& nlp, const Layout& l,
+                 const std::vector<int>& sides, const Eigen::VectorXd& tried, double step,
+                 double tol, Eigen::VectorXd& w, int* iterations) {
+  std::vector<int> crossed, sliding;
+  Eigen::VectorXd c(l.nc);
+  for (int j = 0; j < l.nc; ++j) {
+    const int side = sides[static_cast<std::size_t>(j)];
+    if (side == 0) {
+      sliding.push_back(j);
+      continue;
+    }
+    bool across = false;
+    for (int n = 0; n < l.elements && !across; ++n) {
+      for (int m = 0; m < l.points && !across; ++m) {
+        const int at = m < l.s ? l.var(n, 1 + m * l.d) : l.var(n, l.off_x);
+        model.switching(tried.data() + at, c.data());
+        across = side * c[j] < 0.0;
+      }
+    }
+    if (across) crossed.push_back(j);
+  }
+  // The crossed functions alone; else one sliding function leaving; else both kinds.
+  std::vector<std::vector<int>> attempts;
+  if (!crossed.empty()) attempts.push_back(crossed);
+  for (int j : sliding) attempts.push_back({j});
+  if (!crossed.empty() && !sliding.empty()) {
+    std::vector<int> both = crossed;
+    both.insert(both.end(), sliding.begin(), sliding.end());
+    attempts.push_back(both);
+  }
+  for (const std::vector<int>& changed : attempts) {
+    if (changed.size() <= 2 &&
+        guess_switches(nlp, l, sides, changed, tried, step, tol, w, iterations)) {
+      return true;
+    }
+  }
+  return false;
 }
 
 void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
