@@ -1,4 +1,6 @@
-# cmake -DBUILD_DIR=... -DSOURCE_DIR=... -DWORK_DIR=... -DGENERATOR=... -P check_install.cmake
+# cmake -DBUILD_DIR=... -DSOURCE_DIR=... -DWORK_DIR=... -DGENERATOR=... -DCONSUMER_REGEX=...
+#       -P check_install.cmake
+# Fails unless every step exits with 0 and the consumer's output matches CONSUMER_REGEX.
 file(REMOVE_RECURSE ${WORK_DIR})
 set(prefix ${WORK_DIR}/prefix)
 function(run)
@@ -15,4 +17,7 @@ execute_process(COMMAND ${WORK_DIR}/build/consumer RESULT_VARIABLE code OUTPUT_V
 message("${out}")
 if(NOT code EQUAL 0)
   message(FATAL_ERROR "consumer exited with ${code}")
+endif()
+if(NOT out MATCHES "${CONSUMER_REGEX}")
+  message(FATAL_ERROR "consumer output does not match [${CONSUMER_REGEX}]")
 endif()
