@@ -13,13 +13,17 @@
 //   BM_FlowOneSidedFd/<e>   d + 1 simulations: phi(x0) and phi(x0 + a e_i), a = sqrt(rtol)
 //   BM_FlowCentralFd/<e>    2d + 1 simulations: phi(x0) and phi(x0 +- a e_i), a = rtol^(1/3)
 //   BM_FlowFullTangentNorm/<e>  BM_FlowFull with the tangents in dopri5's error norm
+//   BM_FlowGrouping/<policy>/<simulate|derivative>  default options on an oscillator crossing
+//                           two axes a quarter turn apart (32 single-surface events, none
+//                           near-simultaneous) with grouping auto, window and none: what the
+//                           automatic window costs where it changes nothing (target <= 5 %)
 //
 // The targets compare medians of the same e: Directional <= 2x Simulate, Full <= 4x Simulate,
 // CentralFd >= 3x Full (scripts/accuracy --benchmark prints the ratios). The default names
 // are the dopri5 backend; "/cvodes-bdf" and "/cvodes-adams" rows follow when that backend is
 // built (a backend whose make_integrator() throws is skipped with a note on stderr).
-// Finite differences run with simultaneity_window = 0, as in bench/accuracy.cc, so that a
-// perturbed run resolves the two touchdowns however close they are.
+// Finite differences run with Grouping::kNone, as bflow::fd does, so that a perturbed run
+// resolves the two touchdowns however close they are.
 //
 // Effect costs (scenes of bflow/core/scene.h):
 //
@@ -93,7 +97,7 @@ FlowOptions options_for(int exponent, Backend backend) {
 
 FlowOptions fd_options(int exponent, Backend backend) {
   FlowOptions options = options_for(exponent, backend);
-  options.simultaneity_window = 0.0;
+  options.grouping = bflow::Grouping::kNone;
   return options;
 }
 
@@ -193,6 +197,67 @@ void BM_FlowOneSidedFd(benchmark::State& state, Backend backend, int exponent) {
 }
 void BM_FlowCentralFd(benchmark::State& state, Backend backend, int exponent) {
   finite_differences(state, backend, exponent, true);
+}
+
+// ---------------------------------------------------------------------------------------------
+// What grouping costs on events with no near-simultaneity
+
+// x' = a_b y, y' = -c_b x with a, c switching across both axes: an orbit around the origin
+// crossing one axis at a time, a quarter turn apart (far outside any grouping window), 32 events
+// in t = 50.
+struct QuadrantOscillator {
+  static constexpr int kStates = 2;
+  static constexpr int kSurfaces = 2;
+  template <typename T>
+  void field(const T* x, bflow::Signs b, T* xdot) const {
+    xdot[0] = (b.plus(0) ? 1.5 : 1.0) * x[1];
+    xdot[1] = -(b.plus(1) ? 1.3 : 1.0) * x[0];
+  }
+  template <typename T>
+  void surfaces(const T* x, T* h) const {
+    h[0] = x[0];
+    h[1] = x[1];
+  }
+};
+
+constexpr double kOscillatorTime = 50.0;
+
+void BM_FlowGrouping(benchmark::State& state, bflow::Grouping grouping, bool derivative) {
+  static const auto model = bflow::adapt(QuadrantOscillator{});
+  FlowOptions options;  // the defaults, as a user runs it
+  options.grouping = grouping;
+  const Eigen::Vector2d x0(1.0, 0.5);
+  FlowResult r;
+  for (auto _ : state) {
+    if (derivative) {
+      const bflow::FlowDerivative d =
+          bflow::flow_derivative(model, x0, kOscillatorTime, options, &r);
+      benchmark::DoNotOptimize(d.transitions().back().data());
+    } else {
+      r = bflow::simulate(model, x0, kOscillatorTime, options);
+      benchmark::DoNotOptimize(r.x.data());
+    }
+  }
+  if (require_ok(state, r)) {
+    flow_counters(state, r, 1);
+    state.counters["notices"] = static_cast<double>(r.notices.size());
+  }
+}
+
+void register_grouping_benchmarks() {
+  const std::pair<const char*, bflow::Grouping> policies[] = {
+      {"auto", bflow::Grouping::kAutomatic},
+      {"window", bflow::Grouping::kFixedWindow},
+      {"none", bflow::Grouping::kNone},
+  };
+  for (bool derivative : {false, true}) {
+    for (const auto& [name, grouping] : policies) {
+      const std::string full =
+          std::string("BM_FlowGrouping/") + name + (derivative ? "/derivative" : "/simulate");
+      benchmark::RegisterBenchmark(full.c_str(), BM_FlowGrouping, grouping, derivative)
+          ->Unit(benchmark::kMicrosecond);
+    }
+  }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -401,6 +466,7 @@ int main(int argc, char** argv) {
   register_field_benchmarks<double>("BM_SceneField");
   register_field_benchmarks<bflow::JetChunk>("BM_SceneFieldJet8");
   register_scene_simulations();
+  register_grouping_benchmarks();
 
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;

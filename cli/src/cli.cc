@@ -72,10 +72,14 @@ constexpr const char* kFlowFooter =
            which both feet touch together at t = 0.3968; default --t 0.6.
 
 Output, one JSON object (numbers print in the shortest form that reads back exactly):
-  "scene", "params", "integrator", "rtol", "atol", "t", "x0"
+  "scene", "params", "integrator", "rtol", "atol", "grouping", "t", "x0"
   "x_t"         phi_t(x0)
-  "events"      [{"t", "surfaces" (crossed together), "rho", "sides_before", "sides_after",
+  "events"      [{"t", "surfaces" (crossed together), "crossing_times" (located, per surface),
+                  "spread", "window" (grouping), "gap" (to the nearest crossing not grouped,
+                  null if none), "rho", "sides_before", "sides_after",
                   "margins": [{"before", "after"}] (eta . F / (|eta| |F|) per surface)}]
+  "notices"     [{"kind" (near-simultaneous | near-grazing), "surfaces", "times", "gap",
+                  "band", "message"}], each also one warning line on stderr
   "directions"  one per --dx, in order (default e_0 ... e_{d-1}):
      "dx", "image" (D phi_t(x0; dx)), "orders" (crossing order at each event),
      "jacobian" (the piece active at dx, rows), and with --fd "fd": {"one_sided", "central"
@@ -159,8 +163,15 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->allow_extra_args(false);
     flow->add_option("--rtol", flow_options.rtol, "Relative tolerance, > 0 (default 1e-8)")
         ->type_name("R");
-    flow->add_option("--atol", flow_options.atol, "Absolute tolerance, > 0 (default 1e-10)")
+    flow->add_option("--atol", flow_options.atol, "Absolute tolerance, > 0 (default: rtol / 100)")
         ->type_name("A");
+    flow->add_option("--grouping", flow_options.grouping,
+                     "How crossings become one event: auto (a window from the tolerances and "
+                     "the normal speeds; default), window (--window T) or none")
+        ->type_name("POLICY");
+    flow->add_option("--window", flow_options.window,
+                     "With --grouping window: crossings closer than T in time are one event")
+        ->type_name("T");
     flow->add_option("--integrator", flow_options.integrator, "dopri5, cvodes-bdf or cvodes-adams")
         ->type_name("NAME")
         ->capture_default_str();

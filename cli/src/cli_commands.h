@@ -69,6 +69,10 @@ struct FlowCommandOptions {
   std::optional<std::string> atol;
   /** "dopri5", "cvodes-bdf" or "cvodes-adams" (bflow::parse_backend). */
   std::string integrator = "dopri5";
+  /** "auto", "window" or "none" (bflow::parse_grouping); default auto. */
+  std::optional<std::string> grouping;
+  /** With --grouping window: the window in time, >= 0 (FlowOptions::simultaneity_window). */
+  std::optional<std::string> window;
   /** Steps per smooth segment before the run stops (bflow::IntegratorOptions::max_steps). */
   std::optional<std::string> max_steps;
   /** Also finite differences of the simulated flow for every direction (bflow::fd::compare). */
@@ -82,6 +86,8 @@ struct FlowCommandOptions {
     the image D phi_t(x0; dx), the crossing orders and the active Jacobian (see docs/cli.md).
     Exit code 2 for a bad option or input the library rejects (sliding, grazing, x0 on a
     surface), 1 when the simulation stops early (the JSON then has "status" and "message").
+    Every notice of the run (near-simultaneous crossings not grouped, near grazing) is in the
+    JSON's "notices" and printed as one "warning: ..." line on `err`.
     Never throws. */
 int run_flow(const FlowCommandOptions& options, std::ostream& out, std::ostream& err);
 

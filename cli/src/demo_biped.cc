@@ -59,8 +59,7 @@ constexpr double kRtol = 1e-10;
 constexpr double kAtol = 1e-12;
 // One-sided differences have a truncation error alpha |D^2 phi| |dx|^2 / 2 ~ 1e-7 here (the
 // second derivative is O(1) on both sides of the touchdown; measured 7e-9 to 9.4e-8 relative
-// on the table). Much smaller steps fail: below alpha ~ 1e-8 the perturbed feet land within
-// FlowOptions::simultaneity_window (1e-9 s) of each other and are grouped as one event.
+// on the table). Much smaller steps lose to rounding and the integration error divided by alpha.
 constexpr double kDifferenceStep = 1e-7;
 constexpr double kDifferenceTolerance = 1e-6;
 // The touchdown is located on dopri5's dense output of a free fall (a quadratic in t, which

@@ -219,6 +219,14 @@ OrderedJson events_json(const std::vector<EventRecord>& events) {
     OrderedJson item = OrderedJson::object();
     item["t"] = e.t;
     item["surfaces"] = e.surfaces;
+    item["crossing_times"] = e.crossing_times;
+    item["spread"] = e.spread;
+    item["window"] = e.window;
+    if (std::isfinite(e.gap)) {
+      item["gap"] = e.gap;
+    } else {
+      item["gap"] = nullptr;
+    }
     item["rho"] = vector_json(e.rho);
     item["sides_before"] = e.sides_before.str();
     item["sides_after"] = e.sides_after.str();
@@ -230,24 +238,33 @@ OrderedJson events_json(const std::vector<EventRecord>& events) {
 
 // The crossing order at each event of the tangent that arrives there, in model surface indices.
 std::vector<std::vector<int>> crossing_orders(const FlowDerivative& derivative,
-                                              const std::vector<EventRecord>& events,
                                               const Eigen::VectorXd& dx) {
   std::vector<std::vector<int>> orders;
-  Eigen::VectorXd v = derivative.transitions()[0] * dx;
-  for (std::size_t i = 0; i < derivative.jumps().size(); ++i) {
-    const JumpMap& jump = derivative.jumps()[i];
-    std::vector<int> order = jump.order(v).order;
-    for (int& k : order) k = events[i].surfaces.at(static_cast<std::size_t>(k));
-    orders.push_back(std::move(order));
-    v = derivative.transitions()[i + 1] * jump.apply(v);
-  }
+  for (CrossingOrder& order : derivative.crossing_orders(dx))
+    orders.push_back(std::move(order.order));
   return orders;
+}
+
+OrderedJson notices_json(const std::vector<FlowNotice>& notices) {
+  OrderedJson list = OrderedJson::array();
+  for (const FlowNotice& notice : notices) {
+    OrderedJson item = OrderedJson::object();
+    item["kind"] = to_string(notice.kind);
+    item["surfaces"] = notice.surfaces;
+    item["times"] = notice.times;
+    item["gap"] = notice.gap;
+    item["band"] = notice.band;
+    item["message"] = notice.message;
+    list.push_back(std::move(item));
+  }
+  return list;
 }
 
 struct Evaluation {
   OrderedJson result;
   int code = kExitOk;
   std::string error;  // with code 1
+  std::vector<std::string> warnings;
 };
 
 Evaluation evaluate(const SegmentModel& model, const Eigen::VectorXd& x0,
@@ -261,9 +278,13 @@ Evaluation evaluate(const SegmentModel& model, const Eigen::VectorXd& x0,
     result["message"] = plain.message;
     result["t_reached"] = plain.t;
     result["events"] = events_json(plain.events);
+    result["notices"] = notices_json(plain.notices);
+    std::vector<std::string> warnings;
+    for (const FlowNotice& notice : plain.notices) warnings.push_back(notice.message);
     return {std::move(result), kExitFailure,
             "flow: the simulation stopped at t = " + format_number(plain.t) + " before t = " +
-                format_number(request.t) + " (" + to_string(plain.status) + "): " + plain.message};
+                format_number(request.t) + " (" + to_string(plain.status) + "): " + plain.message,
+            std::move(warnings)};
   }
   FlowResult trajectory;
   const FlowDerivative derivative =
@@ -271,6 +292,7 @@ Evaluation evaluate(const SegmentModel& model, const Eigen::VectorXd& x0,
   check_finite(trajectory.x, "x_t");
   result["x_t"] = vector_json(trajectory.x);
   result["events"] = events_json(trajectory.events);
+  result["notices"] = notices_json(trajectory.notices);
   OrderedJson list = OrderedJson::array();
   for (std::size_t k = 0; k < directions.size(); ++k) {
     const std::string name = "directions[" + std::to_string(k) + "]";
@@ -282,7 +304,7 @@ Evaluation evaluate(const SegmentModel& model, const Eigen::VectorXd& x0,
     OrderedJson item = OrderedJson::object();
     item["dx"] = vector_json(dx);
     item["image"] = vector_json(image);
-    item["orders"] = crossing_orders(derivative, trajectory.events, dx);
+    item["orders"] = crossing_orders(derivative, dx);
     item["jacobian"] = rows_json(jacobian);
     if (request.fd) {
       const fd::Report report = fd::compare(model, x0, request.t, dx, image, request.flow);
@@ -303,7 +325,9 @@ Evaluation evaluate(const SegmentModel& model, const Eigen::VectorXd& x0,
     list.push_back(std::move(item));
   }
   result["directions"] = std::move(list);
-  return {std::move(result), kExitOk, ""};
+  std::vector<std::string> warnings;
+  for (const FlowNotice& notice : trajectory.notices) warnings.push_back(notice.message);
+  return {std::move(result), kExitOk, "", std::move(warnings)};
 }
 
 Evaluation run(const FlowCommandOptions& options) {
@@ -347,15 +371,33 @@ Evaluation run(const FlowCommandOptions& options) {
     }
   }
   if (options.atol) {
-    request.flow.integrator.atol = parse_number(*options.atol, "--atol");
-    if (!(request.flow.integrator.atol > 0.0)) {
-      fail("--atol", "must be > 0, got " + format_number(request.flow.integrator.atol));
-    }
+    const double atol = parse_number(*options.atol, "--atol");
+    if (!(atol > 0.0)) fail("--atol", "must be > 0, got " + format_number(atol));
+    request.flow.integrator.atol = atol;
   }
   try {
     request.flow.backend = parse_backend(options.integrator);
   } catch (const InvalidArgument& e) {
     fail("--integrator", e.what());
+  }
+  if (options.grouping) {
+    try {
+      request.flow.grouping = parse_grouping(*options.grouping);
+    } catch (const InvalidArgument& e) {
+      fail("--grouping", e.what());
+    }
+  }
+  if (options.window) {
+    if (request.flow.grouping != Grouping::kFixedWindow) {
+      fail("--window", "needs --grouping window");
+    }
+    const double window = parse_number(*options.window, "--window");
+    if (!(window >= 0.0) || !std::isfinite(window)) {
+      fail("--window", "must be finite and >= 0, got " + format_number(window));
+    }
+    request.flow.simultaneity_window = window;
+  } else if (request.flow.grouping == Grouping::kFixedWindow) {
+    fail("--grouping", "window needs --window T");
   }
   if (options.max_steps) {
     const std::uint64_t steps = parse_unsigned(*options.max_steps, "--max-steps", 1000000000);
@@ -389,7 +431,11 @@ Evaluation run(const FlowCommandOptions& options) {
   head["params"] = std::move(params_json);
   head["integrator"] = to_string(request.flow.backend);
   head["rtol"] = request.flow.integrator.rtol;
-  head["atol"] = request.flow.integrator.atol;
+  head["atol"] = request.flow.integrator.absolute_tolerance();
+  head["grouping"] = to_string(request.flow.grouping);
+  if (request.flow.grouping == Grouping::kFixedWindow) {
+    head["window"] = request.flow.simultaneity_window;
+  }
   head["t"] = request.t;
 
   // x0 and the directions, now that d is known; then the run.
@@ -431,6 +477,9 @@ int run_flow(const FlowCommandOptions& options, std::ostream& out, std::ostream&
     if (!out) {
       report_error(err, "output: cannot write the result");
       return kExitFailure;
+    }
+    for (const std::string& warning : evaluation.warnings) {
+      err << "warning: " << one_line(warning) << '\n';
     }
     if (evaluation.code != kExitOk) report_error(err, evaluation.error);
     return evaluation.code;

@@ -22,13 +22,28 @@ void FlowDerivative::append_transition(const Eigen::Ref<const Eigen::MatrixXd>& 
   transitions_.back() = phi * transitions_.back();
 }
 
-void FlowDerivative::append_jump(JumpMap jump, double t) {
+void FlowDerivative::append_jump(JumpMap jump, double t, std::vector<int> surfaces) {
   if (jump.dim() != dim_) {
     throw InvalidArgument("FlowDerivative: jump of dimension " + std::to_string(jump.dim()) +
                           ", expected " + std::to_string(dim_));
   }
+  if (surfaces.empty()) {
+    for (int j = 0; j < jump.surfaces(); ++j) surfaces.push_back(j);
+  }
+  bool increasing = surfaces.size() == static_cast<std::size_t>(jump.surfaces());
+  for (std::size_t k = 0; increasing && k < surfaces.size(); ++k) {
+    increasing = surfaces[k] >= 0 && (k == 0 || surfaces[k] > surfaces[k - 1]);
+  }
+  if (!increasing) {
+    std::string text;
+    for (int j : surfaces) text += (text.empty() ? "" : ", ") + std::to_string(j);
+    throw InvalidArgument("FlowDerivative: a jump of " + std::to_string(jump.surfaces()) +
+                          " surfaces needs as many increasing, nonnegative model indices, got [" +
+                          text + "]");
+  }
   jumps_.push_back(std::move(jump));
   times_.push_back(t);
+  surfaces_.push_back(std::move(surfaces));
   transitions_.push_back(Eigen::MatrixXd::Identity(dim_, dim_));
 }
 
@@ -59,20 +74,22 @@ Eigen::MatrixXd FlowDerivative::apply_block(const Eigen::Ref<const Eigen::Matrix
   return out;
 }
 
-std::vector<CrossingOrder> FlowDerivative::event_time_shifts(
+std::vector<CrossingOrder> FlowDerivative::crossing_orders(
     const Eigen::Ref<const Eigen::VectorXd>& dx) const {
   if (dx.size() != dim_ || !dx.allFinite()) {
-    throw InvalidArgument("FlowDerivative::event_time_shifts: tangent must have " +
+    throw InvalidArgument("FlowDerivative::crossing_orders: tangent must have " +
                           std::to_string(dim_) + " finite numbers, got " + format_vector(dx));
   }
-  std::vector<CrossingOrder> shifts;
+  std::vector<CrossingOrder> orders;
   Eigen::VectorXd v = transitions_[0] * dx;
   for (std::size_t i = 0; i < jumps_.size(); ++i) {
-    shifts.push_back(jumps_[i].order(v));
+    CrossingOrder order = jumps_[i].order(v);
+    for (int& k : order.order) k = surfaces_[i][static_cast<std::size_t>(k)];
+    orders.push_back(std::move(order));
     jumps_[i].apply(v, v);
     v = transitions_[i + 1] * v;
   }
-  return shifts;
+  return orders;
 }
 
 Eigen::MatrixXd FlowDerivative::active_jacobian(const Eigen::Ref<const Eigen::VectorXd>& dx) const {
@@ -109,7 +126,9 @@ std::vector<FlowPiece> FlowDerivative::pieces() const {
       for (std::size_t p = 0; p < event_pieces.size(); ++p) {
         FlowPiece piece{prefix.orders,
                         transitions_[i + 1] * event_pieces.matrix(p) * prefix.matrix};
-        piece.orders.push_back(event_pieces.order(p));
+        std::vector<int> order = event_pieces.order(p);
+        for (int& k : order) k = surfaces_[i][static_cast<std::size_t>(k)];
+        piece.orders.push_back(std::move(order));
         next.push_back(std::move(piece));
       }
     }

@@ -383,10 +383,11 @@ void check_request(const SegmentModel& model, const SegmentRequest& request,
     throw InvalidArgument(who + "t0 and t_end must be finite, got t0 = " +
                           format_number(request.t0) + ", t_end = " + format_number(request.t_end));
   }
-  if (!(options.rtol > 0.0) || !(options.atol > 0.0) || !std::isfinite(options.rtol) ||
-      !std::isfinite(options.atol)) {
+  if (!(options.rtol > 0.0) || !(options.absolute_tolerance() > 0.0) ||
+      !std::isfinite(options.rtol) || !std::isfinite(options.absolute_tolerance())) {
     throw InvalidArgument(who + "rtol and atol must be positive and finite, got rtol = " +
-                          format_number(options.rtol) + ", atol = " + format_number(options.atol));
+                          format_number(options.rtol) +
+                          ", atol = " + format_number(options.absolute_tolerance()));
   }
   if (!(options.initial_step >= 0.0) || !(options.min_step >= 0.0) || !(options.max_step > 0.0) ||
       !std::isfinite(options.initial_step) || !std::isfinite(options.min_step)) {
@@ -498,7 +499,7 @@ class CvodesIntegrator::Impl {
     check(CVodeSetErrHandlerFn(mem, &error_callback, &p), "CVodeSetErrHandlerFn");
     check(CVodeInit(mem, &field_callback, request.t0, y), "CVodeInit");
     check(CVodeSetUserData(mem, &p), "CVodeSetUserData");
-    check(CVodeSStolerances(mem, options.rtol, options.atol), "CVodeSStolerances");
+    check(CVodeSStolerances(mem, options.rtol, options.absolute_tolerance()), "CVodeSStolerances");
     check(CVodeSetLinearSolver(mem, solver_.get(), matrix_.get()), "CVodeSetLinearSolver");
     check(CVodeSetJacFn(mem, &jacobian_callback), "CVodeSetJacFn");
     const double direction = request.t_end > request.t0 ? 1.0 : -1.0;
@@ -534,7 +535,7 @@ class CvodesIntegrator::Impl {
         Eigen::Map<Eigen::VectorXd>(ys_.column(c), d) = request.v0.col(c);
       }
       check(CVodeSensInit(mem, k, CV_STAGGERED, &tangent_callback, ys_.data()), "CVodeSensInit");
-      std::vector<double> atol(static_cast<std::size_t>(k), options.atol);
+      std::vector<double> atol(static_cast<std::size_t>(k), options.absolute_tolerance());
       check(CVodeSensSStolerances(mem, options.rtol, atol.data()), "CVodeSensSStolerances");
       check(CVodeSetSensErrCon(mem, SUNTRUE), "CVodeSetSensErrCon");
       // No parameters: the sensitivity right-hand side is ours, so CVODES needs neither p

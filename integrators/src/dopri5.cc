@@ -173,6 +173,12 @@ class Stepper {
           dense(x, h, theta, next_);
           x = next_;
           result.t = t + theta * h;
+          result.crossing_times.assign(static_cast<std::size_t>(n_), INFINITY);
+          for (int j = 0; j < n_; ++j) {
+            const double theta_j = theta_[static_cast<std::size_t>(j)];
+            if (theta_j <= 1.0)
+              result.crossing_times[static_cast<std::size_t>(j)] = t + theta_j * h;
+          }
           result.status = IntegrationStatus::kCrossing;
           return result;
         }
@@ -209,7 +215,7 @@ class Stepper {
   }
 
   double scale(double a, double b) const {
-    return options_.atol + options_.rtol * std::max(std::abs(a), std::abs(b));
+    return options_.absolute_tolerance() + options_.rtol * std::max(std::abs(a), std::abs(b));
   }
 
   double initial_step(const std::vector<T>& x, double t0, double t_end) {
@@ -279,7 +285,7 @@ class Stepper {
     }
     const double state = std::sqrt(sum / d_);
     if (!tangents) return state;
-    return std::max(state, tangent_norm_.error(options_.rtol, options_.atol));
+    return std::max(state, tangent_norm_.error(options_.rtol, options_.absolute_tolerance()));
   }
 
   // x(t + theta h) on the dense output of the last accepted step.
@@ -420,9 +426,10 @@ void check_request(const SegmentModel& model, const SegmentRequest& request,
     throw InvalidArgument("dopri5: need finite t_end >= t0, got t0 = " + format_number(request.t0) +
                           ", t_end = " + format_number(request.t_end));
   }
-  if (!(options.rtol > 0) || !(options.atol > 0)) {
-    throw InvalidArgument("dopri5: rtol and atol must be positive, got rtol = " +
-                          format_number(options.rtol) + ", atol = " + format_number(options.atol));
+  if (!(options.rtol > 0) || !(options.absolute_tolerance() > 0)) {
+    throw InvalidArgument(
+        "dopri5: rtol and atol must be positive, got rtol = " + format_number(options.rtol) +
+        ", atol = " + format_number(options.absolute_tolerance()));
   }
 }
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 
 #include "bflow/core/errors.h"
@@ -16,6 +17,25 @@ Backend parse_backend(const std::string& name) {
   if (name == "cvodes-adams") return Backend::kCvodesAdams;
   throw InvalidArgument("integrator \"" + name +
                         "\" is unknown; choose dopri5, cvodes-bdf or cvodes-adams");
+}
+
+Grouping parse_grouping(const std::string& name) {
+  if (name == "auto") return Grouping::kAutomatic;
+  if (name == "window") return Grouping::kFixedWindow;
+  if (name == "none") return Grouping::kNone;
+  throw InvalidArgument("grouping \"" + name + "\" is unknown; choose auto, window or none");
+}
+
+const char* to_string(Grouping grouping) {
+  switch (grouping) {
+    case Grouping::kAutomatic:
+      return "auto";
+    case Grouping::kFixedWindow:
+      return "window";
+    case Grouping::kNone:
+      return "none";
+  }
+  return "unknown";
 }
 
 const char* to_string(Backend backend) {
@@ -75,9 +95,10 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
   const int d = model.states();
   const int n_model = model.surfaces();
   const Eigen::VectorXd& rho = segment.x;
+  const double t1 = segment.t;
   Event event;
   EventRecord& record = event.record;
-  record.t = segment.t;
+  record.t = t1;
   record.rho = rho;
   record.sides_before = sides;
 
@@ -87,17 +108,71 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
   Eigen::VectorXd f_before(d);
   model.field(rho.data(), sides, f_before.data());
 
-  // Group: the surfaces found crossing, and those reached within the window at this speed.
-  std::vector<int> group = segment.crossed;
+  // The crossing-time uncertainty of each surface: the integrator's tolerance on the state,
+  // seen through the surface's normal and normal speed (header comment, "Grouping").
+  const double rtol = options.integrator.rtol;
+  const double atol = options.integrator.absolute_tolerance();
+  const double tol_norm = (atol + rtol * rho.array().abs()).matrix().norm();
+  const double time_floor = 16.0 * std::numeric_limits<double>::epsilon() * std::abs(t1);
+  const auto sigma = [&](int j) {
+    const double speed = std::abs(dh.row(j).dot(f_before));
+    return dh.row(j).norm() * tol_norm / speed + time_floor;
+  };
+  // Located crossing times: the backend's roots in the step; else, for a surface approaching,
+  // the linearised time to reach it from rho (a tiny extrapolation: only windows are compared).
+  std::vector<double> located(static_cast<std::size_t>(n_model), INFINITY);
   for (int j = 0; j < n_model; ++j) {
-    if (std::find(group.begin(), group.end(), j) != group.end()) continue;
-    const double s = sides.plus(j) ? 1.0 : -1.0;
-    const double g = s * h[j];
-    const double rate = s * dh.row(j).dot(f_before);
-    if (rate < 0.0 && g / -rate <= options.simultaneity_window) group.push_back(j);
+    const std::size_t uj = static_cast<std::size_t>(j);
+    const bool crossed =
+        std::find(segment.crossed.begin(), segment.crossed.end(), j) != segment.crossed.end();
+    if (crossed) {
+      located[uj] = t1;
+    } else if (uj < segment.crossing_times.size() && std::isfinite(segment.crossing_times[uj])) {
+      located[uj] = segment.crossing_times[uj];
+    } else {
+      const double s = sides.plus(j) ? 1.0 : -1.0;
+      const double rate = s * dh.row(j).dot(f_before);
+      if (rate < 0.0) located[uj] = t1 + s * h[j] / -rate;
+    }
+  }
+  double sigma_first = 0.0;
+  for (int j : segment.crossed) sigma_first = std::max(sigma_first, sigma(j));
+  record.automatic_window = 2.0 * options.grouping_safety * sigma_first;
+
+  std::vector<int> group = segment.crossed;
+  double window_used = options.grouping == Grouping::kAutomatic     ? record.automatic_window
+                       : options.grouping == Grouping::kFixedWindow ? options.simultaneity_window
+                                                                    : 0.0;
+  for (int j = 0; j < n_model; ++j) {
+    const std::size_t uj = static_cast<std::size_t>(j);
+    if (std::find(group.begin(), group.end(), j) != group.end() || !std::isfinite(located[uj])) {
+      continue;
+    }
+    double window = 0.0;
+    switch (options.grouping) {
+      case Grouping::kAutomatic:
+        // A surface met almost tangentially has a huge sigma; the band caps its window.
+        window = std::min(options.grouping_safety * (sigma(j) + sigma_first),
+                          options.near_simultaneity_band * record.automatic_window);
+        break;
+      case Grouping::kFixedWindow:
+        window = options.simultaneity_window;
+        break;
+      case Grouping::kNone:
+        window = 0.0;
+        break;
+    }
+    if (located[uj] - t1 <= window) {
+      group.push_back(j);
+      window_used = std::max(window_used, window);
+    }
   }
   std::sort(group.begin(), group.end());
   record.surfaces = group;
+  record.window = window_used;
+  for (int j : group) record.crossing_times.push_back(located[static_cast<std::size_t>(j)]);
+  record.spread = *std::max_element(record.crossing_times.begin(), record.crossing_times.end()) -
+                  *std::min_element(record.crossing_times.begin(), record.crossing_times.end());
   const int n = static_cast<int>(group.size());
 
   // Oriented normals: the flow crosses from the current side to the other.
@@ -164,6 +239,59 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
   return event;
 }
 
+FlowNotice near_grazing(const NearMiss& miss) {
+  FlowNotice notice;
+  notice.kind = FlowNotice::Kind::kNearGrazing;
+  notice.surfaces = {miss.surface};
+  notice.times = {miss.t};
+  notice.gap = miss.g_min;
+  notice.band = miss.band;
+  notice.message = "near grazing: surface " + std::to_string(miss.surface) +
+                   " passed at t = " + format_number(miss.t) +
+                   " at distance g = " + format_number(miss.g_min) + ", inside the band " +
+                   format_number(miss.band) +
+                   " where the integration error could hide a crossing; tighten rtol to decide";
+  return notice;
+}
+
+// The newest event and the one before it: their gaps, and a notice when crossings of different
+// surfaces were resolved as separate events closer than the near-simultaneity band.
+void note_neighbours(FlowResult& result, const FlowOptions& options) {
+  if (result.events.size() < 2) return;
+  EventRecord& before = result.events[result.events.size() - 2];
+  EventRecord& after = result.events.back();
+  const double last_before =
+      *std::max_element(before.crossing_times.begin(), before.crossing_times.end());
+  const double first_after =
+      *std::min_element(after.crossing_times.begin(), after.crossing_times.end());
+  const double gap = first_after - last_before;
+  before.gap = std::min(before.gap, gap);
+  after.gap = std::min(after.gap, gap);
+  bool other_surface = false;
+  for (int j : after.surfaces) {
+    other_surface |=
+        std::find(before.surfaces.begin(), before.surfaces.end(), j) == before.surfaces.end();
+  }
+  const double band =
+      options.near_simultaneity_band * std::max(before.automatic_window, after.automatic_window);
+  if (!other_surface || !(gap < band)) return;
+  FlowNotice notice;
+  notice.kind = FlowNotice::Kind::kNearSimultaneous;
+  notice.surfaces = before.surfaces;
+  notice.surfaces.insert(notice.surfaces.end(), after.surfaces.begin(), after.surfaces.end());
+  notice.times = {last_before, first_after};
+  notice.gap = gap;
+  notice.band = band;
+  notice.message =
+      "near-simultaneous crossings not grouped: surfaces " + indices_text(before.surfaces) +
+      " at t = " + format_number(last_before) + " and " + indices_text(after.surfaces) +
+      " at t = " + format_number(first_after) + ", " + format_number(gap) +
+      " apart (grouping window " + format_number(after.window) + ", band " + format_number(band) +
+      "); the derivative holds only for perturbations that keep this order. "
+      "Tighten rtol to confirm, or group them (FlowOptions::grouping)";
+  result.notices.push_back(std::move(notice));
+}
+
 FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
                double t_final, const Eigen::MatrixXd* directions, const FlowOptions& options,
                FlowDerivative* derivative) {
@@ -175,9 +303,17 @@ FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd
   if (!(t_final >= 0.0) || !std::isfinite(t_final)) {
     throw InvalidArgument("t must be finite and >= 0, got " + format_number(t_final));
   }
-  if (!(options.simultaneity_window >= 0.0)) {
-    throw InvalidArgument("simultaneity_window must be >= 0, got " +
+  if (!(options.simultaneity_window >= 0.0) || !std::isfinite(options.simultaneity_window)) {
+    throw InvalidArgument("simultaneity_window must be finite and >= 0, got " +
                           format_number(options.simultaneity_window));
+  }
+  if (!(options.grouping_safety > 0.0) || !std::isfinite(options.grouping_safety)) {
+    throw InvalidArgument("grouping_safety must be finite and > 0, got " +
+                          format_number(options.grouping_safety));
+  }
+  if (!(options.near_simultaneity_band >= 1.0) || !std::isfinite(options.near_simultaneity_band)) {
+    throw InvalidArgument("near_simultaneity_band must be finite and >= 1, got " +
+                          format_number(options.near_simultaneity_band));
   }
   FlowResult result;
   result.sides = starting_sides(model, x0, options);
@@ -196,6 +332,7 @@ FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd
   }
   while (true) {
     const SegmentResult segment = integrator->integrate(model, request, options.integrator);
+    for (const NearMiss& miss : segment.near_misses) result.notices.push_back(near_grazing(miss));
     result.steps += segment.steps;
     result.field_evaluations += segment.field_evaluations;
     result.t = segment.t;
@@ -204,7 +341,7 @@ FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd
       Event event = make_event(model, segment, request.sides, options);
       if (derivative != nullptr) {
         derivative->append_transition(segment.v);
-        derivative->append_jump(std::move(*event.jump), segment.t);
+        derivative->append_jump(std::move(*event.jump), segment.t, event.record.surfaces);
         request.v0 = Eigen::MatrixXd::Identity(d, d);
       } else {
         request.v0 = segment.v;
@@ -214,6 +351,7 @@ FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd
       request.t0 = segment.t;
       request.x0 = segment.x;
       result.events.push_back(std::move(event.record));
+      note_neighbours(result, options);
       if (static_cast<int>(result.events.size()) > options.max_events) {
         result.status = IntegrationStatus::kTooManyEvents;
         result.message = std::to_string(result.events.size()) +
@@ -239,6 +377,9 @@ FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd
     break;
   }
   result.sides = request.sides;
+  if (derivative != nullptr) {
+    for (const FlowNotice& notice : result.notices) derivative->add_notice(notice);
+  }
   return result;
 }
 

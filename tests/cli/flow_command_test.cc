@@ -398,6 +398,12 @@ TEST(FlowCommandTest, MalformedOptionsExitTwoWithOneLine) {
       {{"--scene", "pwconst", "--integrator", "euler"},
        "--integrator: integrator \"euler\" is unknown; choose dopri5, cvodes-bdf or cvodes-adams"},
       {{"--scene", "pwconst", "--max-steps", "0"}, "--max-steps: must be >= 1, got 0"},
+      {{"--scene", "pwconst", "--grouping", "often"},
+       "--grouping: grouping \"often\" is unknown; choose auto, window or none"},
+      {{"--scene", "pwconst", "--grouping", "window"}, "--grouping: window needs --window T"},
+      {{"--scene", "pwconst", "--window", "1e-9"}, "--window: needs --grouping window"},
+      {{"--scene", "pwconst", "--grouping", "window", "--window", "-1"},
+       "--window: must be finite and >= 0, got -1"},
       {{"--scene", "pwconst", "--x0", "1,2,3"},
        "--x0: has 3 numbers, expected d = 2 (comma-separated)"},
       {{"--scene", "pwconst", "--x0", "1,x"}, "--x0[1]: \"x\" is not a number"},
@@ -440,6 +446,35 @@ TEST(FlowCommandTest, CommandLineParsesNegativeNumbersAndRepeatedDirections) {
   EXPECT_EQ(help.code, 0);
   EXPECT_THAT(help.out, HasSubstr("--scene NAME"));
   EXPECT_THAT(help.out, HasSubstr("\"directions\""));
+}
+
+// The default scene's two planes crossed 1e-8 apart (F_-- = 1.25: x0_1 is 1.25e-8 further):
+// beyond the automatic window (2.8e-9), inside the band: two events, a notice in the JSON and one
+// warning line. With --grouping window --window 1e-7 they are one event and nothing is said.
+TEST(FlowCommandTest, NearSimultaneousCrossingsAreReportedInTheJsonAndOnStderr) {
+  Outcome o = command_line({"flow", "--scene", "pwconst", "--x0", "-0.625,-0.6250000125"});
+  ASSERT_EQ(o.code, 0) << o.err;
+  Json out = Json::parse(o.out);
+  EXPECT_EQ(out["grouping"], "auto");
+  ASSERT_EQ(out["events"].size(), 2u);
+  EXPECT_NEAR(out["events"][0]["gap"].get<double>(), 1e-8, 1e-15);
+  ASSERT_EQ(out["notices"].size(), 1u);
+  EXPECT_EQ(out["notices"][0]["kind"], "near-simultaneous");
+  EXPECT_EQ(out["notices"][0]["surfaces"], Json({0, 1}));
+  EXPECT_EQ(std::count(o.err.begin(), o.err.end(), '\n'), 1);
+  EXPECT_THAT(o.err, StartsWith("warning: near-simultaneous crossings not grouped: surfaces [0]"));
+
+  o = command_line({"flow", "--scene", "pwconst", "--x0", "-0.625,-0.6250000125", "--grouping",
+                    "window", "--window", "1e-7"});
+  ASSERT_EQ(o.code, 0) << o.err;
+  EXPECT_EQ(o.err, "");
+  out = Json::parse(o.out);
+  EXPECT_EQ(out["window"], 1e-7);
+  ASSERT_EQ(out["events"].size(), 1u);
+  EXPECT_EQ(out["events"][0]["surfaces"], Json({0, 1}));
+  EXPECT_NEAR(out["events"][0]["spread"].get<double>(), 1e-8, 1e-15);
+  EXPECT_TRUE(out["events"][0]["gap"].is_null());
+  EXPECT_TRUE(out["notices"].empty());
 }
 
 TEST(FlowCommandTest, ZeroTimeIsTheIdentity) {

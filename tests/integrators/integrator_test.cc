@@ -140,7 +140,8 @@ TEST(Dopri5Test, FifthOrderConvergenceAtFixedSteps) {
   double previous = 0;
   for (int steps : {10, 20, 40, 80}) {
     IntegratorOptions o;
-    o.rtol = o.atol = 1e10;  // accept every step
+    o.rtol = 1e10;  // accept every step
+    o.atol = 1e10;
     o.initial_step = o.max_step = t / steps;
     Dopri5Integrator integrator;
     SegmentRequest request{Signs(0), 0.0, t, x0, Eigen::MatrixXd(3, 0)};

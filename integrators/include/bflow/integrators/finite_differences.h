@@ -4,6 +4,10 @@
 // a -> 0+ ([B] (2.3)), also at a kink. Central differences (phi_t(x0 + a dx) -
 // phi_t(x0 - a dx)) / (2a) converge to (D phi(x0; dx) - D phi(x0; -dx)) / 2, which differs
 // from the B-derivative wherever it is not linear: compare() shows both.
+//
+// Every run here simulates with Grouping::kNone, whatever `options` say: a perturbed run must
+// resolve crossings however close they come, since grouping them would flip a side up to one
+// window early, an error of O(window / alpha) in the quotient.
 #ifndef BFLOW_INTEGRATORS_FINITE_DIFFERENCES_H_
 #define BFLOW_INTEGRATORS_FINITE_DIFFERENCES_H_
 

@@ -9,11 +9,33 @@
 //   Eigen::VectorXd image = full.apply(dx);
 //
 // Between events a backend integrates x' = F_b(x) (and the tangents). At a crossing the driver
-// groups every surface that crosses within `simultaneity_window` of the first (by the
-// linearised time to reach it), checks transversality, builds the JumpMap at rho (normals
-// Dh_j(rho) oriented by the flow, limits F_w(rho) for the words w reachable from the current
-// sides) and maps each tangent through it: one surface gives the saltation matrix, several
-// give Algorithm 2.1. Then the sides of the crossed surfaces flip and integration goes on.
+// decides which surfaces cross together (grouping, below), checks transversality, builds the
+// JumpMap at rho (normals Dh_j(rho) oriented by the flow, limits F_w(rho) for the words w
+// reachable from the current sides) and maps each tangent through it: one surface gives the
+// saltation matrix, several give Algorithm 2.1. Then the sides of the crossed surfaces flip and
+// integration goes on.
+//
+// Grouping (FlowOptions::grouping). Crossings that happen at one point of the exact trajectory
+// reach the integrator's trajectory at times spread by its error: a state error e moves the
+// crossing of surface j by about |Dh_j| |e| / |Dh_j . F|. The automatic policy (the default)
+// measures that uncertainty for every surface at the first crossing rho, t1:
+//     sigma_j = |Dh_j(rho)| |tol(rho)| / |Dh_j(rho) . F(rho)| + 16 eps |t1|,
+//     tol_i(rho) = atol + rtol |rho_i|   (Euclidean norm over i),
+// and groups with the first crossing every surface whose LOCATED crossing time t_j (the
+// backend's root in the same step; else the linearised time to reach it from rho) satisfies
+//     t_j - t1 <= window_j = grouping_safety x (sigma_j + max over the first crossing's sigma).
+// Guarantee: crossings whose located times are within the window are never split; the window
+// scales with the tolerances and the normal speeds, in the problem's own units, and is at least
+// grouping_safety times the spread that one step's error puts on a truly simultaneous crossing.
+// Cost: a crossing truly dt <= window after the first is flipped early, a state error of at most
+// dt |F_after - F_before|, i.e. a few times the integration tolerance; no extra field
+// evaluations (the normals and the field at rho are needed anyway). kFixedWindow groups by a
+// window in time given by the user; kNone groups only crossings located at the same time.
+//
+// Every decision is reported: each EventRecord has the located times of its crossings, their
+// spread, the window and the gap to the nearest crossing not grouped with it; crossings of
+// different surfaces not grouped but closer than near_simultaneity_band windows give a FlowNotice
+// (FlowResult::notices, FlowDerivative::notices()).
 //
 // Errors. Bad input, grazing (eta . F below grazing_threshold |eta||F| before the crossing) and
 // sliding (after the crossing the field points back into the surface; use FESD) throw
@@ -23,6 +45,7 @@
 #ifndef BFLOW_INTEGRATORS_HYBRID_FLOW_H_
 #define BFLOW_INTEGRATORS_HYBRID_FLOW_H_
 
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -31,6 +54,7 @@
 #include <Eigen/Core>
 
 #include "bflow/core/flow_derivative.h"
+#include "bflow/core/flow_notice.h"
 #include "bflow/core/jump_map.h"
 #include "bflow/core/signs.h"
 #include "bflow/integrators/segment.h"
@@ -43,14 +67,29 @@ enum class Backend { kDopri5, kCvodesBdf, kCvodesAdams };
 Backend parse_backend(const std::string& name);
 const char* to_string(Backend backend);
 
+/** How the driver decides that crossings of different surfaces are one event (see the header
+    comment for the rule and what it guarantees). */
+enum class Grouping {
+  kAutomatic,    // a window from the tolerances and the normal speeds (the default)
+  kFixedWindow,  // FlowOptions::simultaneity_window, in units of time
+  kNone,         // only crossings located at the same time
+};
+
+/** Parses "auto", "none" or "window". @throws InvalidArgument otherwise. */
+Grouping parse_grouping(const std::string& name);
+const char* to_string(Grouping grouping);
+
 struct FlowOptions {
   IntegratorOptions integrator;
   Backend backend = Backend::kDopri5;
-  /** Crossings of different surfaces closer in time than this form one event. Grouping
-      flips the sides of the later surfaces up to this much early, an error of at most
-      window x |F_after - F_before| in the state: keep it below the tolerance you need, and
-      above the spread that integration error puts on truly simultaneous crossings. */
+  Grouping grouping = Grouping::kAutomatic;
+  /** kAutomatic: the window is this many times the crossing-time uncertainty, > 0. */
+  double grouping_safety = 10.0;
+  /** kFixedWindow: crossings of different surfaces closer in time than this form one event. */
   double simultaneity_window = 1e-9;
+  /** Crossings of different surfaces that are not grouped but closer than this many automatic
+      windows give a kNearSimultaneous notice, >= 1. */
+  double near_simultaneity_band = 100.0;
   /** A crossing with eta . F_before < grazing_threshold |eta| |F_before| is grazing. */
   double grazing_threshold = 1e-12;
   /** More events than this ends the simulation with kTooManyEvents (Zeno behaviour?). */
@@ -59,12 +98,24 @@ struct FlowOptions {
   std::optional<Signs> initial_sides;
 };
 
-/** One event: where, which surfaces, and how transversal the crossing was. */
+/** One event: where, which surfaces, how transversal, and how the grouping was decided. */
 struct EventRecord {
+  /** The first crossing's located time: where the jump is applied. */
   double t = 0.0;
   Eigen::VectorXd rho;
   /** Surfaces crossed together (model indices, lowest first). */
   std::vector<int> surfaces;
+  /** Per crossed surface, its located crossing time (see the header comment). */
+  std::vector<double> crossing_times;
+  /** max - min of crossing_times: how far apart the grouped crossings were located. */
+  double spread = 0.0;
+  /** The grouping window used at this event (time; 0 for Grouping::kNone). */
+  double window = 0.0;
+  /** Time to the nearest crossing not grouped with this event (an earlier or a later event),
+      +infinity when there is none. */
+  double gap = std::numeric_limits<double>::infinity();
+  /** The automatic window at this event, the unit of near_simultaneity_band. */
+  double automatic_window = 0.0;
   Signs sides_before;
   Signs sides_after;
   /** Per crossed surface, eta_j . F / (|eta_j| |F|) for F before and after the crossing. */
@@ -83,6 +134,8 @@ struct FlowResult {
   /** Images of the requested directions (d x k): the B-derivative applied to them. */
   Eigen::MatrixXd v;
   std::vector<EventRecord> events;
+  /** Near-simultaneous crossings not grouped, near grazing (flow_notice.h). */
+  std::vector<FlowNotice> notices;
   long steps = 0;
   long field_evaluations = 0;
   bool ok() const { return status == IntegrationStatus::kReachedEnd; }
@@ -95,7 +148,8 @@ FlowResult simulate(const SegmentModel& model, const Eigen::Ref<const Eigen::Vec
 FlowResult simulate(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
                     double t_final, const Eigen::Ref<const Eigen::MatrixXd>& directions,
                     const FlowOptions& options = {});
-/** The full B-derivative as transition matrices and jump maps, reusable for any direction.
+/** The full B-derivative as transition matrices and jump maps, reusable for any direction; its
+    notices() are the run's notices.
     @throws InvalidArgument (also for a status other than kReachedEnd, quoting its message). */
 FlowDerivative flow_derivative(const SegmentModel& model,
                                const Eigen::Ref<const Eigen::VectorXd>& x0, double t_final,

@@ -14,6 +14,7 @@
 #define BFLOW_INTEGRATORS_SEGMENT_H_
 
 #include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -80,7 +81,13 @@ const char* to_string(IntegrationStatus status);
 
 struct IntegratorOptions {
   double rtol = 1e-8;
-  double atol = 1e-10;
+  /** Absolute tolerance. Unset (the default): 1e-2 x rtol, so that tightening rtol alone keeps
+      tightening the error on states of order one, instead of stopping where a fixed atol takes
+      over. Set it for states far from order one (atol ~ 1e-2 rtol |x|). */
+  std::optional<double> atol;
+  /** The absolute tolerance in force: atol, or 1e-2 x rtol when unset. */
+  double absolute_tolerance() const { return atol ? *atol : kAtolPerRtol * rtol; }
+  static constexpr double kAtolPerRtol = 1e-2;
   /** First step; 0 chooses one from the field. */
   double initial_step = 0.0;
   double max_step = std::numeric_limits<double>::infinity();
@@ -105,6 +112,16 @@ struct SegmentRequest {
   Eigen::MatrixXd v0;
 };
 
+/** A surface that an accepted step came close to without crossing it: g_j (see the zero-crossing
+    semantics above) had a local minimum g_min > 0 inside the step, at time t, closer to zero than
+    `band`, the distance within which the integrator's error could hide a crossing. */
+struct NearMiss {
+  int surface = 0;
+  double t = 0.0;
+  double g_min = 0.0;
+  double band = 0.0;
+};
+
 struct SegmentResult {
   IntegrationStatus status = IntegrationStatus::kReachedEnd;
   std::string message;
@@ -114,6 +131,13 @@ struct SegmentResult {
   Eigen::MatrixXd v;
   /** With kCrossing: the surfaces found crossing at t (lowest index first). */
   std::vector<int> crossed;
+  /** With kCrossing: for every surface, the located time of its first crossing inside the last
+      step (the step that holds t), or +infinity when it does not cross in that step. Lets the
+      driver group crossings by located times rather than by extrapolation. May be empty (a
+      backend that locates only the first crossing). */
+  std::vector<double> crossing_times;
+  /** Surfaces passed at a distance within the integrator's error band (near grazing). */
+  std::vector<NearMiss> near_misses;
   long steps = 0;
   long rejected_steps = 0;
   long field_evaluations = 0;
