@@ -133,6 +133,10 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
     j["formulation"] = to_string(formulation);
     j["nlp_iterations"] = r.nlp_iterations;
     j["newton_steps"] = r.newton_steps;
+    // Steps IPOPT accepted only at its acceptable level with complementarity above sigma_final
+    // (the message then names the first).
+    j["acceptable_only"] = r.acceptable_only;
+    j["acceptable_only_steps"] = r.acceptable_only_steps;
     if (r.sensitivity.size() > 0) j["sensitivity"] = rows_json(r.sensitivity);
     if (!r.ok() || !r.message.empty()) {
       j["status"] = to_string(r.status);
@@ -148,6 +152,7 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
     }
     write_json(out, j, options.compact);
     out << '\n';
+    if (r.ok() && r.acceptable_only) err << "warning: " << one_line(r.message) << '\n';
     return r.ok() ? kExitOk : kExitFailure;
   } catch (const std::exception& e) {
     report_error(err, std::string("internal: ") + e.what());

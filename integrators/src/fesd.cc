@@ -473,6 +473,9 @@ class StepNlp final : public Ipopt::TNLP {
             values);
       }
     }
+    if (options_.exact_hessian_scale != 1.0) {
+      for (Ipopt::Index k = 0; k < nele; ++k) values[k] *= options_.exact_hessian_scale;
+    }
     return true;
   }
 
@@ -963,6 +966,27 @@ void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorX
   }
 }
 
+// The caller's IPOPT options, after bflow's.
+void apply_user_options(Ipopt::IpoptApplication& app, const FesdOptions& options) {
+  for (const auto& [name, value] : options.ipopt_string_options) {
+    if (!app.Options()->SetStringValue(name, value)) {
+      throw InvalidArgument("fesd: IPOPT does not take the string option " + name + " = " + value);
+    }
+  }
+  for (const auto& [name, value] : options.ipopt_numeric_options) {
+    if (!app.Options()->SetNumericValue(name, value)) {
+      throw InvalidArgument("fesd: IPOPT does not take the numeric option " + name + " = " +
+                            format_number(value));
+    }
+  }
+  for (const auto& [name, value] : options.ipopt_integer_options) {
+    if (!app.Options()->SetIntegerValue(name, value)) {
+      throw InvalidArgument("fesd: IPOPT does not take the integer option " + name + " = " +
+                            std::to_string(value));
+    }
+  }
+}
+
 }  // namespace
 
 FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
@@ -988,11 +1012,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   app->Options()->SetIntegerValue("max_iter", options.max_nlp_iterations);
   app->Options()->SetStringValue("mu_strategy", "adaptive");
   app->Options()->SetNumericValue("bound_relax_factor", 0.0);
-  for (const auto& [name, value] : options.ipopt_string_options) {
-    if (!app->Options()->SetStringValue(name, value)) {
-      throw InvalidArgument("fesd: IPOPT does not take the string option " + name + " = " + value);
-    }
-  }
+  apply_user_options(*app, options);
   if (app->Initialize() != Ipopt::Solve_Succeeded) {
     throw InvalidArgument("fesd: IPOPT failed to initialise");
   }
@@ -1018,6 +1038,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
     double sigma = options.sigma_initial, last_sigma = sigma;
     bool first = true;
     int retries = 0;
+    Ipopt::ApplicationReturnStatus last_status = Ipopt::Solve_Succeeded;
     // Predicted sides: from c(x) where it is clearly nonzero, else the last element's.
     bool solved_by_newton = false;
     if (options.newton && !options.standard) {
@@ -1113,6 +1134,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       } else {
         app->Options()->SetNumericValue("mu_init", 0.1);
       }
+      apply_user_options(*app, options);
       const Ipopt::ApplicationReturnStatus status = app->OptimizeTNLP(nlp);
       if (Ipopt::IsValid(app->Statistics())) iterations += app->Statistics()->IterationCount();
       const bool solved =
@@ -1145,6 +1167,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       first = false;
       nlp->save();
       last_sigma = sigma;
+      last_status = status;
       if (sigma <= options.sigma_final) break;
       double next = options.sigma_factor * sigma;
       if (options.superlinear) next = std::min(next, std::pow(sigma, 1.5));
@@ -1153,7 +1176,24 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
     if (!solved_by_newton && last_sigma > options.sigma_final) continue;  // halved
     const Eigen::VectorXd& w = nlp->solution();
     result.nlp_iterations.push_back(iterations);
-    result.max_complementarity = std::max(result.max_complementarity, nlp->complementarity(w));
+    const double residual = nlp->complementarity(w);
+    result.max_complementarity = std::max(result.max_complementarity, residual);
+    // IPOPT's acceptable level bounds neither the complementarity products nor the objective's
+    // optimality by `tol`; only a residual within the final relaxation makes it an FESD solution.
+    if (!solved_by_newton && last_status == Ipopt::Solved_To_Acceptable_Level &&
+        !(residual <= options.sigma_final + options.nlp_tolerance)) {
+      if (!result.acceptable_only) {
+        result.message += std::string(result.message.empty() ? "" : "; ") +
+                          "fesd: the integration step at t = " + format_number(t0) + " of length " +
+                          format_number(length) +
+                          " was solved by IPOPT only to its acceptable level at sigma = " +
+                          format_number(last_sigma) + ": complementarity residual " +
+                          format_number(residual) + " > sigma_final + nlp_tolerance = " +
+                          format_number(options.sigma_final + options.nlp_tolerance);
+      }
+      result.acceptable_only = true;
+      ++result.acceptable_only_steps;
+    }
     double t = t0;
     for (int n = 0; n < l.elements; ++n) {
       const double h = w[l.var(n, 0)];
@@ -1173,8 +1213,9 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       const Eigen::MatrixXd s = step_sensitivity(*nlp, l, w, length, active_tol, &why);
       if (s.size() == 0) {
         sensitivities = false;
-        result.message =
-            "fesd: no sensitivity at the step from t = " + format_number(t0) + ": " + why;
+        result.message += std::string(result.message.empty() ? "" : "; ") +
+                          "fesd: no sensitivity at the step from t = " + format_number(t0) + ": " +
+                          why;
       } else {
         sensitivity = s * sensitivity;
       }

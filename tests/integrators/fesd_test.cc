@@ -33,26 +33,29 @@ void expect_exact(const std::string& name, const FesdOptions& o, double tol) {
     EXPECT_NEAR(r.switch_times[k], exact.switch_times[k], tol) << name;
   }
   EXPECT_LE((r.x_end - exact.x_end).cwiseAbs().maxCoeff(), tol) << name;
-  EXPECT_LE(r.max_complementarity, 1e-11) << name;
+  // Measured: 9e-33 and 0 (Newton solves every step: products exactly zero).
+  EXPECT_LE(r.max_complementarity, 1e-14) << name;
 }
 
 // Piecewise-constant and piecewise-polynomial fields: the collocation solution is exact on each
-// arc, so what is left is where the switches are put, to the NLP tolerance.
+// arc, so what is left is where the switches are put, to round-off (Newton on the FESD
+// equations). Measured: switch times exact, x(T) 5.6e-17.
 TEST(FesdTest, CrossingAndLeavingSlidingAreExactAtTheSwitch) {
   FesdOptions o;
   o.steps = 4;  // the switches fall inside integration steps
-  expect_exact<examples::CrossingCase>("crossing", o, 1e-9);
-  expect_exact<examples::SlidingLeaveCase>("sliding-leave", o, 1e-9);
+  expect_exact<examples::CrossingCase>("crossing", o, 1e-14);
+  expect_exact<examples::SlidingLeaveCase>("sliding-leave", o, 1e-14);
 }
 
 // The arc before the sliding one is smooth but not polynomial: Radau IIA with 4 stages (order 7)
-// and h = 1/16 leaves an error of order h^7 ~ 1e-11 in the arrival time.
+// and h = 1/16 leaves an error of order h^7 ~ 1e-11 in the arrival time. Measured: 3.0e-13
+// (x(T) 5e-35).
 TEST(FesdTest, EnteringSlidingIsLocatedToTheOrderOfTheScheme) {
   FesdOptions o;
   o.stages = 4;
   o.steps = 8;
   o.elements = 2;
-  expect_exact<examples::SlidingEnterCase>("sliding-enter", o, 1e-9);
+  expect_exact<examples::SlidingEnterCase>("sliding-enter", o, 1e-11);
 }
 
 // Steps are solved by Newton's method on guessed active sets (with and without a switch); the
@@ -70,11 +73,13 @@ TEST(FesdTest, NewtonOnGuessedActiveSetsAgreesWithTheHomotopy) {
   EXPECT_EQ(fast.newton_steps, 8);
   EXPECT_EQ(fast.newton_switch_steps, 1);  // the step where the sliding arc begins
   EXPECT_EQ(slow.newton_steps, 0);
-  EXPECT_LE((fast.x_end - slow.x_end).cwiseAbs().maxCoeff(), 1e-10);
+  // Measured: x 4.5e-15, switch time 3.4e-13, sensitivity 5.4e-16 apart (the homotopy ends at
+  // sigma = 1e-12 with IPOPT's tol 1e-13).
+  EXPECT_LE((fast.x_end - slow.x_end).cwiseAbs().maxCoeff(), 1e-13);
   ASSERT_EQ(fast.switch_times.size(), slow.switch_times.size());
-  EXPECT_NEAR(fast.switch_times[0], slow.switch_times[0], 1e-10);
+  EXPECT_NEAR(fast.switch_times[0], slow.switch_times[0], 1e-11);
   ASSERT_EQ(fast.sensitivity.size(), slow.sensitivity.size());
-  EXPECT_LE((fast.sensitivity - slow.sensitivity).cwiseAbs().maxCoeff(), 1e-8);
+  EXPECT_LE((fast.sensitivity - slow.sensitivity).cwiseAbs().maxCoeff(), 1e-13);
 }
 
 // One IRMA step across its first switch (c_6 at t = 25.54) from the exact state at t = 25:
@@ -98,9 +103,49 @@ TEST(FesdTest, IrmaSwitchStepByNewtonAgreesWithTheHomotopy) {
   // Measured: switch times 1.6e-9 apart, x 1.2e-11 apart; against the closed form the switch
   // is 9.5e-9 early and x is off by 1.9e-6 (Radau IIA 2, order 3, h = 5/3).
   EXPECT_NEAR(fast.switch_times[0], slow.switch_times[0], 1e-8);
-  EXPECT_LE((fast.x_end - slow.x_end).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_LE((fast.x_end - slow.x_end).cwiseAbs().maxCoeff(), 3e-10);
   EXPECT_NEAR(fast.switch_times[0], exact.switches[0].t, 1e-7);  // from t = 25
   EXPECT_LE((fast.x_end - exact.x).cwiseAbs().maxCoeff(), 1e-5);
+}
+
+// A step that IPOPT accepts only at its "acceptable" level, with complementarity products above
+// sigma_final, is flagged; forced here by acceptable tolerances so loose that IPOPT stops at its
+// first iterate. The same homotopy with bflow's settings, and Newton, are not flagged.
+TEST(FesdTest, AcceptableLevelSolvesAreFlagged) {
+  const auto model = adapt_step(examples::CrossingCase{});
+  const Eigen::VectorXd x0 = Eigen::VectorXd::Constant(1, -1.0);
+  FesdOptions o;
+  o.newton = false;
+  o.steps = 2;
+  o.sensitivities = false;
+  const FesdResult normal = fesd_simulate(model, x0, 1.0, o);
+  ASSERT_TRUE(normal.ok()) << normal.message;
+  EXPECT_FALSE(normal.acceptable_only);
+  EXPECT_EQ(normal.acceptable_only_steps, 0);
+  EXPECT_LE(normal.max_complementarity, o.sigma_final);  // the relaxation; measured 7.2e-13
+
+  o.ipopt_numeric_options = {{"acceptable_tol", 1e10},
+                             {"acceptable_constr_viol_tol", 1e10},
+                             {"acceptable_dual_inf_tol", 1e10},
+                             {"acceptable_compl_inf_tol", 1e10}};
+  o.ipopt_integer_options = {{"acceptable_iter", 1}};
+  const FesdResult loose = fesd_simulate(model, x0, 1.0, o);
+  EXPECT_TRUE(loose.acceptable_only);
+  EXPECT_EQ(loose.acceptable_only_steps, 2);
+  EXPECT_GT(loose.max_complementarity, o.sigma_final);  // measured 0.15
+  EXPECT_THAT(loose.message, ::testing::HasSubstr("solved by IPOPT only to its acceptable level"));
+
+  FesdOptions n;
+  n.steps = 2;
+  const FesdResult newton = fesd_simulate(model, x0, 1.0, n);
+  ASSERT_TRUE(newton.ok()) << newton.message;
+  EXPECT_EQ(newton.newton_steps, 2);
+  EXPECT_FALSE(newton.acceptable_only);
+
+  using bflow::testing::message_of;
+  o.ipopt_numeric_options = {{"no_such_option", 1.0}};
+  EXPECT_THAT(message_of([&] { fesd_simulate(model, x0, 1.0, o); }),
+              ::testing::HasSubstr("IPOPT does not take the numeric option no_such_option"));
 }
 
 // x' in sign(x) from 0 has infinitely many solutions: stay at 0, or leave at any t_s with
@@ -110,11 +155,12 @@ TEST(FesdTest, SpontaneousSwitchReturnsOneOfTheSolutions) {
   o.steps = 4;
   const FesdResult r = run_case<examples::SpontaneousCase>("spontaneous", o);
   ASSERT_TRUE(r.ok()) << r.message;
+  // Measured: x = 0 exactly (sliding is guessed first).
   if (r.switch_times.empty()) {
-    EXPECT_LE(std::abs(r.x_end[0]), 1e-9);
+    EXPECT_LE(std::abs(r.x_end[0]), 1e-14);
   } else {
     ASSERT_EQ(r.switch_times.size(), 1u);
-    EXPECT_NEAR(std::abs(r.x_end[0]), 1.0 - r.switch_times[0], 1e-9);
+    EXPECT_NEAR(std::abs(r.x_end[0]), 1.0 - r.switch_times[0], 1e-14);
   }
 }
 
@@ -169,6 +215,149 @@ TEST(FesdTest, SensitivityConvergesToTheSaltationCorrectedJacobian) {
   EXPECT_LT(previous, 1e-5);
 }
 
+// dx(T)/dx0 across sliding entry and exit, against closed forms derived by hand.
+//
+// A test problem that enters a sliding arc, moves along it and leaves: c = x1,
+//   x1' = x2 + 1 - 2a,  x2' = a   (x1' in x2 - sign(x1); the Filippov combination a f+ +
+//   (1 - a) f- of f+ = (x2 - 1, 1) and f- = (x2 + 1, 0)),
+// from p = x1(0) < 0, q = x2(0) in (-1, 1):
+//   - a = 0: x1 = p + (1 + q) t, x2 = q; x1 reaches 0 at t1 = -p / (1 + q);
+//   - sliding (both sides point at x1 = 0 while |x2| < 1): x1' = 0 gives a = (1 + x2) / 2, so
+//     x2' = (1 + x2) / 2 and 1 + x2 = (1 + q) e^{(t - t1)/2}; a reaches 1 (x2 = 1) at
+//     t2 = t1 + 2 ln(2 / (1 + q));
+//   - a = 1 (x1' = x2 - 1 > 0 from then on): x2 = 1 + (t - t2), x1 = (t - t2)^2 / 2.
+// So x(T) = ((T - t2)^2 / 2, 1 + T - t2) with t2 = -p / (1 + q) + 2 ln 2 - 2 ln(1 + q), and
+//   dt2/dp = -1 / (1 + q),  dt2/dq = p / (1 + q)^2 - 2 / (1 + q),
+//   dx(T)/dx0 = -[T - t2; 1] [dt2/dp, dt2/dq].
+// Only t2 carries x0 into x(T): the sliding arc forgets x1(0) except through when it began.
+struct SlideThenLeave {
+  static constexpr int kStates = 2;
+  static constexpr int kSwitches = 1;
+  template <typename T>
+  void switching(const T* x, T* c) const {
+    c[0] = x[0];
+  }
+  template <typename T>
+  void field(const T* x, const T* a, T* xdot) const {
+    xdot[0] = x[1] + 1.0 - 2.0 * a[0];
+    xdot[1] = a[0];
+  }
+};
+
+constexpr double kSlideThenLeaveT = 1.5;
+
+// x(T) of SlideThenLeave, arc by arc (valid while x1(0) < 0, |x2(0)| < 1 and t2 < T).
+Eigen::Vector2d slide_then_leave_exact(const Eigen::Vector2d& x0) {
+  const double p = x0[0], q = x0[1];
+  const double t1 = -p / (1.0 + q);
+  const double t2 = t1 + 2.0 * std::log(2.0 / (1.0 + q));
+  EXPECT_GT(t1, 0.0);
+  EXPECT_LT(t2, kSlideThenLeaveT);
+  const double after = kSlideThenLeaveT - t2;
+  return Eigen::Vector2d(after * after / 2.0, 1.0 + after);
+}
+
+Eigen::Matrix2d slide_then_leave_jacobian(const Eigen::Vector2d& x0) {
+  const double p = x0[0], q = x0[1];
+  const double t2 = -p / (1.0 + q) + 2.0 * std::log(2.0 / (1.0 + q));
+  const Eigen::RowVector2d dt2(-1.0 / (1.0 + q), p / ((1.0 + q) * (1.0 + q)) - 2.0 / (1.0 + q));
+  return -Eigen::Vector2d(kSlideThenLeaveT - t2, 1.0) * dt2;
+}
+
+// Example 3's sliding cases as functions of x0 = (x, tau), T as in switching_cases.h.
+// sliding-enter: x = x0 - t - 0.04 (cos 5(tau0 + t) - cos 5 tau0) reaches 0 before T = 1 for
+// x0 near (0.5, 0) and stays there (|0.2 sin 5 tau| < 1 keeps it sliding): x(T) = (0, tau0 + T),
+// dx(T)/dx0 = [[0, 0], [0, 1]].
+Eigen::Vector2d sliding_enter_exact(const Eigen::Vector2d& x0) {
+  const double x = x0[0], tau = x0[1];
+  double t = 0.55;  // the arrival, by Newton as in switching_cases.h
+  for (int k = 0; k < 50; ++k) {
+    t -= (x - t - 0.04 * (std::cos(5.0 * (tau + t)) - std::cos(5.0 * tau))) /
+         (-1.0 + 0.2 * std::sin(5.0 * (tau + t)));
+  }
+  EXPECT_LT(t, 1.0);
+  return Eigen::Vector2d(0.0, tau + 1.0);
+}
+
+// sliding-leave: from x0 near 0 on either side, x' = -1 + tau (x > 0) or 1 + tau (x < 0) brings
+// x to 0 at t_r < 1 - tau0, it slides (a = (1 + tau) / 2) until tau = 1 and leaves with
+// x = (tau - 1)^2 / 2: x(T) = ((T + tau0 - 1)^2 / 2, tau0 + T), T = 2, and
+// dx(T)/dx0 = [[0, T + tau0 - 1], [0, 1]] = [[0, 1], [0, 1]] at x0 = 0. Both one-sided derivatives
+// in x0 agree (0): the flow is differentiable across the surface it starts on.
+Eigen::Vector2d sliding_leave_exact(const Eigen::Vector2d& x0) {
+  const double x = x0[0], tau = x0[1];
+  // x > 0: x - (1 - tau0) t + t^2 / 2 = 0; x < 0: x + (1 + tau0) t + t^2 / 2 = 0.
+  const double t_r = x > 0 ? (1.0 - tau) - std::sqrt((1.0 - tau) * (1.0 - tau) - 2.0 * x)
+                           : -(1.0 + tau) + std::sqrt((1.0 + tau) * (1.0 + tau) - 2.0 * x);
+  EXPECT_LT(t_r, 1.0 - tau);
+  return Eigen::Vector2d(0.5 * (tau + 1.0) * (tau + 1.0), tau + 2.0);
+}
+
+// The closed forms above against one-sided differences of the closed-form solutions (forward
+// and backward, step 1e-7: truncation O(1e-7), cancellation O(1e-9)).
+TEST(FesdTest, ClosedFormSlidingJacobiansMatchOneSidedDifferences) {
+  const auto check = [](const auto& flow, const Eigen::Vector2d& x0, const Eigen::Matrix2d& jac,
+                        const char* what) {
+    const double step = 1e-7;
+    for (int k = 0; k < 2; ++k) {
+      const Eigen::Vector2d e = step * Eigen::Vector2d::Unit(k);
+      const Eigen::Vector2d forward = (flow(x0 + e) - flow(x0)) / step;
+      const Eigen::Vector2d backward = (flow(x0) - flow(x0 - e)) / step;
+      // Measured: 2.2e-8 and 6.7e-8 (slide-then-leave, the curvature of t2), 0 (enter), 5.8e-10
+      // and 5.1e-8 (leave): the truncation error, step / 2 times the second derivative.
+      EXPECT_LE((forward - jac.col(k)).cwiseAbs().maxCoeff(), 1e-6) << what << " column " << k;
+      EXPECT_LE((backward - jac.col(k)).cwiseAbs().maxCoeff(), 1e-6) << what << " column " << k;
+    }
+  };
+  const Eigen::Vector2d x0(-0.3, 0.5);
+  check(slide_then_leave_exact, x0, slide_then_leave_jacobian(x0), "slide-then-leave");
+  Eigen::Matrix2d enter, leave;
+  enter << 0, 0, 0, 1;
+  leave << 0, 1, 0, 1;
+  check(sliding_enter_exact, examples::exact_switching_case("sliding-enter").x0, enter,
+        "sliding-enter");
+  check(sliding_leave_exact, examples::exact_switching_case("sliding-leave").x0, leave,
+        "sliding-leave");
+}
+
+TEST(FesdTest, SensitivityAcrossSlidingEntryAndExitMatchesTheClosedForm) {
+  const Eigen::Vector2d x0(-0.3, 0.5);  // t1 = 0.2, t2 = 0.2 + 2 ln(4/3) = 0.7754
+  FesdOptions o;
+  o.stages = 4;
+  o.steps = 6;
+  const FesdResult r = fesd_simulate(adapt_step(SlideThenLeave{}), x0, kSlideThenLeaveT, o);
+  ASSERT_TRUE(r.ok()) << r.message;
+  ASSERT_EQ(r.sensitivity.rows(), 2) << r.message;
+  ASSERT_EQ(r.switch_times.size(), 2u);
+  const double t1 = 0.2, t2 = 0.2 + 2.0 * std::log(4.0 / 3.0);
+  const Eigen::Matrix2d jac = slide_then_leave_jacobian(x0);
+  // Measured: t1 2.8e-17, t2 1.1e-16, x(T) 2.2e-16, dx(T)/dx0 1.8e-15 (Radau IIA 4 is of
+  // order 7 on the exponential sliding arc, h = 1/12; the other arcs are polynomial).
+  EXPECT_NEAR(r.switch_times[0], t1, 1e-14);
+  EXPECT_NEAR(r.switch_times[1], t2, 1e-14);
+  EXPECT_LE((r.x_end - slide_then_leave_exact(x0)).cwiseAbs().maxCoeff(), 1e-14);
+  EXPECT_LE((r.sensitivity - jac).cwiseAbs().maxCoeff(), 1e-13) << r.sensitivity;
+
+  Eigen::Matrix2d enter, leave;
+  enter << 0, 0, 0, 1;
+  leave << 0, 1, 0, 1;
+  FesdOptions e;
+  e.stages = 4;
+  e.steps = 8;
+  e.elements = 2;
+  const FesdResult re = run_case<examples::SlidingEnterCase>("sliding-enter", e);
+  ASSERT_TRUE(re.ok()) << re.message;
+  ASSERT_EQ(re.sensitivity.rows(), 2) << re.message;
+  FesdOptions v;
+  v.steps = 3;  // the exit at t = 1 inside a step (N_sim = 4 puts it on a step boundary)
+  const FesdResult rl = run_case<examples::SlidingLeaveCase>("sliding-leave", v);
+  ASSERT_TRUE(rl.ok()) << rl.message;
+  ASSERT_EQ(rl.sensitivity.rows(), 2) << rl.message;
+  // Measured: 1.2e-15 (enter) and 7.8e-16 (leave).
+  EXPECT_LE((re.sensitivity - enter).cwiseAbs().maxCoeff(), 1e-13) << re.sensitivity;
+  EXPECT_LE((rl.sensitivity - leave).cwiseAbs().maxCoeff(), 1e-13) << rl.sensitivity;
+}
+
 TEST(FesdTest, IrmaMatchesItsExactSolution) {
   const examples::Irma irma;
   const double t_end = 50.0;  // two switches, at t = 25.54 (c_5) and t = 39.19 (c_0)
@@ -182,8 +371,9 @@ TEST(FesdTest, IrmaMatchesItsExactSolution) {
   const FesdResult r = fesd_simulate(adapt_step(irma), examples::Irma::initial_state(), t_end, o);
   ASSERT_TRUE(r.ok()) << r.message;
   ASSERT_EQ(r.switch_times.size(), exact.switches.size());
+  // Measured: switch times 1.4e-10 and 1.8e-8 off, x(T) 1.7e-9 (order 5, h = 5/3).
   for (std::size_t k = 0; k < exact.switches.size(); ++k) {
-    EXPECT_NEAR(r.switch_times[k], exact.switches[k].t, 1e-6) << "switch " << k;
+    EXPECT_NEAR(r.switch_times[k], exact.switches[k].t, 1e-7) << "switch " << k;
   }
   EXPECT_LE((r.x_end - exact.x).cwiseAbs().maxCoeff(), 1e-8);
 }
@@ -218,8 +408,9 @@ TEST(FesdTest, PiecewiseSmoothFormAndGaussLegendreGiveTheExactCrossing) {
     const FesdResult r = fesd_simulate(model, Eigen::VectorXd::Constant(1, -1.0), 1.0, o);
     ASSERT_TRUE(r.ok()) << r.message;
     ASSERT_EQ(r.switch_times.size(), 1u) << to_string(scheme);
-    EXPECT_NEAR(r.switch_times[0], 1.0 / 3.0, 1e-9) << to_string(scheme);
-    EXPECT_NEAR(r.x_end[0], 2.0 / 3.0, 1e-9) << to_string(scheme);
+    // Measured: switch time exact, x(T) 1.1e-16.
+    EXPECT_NEAR(r.switch_times[0], 1.0 / 3.0, 1e-14) << to_string(scheme);
+    EXPECT_NEAR(r.x_end[0], 2.0 / 3.0, 1e-14) << to_string(scheme);
   }
 }
 

@@ -38,7 +38,8 @@
 // forward AD, `exact_hessian`), each NLP warm-started from the previous one. A step whose
 // homotopy fails is replaced by its two halves (up to four times); one that still does not
 // converge ends the run with a status that quotes the complementarity residual and IPOPT's
-// status.
+// status. A step whose last NLP IPOPT solves only to its acceptable level, with complementarity
+// products above sigma_final, is flagged (FesdResult::acceptable_only) but kept.
 //
 // Sensitivity. On the converged active set the step's equations are square in its unknowns
 // (each complementarity pair fixed to its active branch, equal lengths where no switch); the
@@ -223,9 +224,18 @@ struct FesdOptions {
   bool newton = true;
   bool sensitivities = true;
   int print_level = 0;  ///< IPOPT's print_level (0 silent)
-  /** Further IPOPT string options, set after bflow's (e.g. {"output_file", "ipopt.log"},
-      {"derivative_test", "second-order"}). */
+  /** Further IPOPT options, set after bflow's, both once at the start and before every NLP of
+      the homotopy (which resets tol, mu_init, warm_start_*, acceptable_* each time), so these
+      win (e.g. {"output_file", "ipopt.log"}, {"derivative_test", "second-order"},
+      {"acceptable_tol", 1e-2}, {"acceptable_iter", 1}).
+      @throws InvalidArgument (from fesd_simulate) naming an option IPOPT does not take. */
   std::vector<std::pair<std::string, std::string>> ipopt_string_options;
+  std::vector<std::pair<std::string, double>> ipopt_numeric_options;
+  std::vector<std::pair<std::string, int>> ipopt_integer_options;
+  /** For testing derivative checks only: with exact_hessian, the Hessian handed to IPOPT is
+      multiplied by this (1 in any real use), so a test can show that IPOPT's second-order
+      derivative checker reports a wrong Hessian. */
+  double exact_hessian_scale = 1.0;
 };
 
 enum class FesdStatus { kConverged, kStepFailed, kInvalidModel };
@@ -255,6 +265,17 @@ struct FesdResult {
   int newton_steps = 0;
   /** Of those, the steps with a switch inside (the active set guessed element by element). */
   int newton_switch_steps = 0;
+  /** Integration steps whose last NLP (at sigma_final) IPOPT solved only to its "acceptable"
+      level (Solved_To_Acceptable_Level: the acceptable_* tolerances met for acceptable_iter
+      iterations, the tolerance `tol` not) with a complementarity residual above
+      sigma_final + nlp_tolerance. Such a step need not be an FESD solution: its switch times,
+      active sets and sensitivity are suspect. An acceptable-level solve whose residual is within
+      sigma_final + nlp_tolerance (IPOPT crawling along the flat directions of the step
+      equilibration) is not counted. Newton-solved steps never are. */
+  int acceptable_only_steps = 0;
+  /** acceptable_only_steps > 0; then `message` names the first such step, its sigma and its
+      residual. `status` stays kConverged: the run reached T. */
+  bool acceptable_only = false;
   /** IPOPT iterations of each integration step (summed over its homotopy; 0 for Newton). */
   std::vector<int> nlp_iterations;
   /** dx(T)/dx0, d x d (empty unless options.sensitivities). */
