@@ -14,7 +14,7 @@
 //   BM_FlowCentralFd/<e>    2d + 1 simulations: phi(x0) and phi(x0 +- a e_i), a = rtol^(1/3)
 //   BM_FlowFullTangentNorm/<e>  BM_FlowFull with the tangents in dopri5's error norm
 //   BM_FlowGrouping/<policy>/<simulate|derivative>  default options on an oscillator crossing
-//                           two axes a quarter turn apart (32 single-surface events, none
+//                           two axes a quarter turn apart (38 single-surface events, none
 //                           near-simultaneous) with grouping auto, window and none: what the
 //                           automatic window costs where it changes nothing (target <= 5 %)
 //
@@ -203,7 +203,7 @@ void BM_FlowCentralFd(benchmark::State& state, Backend backend, int exponent) {
 // What grouping costs on events with no near-simultaneity
 
 // x' = a_b y, y' = -c_b x with a, c switching across both axes: an orbit around the origin
-// crossing one axis at a time, a quarter turn apart (far outside any grouping window), 32 events
+// crossing one axis at a time, a quarter turn apart (far outside any grouping window), 38 events
 // in t = 50.
 struct QuadrantOscillator {
   static constexpr int kStates = 2;
