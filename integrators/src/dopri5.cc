@@ -2,7 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
+#include <utility>
 
 #include "bflow/core/errors.h"
 
@@ -113,10 +115,17 @@ class Stepper {
         g_next_(n_),
         theta_(n_),
         g_trial_(n_),
+        rate_(n_),
+        rate_next_(n_),
+        probe_(n_),
+        g_middle_(n_),
+        velocity_(d_),
+        field_(d_),
         armed_(n_) {}
 
   SegmentResult run(double t0, double t_end, std::vector<T>& x, bool watch) {
     SegmentResult result;
+    result_ = &result;
     double t = t0;
     result.t = t;
     if (watch) {
@@ -124,6 +133,7 @@ class Stepper {
       for (int j = 0; j < n_; ++j) armed_[j] = g_[j] > 0.0;
     }
     if (!field(x, k1_, t, result)) return result;
+    if (watch && n_ > 0) surface_g_and_rates(x, k1_, g_, rate_);
     // The estimate can be tiny when x0 is near zero; steps then grow by up to 5x each.
     double h = options_.initial_step > 0.0
                    ? options_.initial_step
@@ -268,6 +278,7 @@ class Stepper {
     }
     field(next_, k7_, t + h, result);
     last_h_ = h;
+    last_t_ = t;
     return true;
   }
 
@@ -301,8 +312,8 @@ class Stepper {
     }
   }
 
-  // g at theta on the dense output, values only.
-  void dense_g(const std::vector<T>& x, double h, double theta, std::vector<double>& g) {
+  // x(t + theta h) on the dense output, values only, into values_.
+  void dense_values(const std::vector<T>& x, double h, double theta) {
     const double theta1 = 1.0 - theta;
     for (int i = 0; i < d_; ++i) {
       const double x0 = value_of(x[i]);
@@ -313,6 +324,11 @@ class Stepper {
                              d5 * value_of(k5_[i]) + d6 * value_of(k6_[i]) + d7 * value_of(k7_[i]));
       values_[i] = x0 + theta * (r2 + theta1 * (r3 + theta * (r4 + theta1 * r5)));
     }
+  }
+
+  // g at theta on the dense output, values only.
+  void dense_g(const std::vector<T>& x, double h, double theta, std::vector<double>& g) {
+    dense_values(x, h, theta);
     signed_surfaces(g);
   }
 
@@ -326,47 +342,287 @@ class Stepper {
     signed_surfaces(g);
   }
 
-  // After an accepted step x -> next_: the first crossing in (0, 1], if any.
-  bool locate_crossing(const std::vector<T>& x, double h, double& theta_first,
-                       std::vector<int>& crossed) {
-    surface_g(next_, g_next_);
-    std::vector<double>& theta = theta_;
-    std::fill(theta.begin(), theta.end(), 2.0);
-    bool any = false;
+  // g_j and dg_j/dt = s_j Dh_j(x) . f at x, moving along the field f: one evaluation of the
+  // surfaces on Jets (SegmentModel::surface_rates), no difference quotient.
+  void surface_g_and_rates(const std::vector<T>& x, const std::vector<T>& f, std::vector<double>& g,
+                           std::vector<double>& rate) {
+    for (int i = 0; i < d_; ++i) {
+      values_[i] = value_of(x[i]);
+      velocity_[i] = value_of(f[i]);
+    }
+    model_.surface_rates(values_.data(), velocity_.data(), h_values_.data(), probe_.data());
     for (int j = 0; j < n_; ++j) {
-      if (!armed_[j]) {
-        armed_[j] = g_next_[j] > 0.0;
-        continue;
-      }
-      if (g_next_[j] > 0.0) continue;
-      // Illinois iteration on [0, 1] with g(0) > 0 >= g(1).
-      double lo = 0.0, hi = 1.0, g_lo = g_[j], g_hi = g_next_[j];
-      int side = 0;
-      std::vector<double>& g = g_trial_;
-      for (int iteration = 0; iteration < 100 && hi - lo > 4e-16; ++iteration) {
-        double mid = (lo * g_hi - hi * g_lo) / (g_hi - g_lo);
-        if (!(mid > lo && mid < hi)) mid = 0.5 * (lo + hi);
-        dense_g(x, h, mid, g);
-        if (g[j] > 0.0) {
-          lo = mid;
-          g_lo = g[j];
-          if (side == -1) g_hi *= 0.5;
-          side = -1;
-        } else {
-          hi = mid;
-          g_hi = g[j];
-          if (side == 1) g_lo *= 0.5;
-          side = 1;
+      const double s = sides_.plus(j) ? 1.0 : -1.0;
+      g[j] = s * h_values_[j];
+      rate[j] = s * probe_[j];
+    }
+  }
+
+  // The rounding error of g_j on the dense output of a step with end values g0, g1 and end
+  // rates s0, s1 (per unit theta): a few ulps of the largest term of the interpolant.
+  static double rounding(double g0, double g1, double s0, double s1) {
+    return 16 * std::numeric_limits<double>::epsilon() *
+           std::max({std::abs(g0), std::abs(g1), std::abs(s0), std::abs(s1)});
+  }
+
+  // The minimum over theta in [0, 1] of the quartic q with q(0) = g0, q(1) = g1, q'(0) = s0,
+  // q'(1) = s1 and q(1/2) = g_half: the cubic Hermite interpolant plus c theta^2 (1 - theta)^2.
+  // On 16 cells; refined by golden sections only when a cell is below both ends (a dip), so that
+  // the common case (g_j monotone towards an end) costs 17 evaluations of q and nothing else.
+  static double quartic_minimum(double g0, double g1, double s0, double s1, double g_half) {
+    const double hermite_half = 0.5 * (g0 + g1) + 0.125 * (s0 - s1);
+    const double c = 16.0 * (g_half - hermite_half);
+    const auto q = [&](double t) {
+      const double t2 = t * t, t3 = t2 * t, u = t * (1.0 - t);
+      return (2 * t3 - 3 * t2 + 1) * g0 + (t3 - 2 * t2 + t) * s0 + (3 * t2 - 2 * t3) * g1 +
+             (t3 - t2) * s1 + c * u * u;
+    };
+    constexpr int kCells = 16;
+    int best = 0;
+    double q_best = g0;
+    for (int i = 1; i <= kCells; ++i) {
+      const double value = q(static_cast<double>(i) / kCells);
+      if (value < q_best) best = i, q_best = value;
+    }
+    if (!(q_best < std::min(g0, g1))) return q_best;
+    double a = std::max(0, best - 1) / static_cast<double>(kCells);
+    double b = std::min(kCells, best + 1) / static_cast<double>(kCells);
+    for (int iteration = 0; iteration < 16; ++iteration) {
+      const double u = a + 0.3819660112501051 * (b - a), v = b - 0.3819660112501051 * (b - a);
+      const double q_u = q(u), q_v = q(v);
+      q_best = std::min({q_best, q_u, q_v});
+      (q_u < q_v ? b : a) = q_u < q_v ? v : u;
+    }
+    return q_best;
+  }
+
+  // Brent's minimisation (values only) of sigma g_j on the dense output over theta in (0, 1): a
+  // local minimum (sigma = +1) or maximum (sigma = -1). theta to about sqrt(eps), which puts the
+  // value within a few ulps of the extreme value (the error is quadratic in theta). Returns
+  // theta; g_at is g_j there.
+  double extremum(const std::vector<T>& x, double h, int j, double sigma, double& g_at) {
+    constexpr double kGolden = 0.3819660112501051;  // (3 - sqrt(5)) / 2
+    constexpr double kRelative = 1.5e-8;
+    constexpr double kAbsolute = 1e-12;
+    const auto f = [&](double theta) {
+      dense_g(x, h, theta, g_trial_);
+      return sigma * g_trial_[static_cast<std::size_t>(j)];
+    };
+    double a = 0.0, b = 1.0;
+    // best: lowest value so far; second: the one before; third: the one before that.
+    double best = kGolden, second = best, third = best;
+    double f_best = f(best), f_second = f_best, f_third = f_best;
+    double step = 0.0, previous = 0.0;
+    for (int iteration = 0; iteration < 100; ++iteration) {
+      const double middle = 0.5 * (a + b);
+      const double tol1 = kRelative * std::abs(best) + kAbsolute;
+      const double tol2 = 2.0 * tol1;
+      if (std::abs(best - middle) <= tol2 - 0.5 * (b - a)) break;
+      bool golden = true;
+      if (std::abs(previous) > tol1) {
+        // Parabola through the three best points.
+        const double r = (best - second) * (f_best - f_third);
+        double q = (best - third) * (f_best - f_second);
+        double p = (best - third) * q - (best - second) * r;
+        q = 2.0 * (q - r);
+        if (q > 0.0) p = -p;
+        q = std::abs(q);
+        const double before = previous;
+        previous = step;
+        if (std::abs(p) < std::abs(0.5 * q * before) && p > q * (a - best) && p < q * (b - best)) {
+          step = p / q;
+          const double u = best + step;
+          if (u - a < tol2 || b - u < tol2) step = middle >= best ? tol1 : -tol1;
+          golden = false;
         }
       }
-      theta[static_cast<std::size_t>(j)] = hi;
-      any = true;
+      if (golden) {
+        previous = best >= middle ? a - best : b - best;
+        step = kGolden * previous;
+      }
+      const double u = std::abs(step) >= tol1 ? best + step : best + (step > 0.0 ? tol1 : -tol1);
+      const double f_u = f(u);
+      if (f_u <= f_best) {
+        (u >= best ? a : b) = best;
+        third = second;
+        f_third = f_second;
+        second = best;
+        f_second = f_best;
+        best = u;
+        f_best = f_u;
+      } else {
+        (u < best ? a : b) = u;
+        if (f_u <= f_second || second == best) {
+          third = second;
+          f_third = f_second;
+          second = u;
+          f_second = f_u;
+        } else if (f_u <= f_third || third == best || third == second) {
+          third = u;
+          f_third = f_u;
+        }
+      }
+    }
+    g_at = sigma * f_best;
+    return best;
+  }
+
+  // Illinois iteration on [lo, hi] with g_j(lo) > 0 >= g_j(hi), to a few ulps of theta: the root
+  // when g_j changes sign once there. Returns a theta where g_j <= 0.
+  double root(const std::vector<T>& x, double h, int j, double lo, double hi, double g_lo,
+              double g_hi) {
+    int side = 0;
+    std::vector<double>& g = g_trial_;
+    for (int iteration = 0; iteration < 100 && hi - lo > 4e-16; ++iteration) {
+      double mid = (lo * g_hi - hi * g_lo) / (g_hi - g_lo);
+      if (!(mid > lo && mid < hi)) mid = 0.5 * (lo + hi);
+      dense_g(x, h, mid, g);
+      if (g[j] > 0.0) {
+        lo = mid;
+        g_lo = g[j];
+        if (side == -1) g_hi *= 0.5;
+        side = -1;
+      } else {
+        hi = mid;
+        g_hi = g[j];
+        if (side == 1) g_lo *= 0.5;
+        side = 1;
+      }
+    }
+    return hi;
+  }
+
+  // dg_j/dt = s_j Dh_j(x) . F_b(x) at theta on the dense output, with the model's own field and
+  // normals (Jets): the quantity the driver's transversality test is made of.
+  double exact_rate(const std::vector<T>& x, double h, int j, double theta) {
+    dense_values(x, h, theta);
+    model_.field(values_.data(), sides_, field_.data());
+    ++result_->field_evaluations;
+    const Eigen::Map<const Eigen::VectorXd> state(values_.data(), d_);
+    const Eigen::MatrixXd normals = model_.surface_normals(state);
+    const double rate = normals.row(j).dot(Eigen::Map<const Eigen::VectorXd>(field_.data(), d_));
+    return sides_.plus(j) ? rate : -rate;
+  }
+
+  // Where g_j touches zero near theta: the zero of dg_j/dt (from - to +), by bisection to a few
+  // ulps of theta. A crossing reported there reaches the driver with eta . F ~ 0, which it
+  // rejects as grazing; Brent's theta (sqrt(eps)) would leave eta . F ~ 1e-8 instead.
+  double tangency(const std::vector<T>& x, double h, int j, double theta) {
+    double lo = std::max(0.0, theta - 1e-6), hi = std::min(1.0, theta + 1e-6);
+    if (!(exact_rate(x, h, j, lo) < 0.0 && exact_rate(x, h, j, hi) >= 0.0)) {
+      lo = 0.0;
+      hi = 1.0;
+      if (!(exact_rate(x, h, j, lo) < 0.0 && exact_rate(x, h, j, hi) >= 0.0)) return theta;
+    }
+    for (int iteration = 0; iteration < 100 && hi - lo > 4e-16; ++iteration) {
+      const double mid = 0.5 * (lo + hi);
+      if (!(mid > lo && mid < hi)) break;
+      (exact_rate(x, h, j, mid) < 0.0 ? lo : hi) = mid;
+    }
+    return hi;
+  }
+
+  // The band of a near miss at theta: kBandFactor sum_i |dh_j/dx_i| (atol + rtol |x_i|), the
+  // change of g_j under a state error of one tolerance unit in every component.
+  double miss_band(const std::vector<T>& x, double h, int j, double theta) {
+    dense_values(x, h, theta);
+    const Eigen::Map<const Eigen::VectorXd> state(values_.data(), d_);
+    const Eigen::MatrixXd normals = model_.surface_normals(state);
+    const double atol = options_.absolute_tolerance();
+    double band = 0.0;
+    for (int i = 0; i < d_; ++i) {
+      band += std::abs(normals(j, i)) * (atol + options_.rtol * std::abs(values_[i]));
+    }
+    return kBandFactor * band;
+  }
+
+  // After an accepted step x -> next_: the first crossing in (0, 1], if any. Besides the sign
+  // changes of g_j between the ends, a watched g_j that is > 0 at both ends may dip to <= 0 and
+  // come back inside the step (a crossing pair near a tangency), and an unwatched one (<= 0 at
+  // both ends, e.g. just crossed) may rise above 0 and come back. Both are looked for only where
+  // the end values and rates allow them (cheap tests below); then the extreme of g_j on the
+  // dense output is found and, if it is on the other side, the crossing is located before it
+  // (after it for the rise). A minimum that stays > 0 within the error band is a NearMiss.
+  bool locate_crossing(const std::vector<T>& x, double h, double& theta_first,
+                       std::vector<int>& crossed) {
+    surface_g_and_rates(next_, k7_, g_next_, rate_next_);
+    std::vector<double>& theta = theta_;
+    std::fill(theta.begin(), theta.end(), 2.0);
+    misses_.clear();
+    bool any = false;
+    bool have_middle = false;  // g at theta = 1/2, computed once for all surfaces when needed
+    for (int j = 0; j < n_; ++j) {
+      const auto js = static_cast<std::size_t>(j);
+      const double g0 = g_[js], g1 = g_next_[js];
+      const double s0 = h * rate_[js], s1 = h * rate_next_[js];  // dg_j/dtheta at the ends
+      if (!armed_[js]) {
+        armed_[js] = g1 > 0.0;
+        // Out to the watched side and back within the step: a maximum of g_j above zero.
+        if (g1 <= 0.0 && s0 > 0.0 && s1 < 0.0) {
+          double g_max = 0.0;
+          const double top = extremum(x, h, j, -1.0, g_max);
+          if (g_max > rounding(g0, g1, s0, s1)) {
+            theta[js] = root(x, h, j, top, 1.0, g_max, g1);
+            any = true;
+          }
+        }
+        continue;
+      }
+      if (g1 <= 0.0) {
+        theta[js] = root(x, h, j, 0.0, 1.0, g0, g1);
+        any = true;
+        continue;
+      }
+      // g_j > 0 at both ends. It can dip inside only if it turns (falling at the start, rising
+      // at the end) or if it is small against what it changes in one step at the end rates.
+      const bool turns = s0 < 0.0 && s1 > 0.0;
+      const bool close = std::min(g0, g1) <= std::max(std::abs(s0), std::abs(s1));
+      if (!turns && !close) continue;
+      // Then a quartic model of g_j on the step (exact for an affine h_j): the searches below
+      // run only if it comes below half the lower end value somewhere inside.
+      if (!have_middle) {
+        dense_g(x, h, 0.5, g_middle_);
+        have_middle = true;
+      }
+      if (!(quartic_minimum(g0, g1, s0, s1, g_middle_[js]) < 0.5 * std::min(g0, g1))) continue;
+      double g_min = 0.0;
+      const double bottom = extremum(x, h, j, 1.0, g_min);
+      const double noise = rounding(g0, g1, s0, s1);
+      if (g_min < -noise) {
+        theta[js] = root(x, h, j, 0.0, bottom, g0, g_min);
+        any = true;
+        continue;
+      }
+      if (g_min <= noise) {
+        // Zero to rounding at an interior minimum: a touch, reported at the tangency itself.
+        if (std::min(g0, g1) > 2.0 * noise) {
+          theta[js] = tangency(x, h, j, bottom);
+          any = true;
+        }
+        continue;
+      }
+      // The closest approach: inside the step when the rates turn (it may then sit at an end,
+      // to the accuracy of the rates), or wherever g_j is below both ends.
+      double closest = bottom, g_closest = g_min;
+      if (turns && g0 < g_closest) closest = 0.0, g_closest = g0;
+      if (turns && g1 < g_closest) closest = 1.0, g_closest = g1;
+      if (!turns && !(g_min < std::min(g0, g1) - noise)) continue;
+      const double band = miss_band(x, h, j, closest);
+      if (g_closest < band) {
+        misses_.push_back({NearMiss{j, last_t_ + closest * h, g_closest, band}, closest});
+      }
+    }
+    const double first =
+        any ? *std::min_element(theta.begin(), theta.end()) : std::numeric_limits<double>::max();
+    for (const auto& [miss, at] : misses_) {
+      if (at <= first) result_->near_misses.push_back(miss);
     }
     if (!any) {
       g_.swap(g_next_);
+      rate_.swap(rate_next_);
       return false;
     }
-    theta_first = *std::min_element(theta.begin(), theta.end());
+    theta_first = first;
     // Crossings within a few ulps of the first are the same crossing.
     const double same = 8e-16 * std::max(1.0, 1.0 / h);
     for (int j = 0; j < n_; ++j) {
@@ -374,6 +630,9 @@ class Stepper {
     }
     return true;
   }
+
+  // A near miss is a minimum g_min > 0 below kBandFactor tolerance units (miss_band()).
+  static constexpr double kBandFactor = 8.0;
 
   const SegmentModel& model_;
   const Signs sides_;
@@ -384,8 +643,15 @@ class Stepper {
   std::vector<double> values_, h_values_, g_, g_next_;
   TangentNorm<T> tangent_norm_;
   std::vector<double> theta_, g_trial_;  // scratch of locate_crossing(), no allocation per step
+  // dg_j/dt at x and at next_, and scratch of surface_g_and_rates().
+  std::vector<double> rate_, rate_next_, probe_, g_middle_, velocity_;
+  std::vector<double> field_;  // F_b at a dense-output point (exact_rate())
+  // Near misses of the step being checked, with their theta; kept if not after the crossing.
+  std::vector<std::pair<NearMiss, double>> misses_;
+  SegmentResult* result_ = nullptr;  // the result run() is filling
   std::vector<char> armed_;
   double last_h_ = 0.0;
+  double last_t_ = 0.0;  // start of the last attempted step
 };
 
 }  // namespace

@@ -33,6 +33,14 @@
 //    value a small time later (CVODES), so leaving the surface either way is not a crossing.
 //    A surface that stays exactly at g_j = 0 over that first instant is not watched for the
 //    rest of the segment.
+//  * Grazing: NOT detected inside a step. CVODES's root finder, like any sign-change test,
+//    looks at g_j at the ends of its internal steps (and on the interpolant only after a sign
+//    change there): a trajectory that dips through a surface and comes back within one
+//    internal step (a crossing pair near a tangency) is missed without notice, and
+//    SegmentResult::near_misses stays empty. A dip is seen when a step ends inside it, which
+//    max_step can force (max_step below the dip's duration, ~ 2 sqrt(2 delta / |g''|) for a
+//    depth delta). Use the dopri5 backend where near-grazing passes matter: it searches every
+//    step for interior minima and reports crossing pairs, touches and near misses (dopri5.h).
 //  * Stops exactly at t_end (stop time); integration backwards (t_end < t0) is allowed.
 //  * max_steps counts all steps of the segment; min_step is applied as the CVODES minimum
 //    step min_step * max(1, |t0|, |t_end|) (CVODES has one minimum per run, so it is taken

@@ -13,6 +13,25 @@
 // a sign change from > 0 to <= 0 is located on the dense output (Illinois method on the
 // values, to a few ulps of t) and the step is cut there. The state and tangents at the
 // crossing come from the dense output, which is accurate to the integration tolerance.
+//
+// Grazing (docs/flow.md, "Grazing"). A watched g_j that is > 0 at both ends of a step may still
+// dip to <= 0 inside it (a crossing pair near a tangency, typical of long steps). After each
+// accepted step, for every watched surface: the rates dg_j/dt at the ends (the surfaces on
+// Jet<double, 1> along the field, one evaluation per step, SegmentModel::surface_rates) decide
+// whether a dip is possible (g_j turns from falling to rising, or min g_j <= h max |dg_j/dt|); if
+// so, g_j at mid-step fixes a quartic model (exact for an affine h_j), and only if that model comes
+// below half the lower end value is the minimum of g_j searched on the dense output (Brent, values
+// only). Then:
+//  * g_min < -r (r: 16 eps x the largest of |g_j| and h |dg_j/dt| at the ends, the rounding of
+//    g_j on the dense output): a crossing, at the first root before the minimum;
+//  * |g_min| <= r: a touch, reported as a crossing at the tangency (zero of Dh_j . F to a few
+//    ulps), which the hybrid driver rejects as grazing (eta . F ~ 0);
+//  * r < g_min < band = 8 sum_i |dh_j/dx_i| (atol + rtol |x_i|) at the minimum: a NearMiss in
+//    SegmentResult::near_misses, no crossing.
+// A surface <= 0 at both ends (one just crossed) whose g_j rises above r inside the step and
+// falls back is a crossing too, at the root after its maximum. Not detected: two extrema of g_j
+// in one step, and dips that the quartic model of a strongly curved surface misses by more
+// than half the lower end value.
 #ifndef BFLOW_INTEGRATORS_DOPRI5_H_
 #define BFLOW_INTEGRATORS_DOPRI5_H_
 

@@ -3,6 +3,7 @@
 #define BFLOW_INTEGRATORS_MODEL_ADAPTER_H_
 
 #include <utility>
+#include <vector>
 
 #include "bflow/ad/jet_bridge.h"
 #include "bflow/core/model.h"
@@ -37,6 +38,34 @@ class ModelAdapter final : public SegmentModel {
   }
   Eigen::MatrixXd surface_normals(const Eigen::Ref<const Eigen::VectorXd>& x) const override {
     return ad::normals<kTangentChunk>(model_, x);
+  }
+  void surface_rates(const double* x, const double* v, double* h, double* rate) const override {
+    const int d = states();
+    const int n = surfaces();
+    if (n == 0) return;
+    // Small scratch on the stack for the common sizes; the heap only for large models.
+    constexpr int kStack = 32;
+    Jet1 x_stack[kStack], h_stack[kStack];
+    std::vector<Jet1> x_heap, h_heap;
+    Jet1* xj = x_stack;
+    Jet1* hj = h_stack;
+    if (d > kStack) {
+      x_heap.resize(static_cast<std::size_t>(d));
+      xj = x_heap.data();
+    }
+    if (n > kStack) {
+      h_heap.resize(static_cast<std::size_t>(n));
+      hj = h_heap.data();
+    }
+    for (int i = 0; i < d; ++i) {
+      xj[i] = Jet1(x[i]);
+      xj[i].v[0] = v[i];
+    }
+    model_.surfaces(xj, hj);
+    for (int j = 0; j < n; ++j) {
+      h[j] = hj[j].a;
+      rate[j] = hj[j].v[0];
+    }
   }
 
  private:

@@ -64,6 +64,18 @@ class SegmentModel {
   virtual void surface_values(const double* x, double* h) const = 0;
   /** Dh(x), n x d, by Jets. */
   virtual Eigen::MatrixXd surface_normals(const Eigen::Ref<const Eigen::VectorXd>& x) const = 0;
+  /** h(x) and the rates Dh(x) v (n each) for a direction v of d numbers, e.g. the field: how fast
+      the surfaces are approached. By default through surface_normals(); the model adapter
+      evaluates the surfaces once on Jet<double, 1>. */
+  virtual void surface_rates(const double* x, const double* v, double* h, double* rate) const {
+    const int d = states();
+    const int n = surfaces();
+    if (n == 0) return;
+    surface_values(x, h);
+    const Eigen::Map<const Eigen::VectorXd> point(x, d);
+    Eigen::Map<Eigen::VectorXd>(rate, n) =
+        surface_normals(point) * Eigen::Map<const Eigen::VectorXd>(v, d);
+  }
 };
 
 enum class IntegrationStatus {
