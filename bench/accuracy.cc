@@ -1,17 +1,28 @@
 // What accuracy costs in time: the flow's B-derivative by bflow (AD: variational equations by
 // Jets between events, jump maps at events) against finite differences of the simulation and
-// against "naive AD", for two problems with a known or tightly computed reference.
+// against "naive AD", for three problems with an exact or an independent reference.
 //
 //   pwconst  the piecewise-constant field of [B] Section 3.1 (examples::PiecewiseConstantField::
 //            planar_demo(), d = 2) from rho- = -F_--(0)/2 for t = 1. Both coordinate planes are
 //            crossed at once at t = 1/2 and the field is constant in between, so the reference
 //            is exact: D phi = B, the JumpMap of the limits with eta = I ([B] (3.2) in general
-//            form). Two pieces.
+//            form), checked against one-sided differences of the exact flow and against the
+//            independent reference below (both printed). Two pieces.
 //   biped    the mode-damping biped of [B] Section 3.2.4 (bflow/core/biped.h, defaults) from
 //            (0, 1, 0, 0, 0, 0) for t = 0.6: both feet touch at t = 0.3968 (one event of two
-//            surfaces, two pieces). Reference: flow_derivative() with dopri5 at rtol 1e-13,
-//            atol 1e-15, checked against one-sided differences at alpha = 1e-7 and against
-//            rtol 1e-14 (both printed).
+//            surfaces, two pieces).
+//   three    examples::ThreeSurfaces (examples/three_surfaces.h), d = 5, from nominal_start()
+//            for t = 1.5: three curved surfaces crossed at once at t = 1 with a different
+//            nonlinear field in each of the 8 regions (one event of three surfaces, six pieces).
+//
+// The reference of biped and three is independent of bflow's engine: examples::ReferenceFlow
+// (examples/reference_flow.h: long double, fixed-step sixth-order Runge-Kutta, crossings
+// located by bisection), one-sided differences D(a) = (phi(x0 + a dx) - phi(x0)) / a
+// extrapolated twice, (8 D(a/4) - 6 D(a/2) + D(a)) / 3 at a = 5e-5 (error O(a^3) plus
+// rounding), on each direction, which lies inside one piece (the crossing order its perturbed
+// runs realise is printed). Its own accuracy is printed: the change when its step or a is
+// halved (~1e-14 relative). For three the reference starts from phi_{-1}(rho) in long double, on
+// the nonsmooth trajectory; the engine starts from that point rounded to double.
 //
 // The derivative is piecewise linear, so it is compared on k = d fixed directions dx_k chosen
 // in both pieces (the printout names each direction's crossing order). The error of a method
@@ -30,10 +41,10 @@
 //
 // Differences are swept two ways: a = sqrt(rtol) (one-sided) and a = rtol^(1/3) (central) for
 // every rtol of the AD sweep (series "...-matched"), and a = 1e-2 ... 1e-10 at rtol 1e-10 and
-// 1e-12 (series "...-sweep"). They run with simultaneity_window = 0, so a perturbed run
-// resolves two touchdowns however close: with the default window of 1e-9 the driver would
-// group crossings less than 1e-9 apart and flip the later surface early, an error of
-// O(window) in the state that is O(window / a) in a difference quotient.
+// 1e-12 (series "...-sweep"). They run ungrouped (Grouping::kNone), so a perturbed run
+// resolves crossings however close: grouped, the driver would flip the later surfaces early
+// (by up to the window), an error of O(window) in the state that is O(window / a) in a
+// difference quotient.
 //
 // CPU time is the median over 9 repetitions of the process CPU time
 // (clock_gettime(CLOCK_PROCESS_CPUTIME_ID)) per derivative, each repetition repeating the
@@ -51,6 +62,7 @@
 #include <time.h>
 
 #include <algorithm>
+#include <array>
 #include <cctype>
 #include <cmath>
 #include <cstdio>
@@ -70,6 +82,8 @@
 #include "bflow/core/flow_derivative.h"
 #include "bflow/core/jump_map.h"
 #include "bflow/examples/piecewise_constant.h"
+#include "bflow/examples/reference_flow.h"
+#include "bflow/examples/three_surfaces.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
 
@@ -79,6 +93,7 @@ using bflow::Backend;
 using bflow::FlowOptions;
 using bflow::FlowResult;
 using bflow::SegmentModel;
+using LVector = Eigen::Matrix<long double, Eigen::Dynamic, 1>;
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 // Errors are drawn no lower than this (an exact result would be log(0)).
@@ -187,7 +202,7 @@ std::vector<Point> ad_points(const Problem& p, Backend backend, double rtol, boo
   ad.method = "ad";
   ad.backend = backend;
   ad.rtol = rtol;
-  ad.atol = options.integrator.atol;
+  ad.atol = options.integrator.absolute_tolerance();
   ad.simulations = 1;
   ad.steps = trajectory.steps;
   ad.error = relative_error(derivative.apply_block(p.directions), p.reference);
@@ -238,12 +253,12 @@ Eigen::MatrixXd differences(const Problem& p, double alpha, bool central,
 Point fd_point(const Problem& p, const std::string& series, double rtol, double alpha,
                bool central) {
   FlowOptions options = options_for(Backend::kDopri5, rtol);
-  options.simultaneity_window = 0.0;
+  options.grouping = bflow::Grouping::kNone;
   Point point;
   point.series = series;
   point.method = central ? "fd-central" : "fd-one-sided";
   point.rtol = rtol;
-  point.atol = options.integrator.atol;
+  point.atol = options.integrator.absolute_tolerance();
   point.alpha = alpha;
   const int k = static_cast<int>(p.directions.cols());
   point.simulations = central ? 2 * k + 1 : k + 1;
@@ -523,6 +538,40 @@ void plot(const Problem& p, const std::vector<Point>& points, const Settings& se
 // ---------------------------------------------------------------------------------------------
 // Problems
 
+// Twice Richardson-extrapolated one-sided differences of the independent reference flow on
+// each direction (from x0, in long double), and the crossing order the perturbed runs realised.
+// Prints how much halving the reference's step or alpha changes it: its own accuracy. At
+// a = 5e-5 the O(a^3) truncation (~1e-14 on the biped) and the rounding (~1e-19 / a, amplified
+// ~15x by the extrapolation) are about equal.
+template <typename Model>
+Eigen::MatrixXd independent_reference(const Model& model, const LVector& x0, double t,
+                                      const Eigen::MatrixXd& directions,
+                                      std::vector<std::vector<int>>* orders) {
+  constexpr long double kAlpha = 5e-5L;
+  const bflow::examples::ReferenceFlow<Model> ref(model);
+  const bflow::examples::ReferenceFlow<Model> fine(model, ref.max_step() / 2);
+  Eigen::MatrixXd images(directions.rows(), directions.cols());
+  double step_change = 0.0, alpha_change = 0.0;
+  for (Eigen::Index k = 0; k < directions.cols(); ++k) {
+    const LVector dx = directions.col(k).cast<long double>();
+    const auto r = ref.richardson2(x0, dx, t, kAlpha);
+    const LVector r_step = fine.richardson2(x0, dx, t, kAlpha).value;
+    const LVector r_alpha = ref.richardson2(x0, dx, t, kAlpha / 2).value;
+    const long double scale = r.value.norm();
+    step_change = std::max(step_change, static_cast<double>((r_step - r.value).norm() / scale));
+    alpha_change = std::max(alpha_change, static_cast<double>((r_alpha - r.value).norm() / scale));
+    images.col(k) = r.value.template cast<double>();
+    std::vector<int> order;
+    for (const auto& crossing : r.crossings) order.push_back(crossing.surface);
+    orders->push_back(order);
+  }
+  std::printf(
+      "  reference: ReferenceFlow (long double, RK6 step %.2g), (8 D(a/4) - 6 D(a/2) + D(a)) / 3 "
+      "at a = 5e-5; halving its step changes it by %.1e, halving a by %.1e\n",
+      static_cast<double>(ref.max_step()), step_change, alpha_change);
+  return images;
+}
+
 Problem pwconst_problem(const bflow::examples::PiecewiseConstantField& field,
                         const SegmentModel& model) {
   Problem p;
@@ -540,7 +589,8 @@ Problem pwconst_problem(const bflow::examples::PiecewiseConstantField& field,
   for (Eigen::Index k = 0; k < 2; ++k) {
     p.direction_notes.push_back(order_text(jump.order(p.directions.col(k)).order) + " first");
   }
-  // Independent check: one-sided differences of the exact (straight-line) flow.
+  // Independent checks: one-sided differences of the exact (straight-line) flow, and the
+  // independent reference flow.
   double worst = 0.0;
   const double alpha = 1e-6;
   for (Eigen::Index k = 0; k < 2; ++k) {
@@ -552,10 +602,66 @@ Problem pwconst_problem(const bflow::examples::PiecewiseConstantField& field,
       "pwconst: reference B (exact); one-sided differences of the exact flow at "
       "alpha = 1e-6 agree to %.1e\n",
       worst);
+  std::vector<std::vector<int>> orders;
+  const Eigen::MatrixXd independent =
+      independent_reference(field, p.x0.cast<long double>(), p.t, p.directions, &orders);
+  std::printf("  B against the independent reference: %.1e\n",
+              relative_error(independent, p.reference));
   return p;
 }
 
-Problem biped_problem(const SegmentModel& model) {
+// Independent reference of a problem, with the crossing orders as direction notes, and how far
+// the engine's own tightest derivative (the previous reference) and one-sided differences of
+// the engine at rtol 1e-13 are from it.
+template <typename Model>
+void set_independent_reference(Problem& p, const Model& model, const LVector& x0,
+                               const char* (*note)(int first)) {
+  std::vector<std::vector<int>> orders;
+  p.reference = independent_reference(model, x0, p.t, p.directions, &orders);
+  for (const std::vector<int>& order : orders) {
+    p.direction_notes.push_back(order_text(order) + (order.empty() ? "" : note(order[0])));
+  }
+  const std::pair<double, bool> checks[] = {{1e-13, true}, {1e-13, false}};
+  for (const auto& [rtol, tangent_norm] : checks) {
+    FlowOptions other = options_for(Backend::kDopri5, rtol);
+    other.integrator.atol = 1e-2 * rtol;
+    other.integrator.tangents_in_error_norm = tangent_norm;
+    FlowResult run;
+    const bflow::FlowDerivative check = bflow::flow_derivative(*p.model, p.x0, p.t, other, &run);
+    std::printf("  engine (dopri5 rtol %.0e atol %.0e, %s, %ld steps, %zu event(s)", rtol,
+                other.integrator.absolute_tolerance(),
+                tangent_norm ? "tangents in the norm" : "state-only norm", run.steps,
+                run.events.size());
+    for (const bflow::EventRecord& event : run.events) {
+      std::printf(", t = %.6f (%d surfaces)", event.t, event.group_size());
+    }
+    std::printf(") against the reference: %.1e\n",
+                relative_error(check.apply_block(p.directions), p.reference));
+  }
+  FlowOptions fd_options = options_for(Backend::kDopri5, 1e-13);
+  fd_options.integrator.atol = 1e-15;
+  fd_options.grouping = bflow::Grouping::kNone;
+  const Eigen::VectorXd nominal = bflow::simulate(*p.model, p.x0, p.t, fd_options).x;
+  for (Eigen::Index k = 0; k < p.directions.cols(); ++k) {
+    const double alpha = 1e-7;
+    const FlowResult moved =
+        bflow::simulate(*p.model, p.x0 + alpha * p.directions.col(k), p.t, fd_options);
+    const Eigen::VectorXd fd = (moved.x - nominal) / alpha;
+    std::printf(
+        "  dx_%ld: engine one-sided FD (alpha 1e-7, rtol 1e-13) against the reference: %.1e "
+        "(%zu events)\n",
+        static_cast<long>(k), (fd - p.reference.col(k)).norm() / p.reference.col(k).norm(),
+        moved.events.size());
+  }
+}
+
+const char* foot_note(int first) {
+  return first == 0 ? " (foot 0 touches first)" : " (foot 1 touches first)";
+}
+
+const char* no_note(int) { return ""; }
+
+Problem biped_problem(const bflow::BipedModeDampingScene& scene, const SegmentModel& model) {
   Problem p;
   p.name = "biped";
   p.title = "Mode-damping biped ([B] §3.2.4), d = 6, t = 0.6: both feet touch at t = 0.397";
@@ -570,58 +676,45 @@ Problem biped_problem(const SegmentModel& model) {
   p.directions.col(4) << 0.3, -0.5, 0.2, 1.0, -0.4, 0.6;
   p.directions.col(5) << -0.2, 0.4, 0.1, -0.7, 0.5, -1.0;
   for (Eigen::Index k = 0; k < 6; ++k) p.directions.col(k).normalize();
+  // x0 is exact in double and the trajectory is symmetric in any precision (x = theta = 0
+  // stay 0), so both feet touch at the same instant in the reference too.
+  std::printf("biped: independent reference\n");
+  set_independent_reference(p, scene, p.x0.cast<long double>(), foot_note);
+  return p;
+}
 
-  // The tangents are in the error norm: on this symmetric trajectory x, theta and their rates
-  // stay exactly 0, so a state-only norm sees only the vertical motion and leaves the tangents
-  // (which also rotate and slide) two to three decades less accurate than the state.
-  FlowOptions reference_options = options_for(Backend::kDopri5, 1e-13);
-  reference_options.integrator.atol = 1e-15;
-  reference_options.integrator.tangents_in_error_norm = true;
-  FlowResult trajectory;
-  const bflow::FlowDerivative reference =
-      bflow::flow_derivative(model, p.x0, p.t, reference_options, &trajectory);
-  p.reference = reference.apply_block(p.directions);
-  std::printf(
-      "biped: reference flow_derivative, dopri5 rtol 1e-13 atol 1e-15, tangents in the "
-      "error norm: %ld steps, %zu event(s)",
-      trajectory.steps, trajectory.events.size());
-  for (const bflow::EventRecord& event : trajectory.events) {
-    std::printf(", t = %.6f (%d surfaces)", event.t, event.group_size());
+Problem three_surfaces_problem(const SegmentModel& model) {
+  using bflow::examples::ThreeSurfaces;
+  Problem p;
+  p.name = "three";
+  p.title =
+      "Three curved surfaces crossed at once (examples::ThreeSurfaces), d = 5, t = 1.5: all "
+      "at t = 1";
+  p.model = &model;
+  // The start on the nonsmooth trajectory in long double (the reference's), and rounded to
+  // double (the engine's).
+  const bflow::examples::ReferenceFlow<ThreeSurfaces> ref(ThreeSurfaces{});
+  const Eigen::Matrix<long double, 5, 1> rho = ThreeSurfaces::crossing_point().cast<long double>();
+  const LVector start = ref.backward(rho, ThreeSurfaces::kCrossingTime, bflow::Signs(3));
+  p.x0 = start.cast<double>();
+  p.t = ThreeSurfaces::kFinalTime;
+  // k = d = 5 directions in five of the six crossing orders: tangents at rho pulled back to
+  // the start by central differences of the reference's backward flow (smooth: sides fixed).
+  const std::array<std::array<int, 3>, 5> orders = {
+      {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 1, 0}}};
+  p.directions.resize(5, 5);
+  for (int k = 0; k < 5; ++k) {
+    const LVector tangent = ThreeSurfaces::tangent_in_order(orders[k]).cast<long double>();
+    const long double e = 1e-6L;
+    const LVector plus =
+        ref.backward(rho + e * tangent, ThreeSurfaces::kCrossingTime, bflow::Signs(3));
+    const LVector minus =
+        ref.backward(rho - e * tangent, ThreeSurfaces::kCrossingTime, bflow::Signs(3));
+    p.directions.col(k) = ((plus - minus) / (2 * e)).cast<double>();
+    p.directions.col(k).normalize();
   }
-  std::printf("\n");
-  for (Eigen::Index k = 0; k < 6; ++k) {
-    const Eigen::VectorXd arriving = reference.transitions()[0] * p.directions.col(k);
-    const std::vector<int> order = reference.jumps()[0].order(arriving).order;
-    p.direction_notes.push_back(order_text(order) + " (foot " + std::to_string(order[0]) +
-                                " touches first)");
-  }
-
-  // Sanity checks of the reference: a tighter run, a state-only run, one-sided differences.
-  const std::pair<double, bool> checks[] = {{1e-14, true}, {1e-13, false}};
-  for (const auto& [rtol, tangent_norm] : checks) {
-    FlowOptions other = options_for(Backend::kDopri5, rtol);
-    other.integrator.atol = 1e-2 * rtol;
-    other.integrator.tangents_in_error_norm = tangent_norm;
-    FlowResult run;
-    const bflow::FlowDerivative check = bflow::flow_derivative(model, p.x0, p.t, other, &run);
-    std::printf("  D_ref against rtol %.0e atol %.0e, %s (%ld steps): %.1e\n", rtol,
-                other.integrator.atol, tangent_norm ? "tangents in the norm" : "state-only norm",
-                run.steps, relative_error(check.apply_block(p.directions), p.reference));
-  }
-  FlowOptions fd_options = reference_options;
-  fd_options.simultaneity_window = 0.0;
-  const Eigen::VectorXd nominal = bflow::simulate(model, p.x0, p.t, fd_options).x;
-  for (Eigen::Index k = 0; k < 6; ++k) {
-    const double alpha = 1e-7;
-    const FlowResult moved =
-        bflow::simulate(model, p.x0 + alpha * p.directions.col(k), p.t, fd_options);
-    const Eigen::VectorXd fd = (moved.x - nominal) / alpha;
-    std::printf(
-        "  dx_%ld: one-sided FD (alpha 1e-7, rtol 1e-13) against D_ref: %.1e (%zu "
-        "events)\n",
-        static_cast<long>(k), (fd - p.reference.col(k)).norm() / p.reference.col(k).norm(),
-        moved.events.size());
-  }
+  std::printf("three: independent reference\n");
+  set_independent_reference(p, ThreeSurfaces{}, start, no_note);
   return p;
 }
 
@@ -690,7 +783,9 @@ int main(int argc, char** argv) {
   try {
     const auto field = bflow::examples::PiecewiseConstantField::planar_demo();
     const auto pwconst_model = bflow::adapt(field);
-    const auto biped_model = bflow::adapt(bflow::make_biped_mode_damping(bflow::BipedParams{}));
+    const auto biped_scene = bflow::make_biped_mode_damping(bflow::BipedParams{});
+    const auto biped_model = bflow::adapt(biped_scene);
+    const auto three_model = bflow::adapt(bflow::examples::ThreeSurfaces{});
     auto run = [&](const std::string& name, const std::function<Problem()>& make) {
       std::printf("\n== %s\n", name.c_str());
       const Problem p = make();
@@ -704,7 +799,8 @@ int main(int argc, char** argv) {
       if (settings.plot) plot(p, points, settings);
     };
     run("pwconst", [&] { return pwconst_problem(field, pwconst_model); });
-    run("biped", [&] { return biped_problem(biped_model); });
+    run("biped", [&] { return biped_problem(biped_scene, biped_model); });
+    run("three", [&] { return three_surfaces_problem(three_model); });
   } catch (const std::exception& e) {
     std::fprintf(stderr, "accuracy_harness: %s\n", e.what());
     return 1;
