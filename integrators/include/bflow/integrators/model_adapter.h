@@ -43,20 +43,15 @@ class ModelAdapter final : public SegmentModel {
     const int d = states();
     const int n = surfaces();
     if (n == 0) return;
-    // Small scratch on the stack for the common sizes; the heap only for large models.
-    constexpr int kStack = 32;
-    Jet1 x_stack[kStack], h_stack[kStack];
-    std::vector<Jet1> x_heap, h_heap;
-    Jet1* xj = x_stack;
-    Jet1* hj = h_stack;
-    if (d > kStack) {
-      x_heap.resize(static_cast<std::size_t>(d));
-      xj = x_heap.data();
-    }
-    if (n > kStack) {
-      h_heap.resize(static_cast<std::size_t>(n));
-      hj = h_heap.data();
-    }
+    // Per-thread scratch: no allocation and no zero-filling per call (adapters are shared
+    // between threads, so it cannot be a member).
+    thread_local std::vector<Jet1> x_scratch, h_scratch;
+    if (x_scratch.size() < static_cast<std::size_t>(d))
+      x_scratch.resize(static_cast<std::size_t>(d));
+    if (h_scratch.size() < static_cast<std::size_t>(n))
+      h_scratch.resize(static_cast<std::size_t>(n));
+    Jet1* xj = x_scratch.data();
+    Jet1* hj = h_scratch.data();
     for (int i = 0; i < d; ++i) {
       xj[i] = Jet1(x[i]);
       xj[i].v[0] = v[i];
