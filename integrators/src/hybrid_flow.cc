@@ -85,6 +85,9 @@ Signs starting_sides(const SegmentModel& model, const Eigen::VectorXd& x0,
   return Signs(n, bits);
 }
 
+// Normal speeds below this fraction of |eta| |F| count as this fast in the grouping window.
+constexpr double kMinGroupingMargin = 1e-2;
+
 struct Event {
   EventRecord record;
   std::optional<JumpMap> jump;
@@ -114,9 +117,16 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
   const double atol = options.integrator.absolute_tolerance();
   const double tol_norm = (atol + rtol * rho.array().abs()).matrix().norm();
   const double time_floor = 16.0 * std::numeric_limits<double>::epsilon() * std::abs(t1);
+  // A crossing slower than kMinGroupingMargin (eta . F below that fraction of |eta| |F|) counts
+  // as that fast: its window stays below 2 grouping_safety / kMinGroupingMargin times the time
+  // the trajectory takes to move by one tolerance, so grouping never flips a side by more than
+  // a bounded number of tolerances early.
+  const double f_norm = f_before.norm();
   const auto sigma = [&](int j) {
-    const double speed = std::abs(dh.row(j).dot(f_before));
-    return dh.row(j).norm() * tol_norm / speed + time_floor;
+    const double normal = dh.row(j).norm();
+    const double speed =
+        std::max(std::abs(dh.row(j).dot(f_before)), kMinGroupingMargin * normal * f_norm);
+    return normal * tol_norm / speed + time_floor;
   };
   // Located crossing times: the backend's roots in the step; else, for a surface approaching,
   // the linearised time to reach it from rho (a tiny extrapolation: only windows are compared).
@@ -151,9 +161,7 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
     double window = 0.0;
     switch (options.grouping) {
       case Grouping::kAutomatic:
-        // A surface met almost tangentially has a huge sigma; the band caps its window.
-        window = std::min(options.grouping_safety * (sigma(j) + sigma_first),
-                          options.near_simultaneity_band * record.automatic_window);
+        window = options.grouping_safety * (sigma(j) + sigma_first);
         break;
       case Grouping::kFixedWindow:
         window = options.simultaneity_window;

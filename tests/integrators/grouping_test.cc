@@ -121,6 +121,24 @@ TEST(GroupingTest, AutomaticWindowScalesWithTheTolerance) {
   EXPECT_NEAR(r.events[0].window, 100 * automatic_window(FlowOptions{}, 1e-7), 1e-15);
 }
 
+// A slow first crossing (eta . F = 1e-4 |eta| |F|) has a large crossing-time uncertainty, but its
+// margin counts as 1e-2 in the window: a second surface 1e-5 later is not flipped with it (a
+// window from the raw margin would be 1.4e-5 and flip it 1e-5 early, a state error of 1e-5,
+// five orders above the tolerance); it is a separate event with a notice.
+TEST(GroupingTest, ASlowCrossingDoesNotStretchTheWindow) {
+  Eigen::MatrixXd delta(2, 4);
+  delta << -1.0 + 1e-4, -0.5, 0.7, -0.3, 0.0, 0.6, -0.4, -0.3;
+  const auto model = adapt(PiecewiseConstantField(delta));
+  const FlowOptions options;
+  const FlowResult r = simulate(model, Eigen::Vector2d(-0.5e-4, -0.5 - 1e-5), 1.0, options);
+  ASSERT_EQ(r.events.size(), 2u);
+  EXPECT_NEAR(r.events[0].margin_before[0], 1e-4, 1e-8);
+  // 2 safety |tol| / (0.01 |F|), |F| = 1 to 5e-9, |tol| = sqrt(2) 1e-10 to 5e-9 (rho_1 = -1e-5).
+  EXPECT_NEAR(r.events[0].automatic_window, 2 * 10 * std::sqrt(2.0) * 1e-10 / 0.01, 1e-9);
+  ASSERT_EQ(r.notices.size(), 1u);
+  EXPECT_NEAR(r.notices[0].gap, 1e-5 / 1.6, 1e-12);
+}
+
 // kNone groups only crossings located at the same time: 1e-12 apart is two events, with a notice.
 TEST(GroupingTest, NoGroupingSplitsAndSaysSo) {
   const auto model = adapt(plane());

@@ -19,8 +19,11 @@
 // reach the integrator's trajectory at times spread by its error: a state error e moves the
 // crossing of surface j by about |Dh_j| |e| / |Dh_j . F|. The automatic policy (the default)
 // measures that uncertainty for every surface at the first crossing rho, t1:
-//     sigma_j = |Dh_j(rho)| |tol(rho)| / |Dh_j(rho) . F(rho)| + 16 eps |t1|,
+//     sigma_j = |Dh_j(rho)| |tol(rho)| / max(|Dh_j(rho) . F(rho)|, 0.01 |Dh_j(rho)| |F(rho)|)
+//               + 16 eps |t1|,
 //     tol_i(rho) = atol + rtol |rho_i|   (Euclidean norm over i),
+// (a crossing slower than 1 % of |Dh_j| |F| counts as that fast, so that no window exceeds
+// 200 grouping_safety times the time the trajectory takes to move by one tolerance)
 // and groups with the first crossing every surface whose LOCATED crossing time t_j (the
 // backend's root in the same step; else the linearised time to reach it from rho) satisfies
 //     t_j - t1 <= window_j = grouping_safety x (sigma_j + max over the first crossing's sigma).
