@@ -1,17 +1,20 @@
 #include "bflow/core/jump_map.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdlib>
+#include <limits>
 #include <new>
+#include <stdexcept>
+#include <string>
 
 #include <sys/mman.h>
-#include <cmath>
-#include <string>
 
 #include <Eigen/SVD>
 
 #include "bflow/core/errors.h"
 #include "bflow/core/triangulation.h"
+#include "scaled_number.h"
 
 namespace bflow {
 
@@ -19,7 +22,15 @@ namespace {
 
 std::string word_str(int n, std::uint64_t bits) { return Signs(n, bits).str(); }
 
-void check_normals(const Eigen::Ref<const Eigen::MatrixXd>& eta) {
+using internal::full_precision;
+using internal::max_exponent;
+using internal::scaled_dot;
+using internal::ScaledNumber;
+
+// Checks the normals and returns them, rows outside 2^-300 ... 2^300 rescaled by powers of two
+// (exactly: positive scaling of a normal does not change B), with the exponents in `shifts`.
+Eigen::MatrixXd working_normals(const Eigen::Ref<const Eigen::MatrixXd>& eta,
+                                std::vector<int>& shifts) {
   const Eigen::Index n = eta.rows();
   const Eigen::Index d = eta.cols();
   if (n < 1 || d < 1) {
@@ -35,17 +46,20 @@ void check_normals(const Eigen::Ref<const Eigen::MatrixXd>& eta) {
                           " surfaces in d = " + std::to_string(d) +
                           " dimensions; at most d surfaces can meet transversally");
   }
+  Eigen::MatrixXd working = eta;
+  Eigen::MatrixXd unit = eta;
+  shifts.assign(static_cast<std::size_t>(n), 0);
   for (Eigen::Index j = 0; j < n; ++j) {
     if (!eta.row(j).allFinite()) {
       throw InvalidArgument("normals: row " + std::to_string(j) +
                             " is not finite: " + format_vector(eta.row(j).transpose()));
     }
-    if (eta.row(j).squaredNorm() == 0.0) {
+    if (eta.row(j).cwiseAbs().maxCoeff() == 0.0) {
       throw InvalidArgument("normals: row " + std::to_string(j) + " is zero");
     }
+    shifts[static_cast<std::size_t>(j)] = internal::rescale_row(working.row(j));
+    internal::normalize_row(unit.row(j));
   }
-  Eigen::MatrixXd unit = eta;
-  for (Eigen::Index j = 0; j < n; ++j) unit.row(j).normalize();
   const Eigen::VectorXd s = Eigen::JacobiSVD<Eigen::MatrixXd>(unit).singularValues();
   if (!(s[n - 1] > JumpMap::kRankTolerance * s[0])) {
     throw InvalidArgument(
@@ -54,6 +68,51 @@ void check_normals(const Eigen::Ref<const Eigen::MatrixXd>& eta) {
         format_vector(s) + ", smallest/largest = " + format_number(s[n - 1] / s[0]) +
         " <= " + format_number(JumpMap::kRankTolerance));
   }
+  return working;
+}
+
+// "3.5", or "about 2^1100" for a value outside the double range.
+std::string format_scaled(const ScaledNumber& x) {
+  const double value = x.to_double();
+  if (full_precision(value)) return format_number(value);
+  return std::string("about ") + (x.sign() < 0 ? "-" : "") + "2^" + std::to_string(x.exponent());
+}
+
+// v = (after - before) / (eta_j . before) for a working row eta_j, the jump vector of one factor of
+// (6.4); g is eta_j . before as a double. When g or the quotient leaves the double range the
+// quotient is taken in scaled form, so that v is right wherever it is representable.
+void jump_vector(const Eigen::Ref<const Eigen::RowVectorXd>& eta_j,
+                 const Eigen::Ref<const Eigen::VectorXd>& before,
+                 const Eigen::Ref<const Eigen::VectorXd>& after, double g,
+                 Eigen::Ref<Eigen::VectorXd> v) {
+  if (g > 0.0 && full_precision(g)) {
+    v = (after - before) / g;
+    if (v.allFinite()) return;
+  }
+  const ScaledNumber scaled_g = scaled_dot(eta_j, before);
+  for (Eigen::Index i = 0; i < v.size(); ++i) {
+    const double difference = after[i] - before[i];
+    const ScaledNumber numerator =
+        std::isfinite(difference)
+            ? ScaledNumber(difference)
+            : ScaledNumber::from_parts(std::ldexp(after[i], -2) - std::ldexp(before[i], -2), 2);
+    v[i] = (numerator / scaled_g).to_double();
+  }
+}
+
+std::string order_text(const std::vector<int>& sigma) {
+  std::string text;
+  for (int j : sigma) text += (text.empty() ? "" : ", ") + std::to_string(j);
+  return "[" + text + "]";
+}
+
+void check_piece(const char* what, const std::vector<int>& sigma,
+                 const Eigen::Ref<const Eigen::MatrixXd>& m) {
+  if (!m.allFinite()) {
+    throw InvalidArgument(std::string(what) + ": M_sigma for sigma = " + order_text(sigma) +
+                          " has entries beyond the double range (about 1.8e308); the field "
+                          "limits differ by too much to represent this piece");
+  }
 }
 
 }  // namespace
@@ -61,9 +120,17 @@ void check_normals(const Eigen::Ref<const Eigen::MatrixXd>& eta) {
 struct JumpMap::Impl {
   int n = 0;
   int d = 0;
-  Eigen::MatrixXd eta;        // n x d
+  Eigen::MatrixXd user_eta;  // n x d, as given
+  // n x d, used by every computation: the rows as given, or rescaled by 2^-shifts[j] when
+  // their entries are beyond 2^+-300.
+  Eigen::MatrixXd eta;
+  std::vector<int> shifts;
   Eigen::MatrixXd gamma;      // d x columns: the table, or the cache slots
-  Eigen::MatrixXd eta_gamma;  // n x columns: eta * gamma, all > 0
+  Eigen::MatrixXd eta_gamma;  // n x columns: eta * gamma
+  Eigen::VectorXd gamma_max;  // max |gamma| per column
+  // Per column: eta_gamma left the double range or lost precision (huge or tiny limits), so
+  // walks through it take the scaled path.
+  std::vector<char> scaled;
   // Lazy source and its cache (open addressing; cleared wholesale when full).
   FieldLimitFunction function;
   std::vector<std::uint64_t> keys;
@@ -75,17 +142,35 @@ struct JumpMap::Impl {
 
   bool lazy() const { return static_cast<bool>(function); }
 
-  void check_transversal(Eigen::Index column, std::uint64_t bits) const {
+  void resize_columns(Eigen::Index columns) {
+    eta_gamma.setZero(n, columns);
+    gamma_max.setZero(columns);
+    scaled.assign(static_cast<std::size_t>(columns), 0);
+  }
+
+  // Fills eta_gamma, gamma_max and scaled for one column and checks transversality there, in
+  // scaled form where the plain product over- or underflows.
+  void prepare_column(Eigen::Index column, std::uint64_t bits) {
+    const auto g = gamma.col(column);
+    eta_gamma.col(column).noalias() = eta * g;
+    gamma_max[column] = g.cwiseAbs().maxCoeff();
+    bool plain = true;
     for (int j = 0; j < n; ++j) {
       const double value = eta_gamma(j, column);
-      if (!(value > 0.0)) {
+      if (value > 0.0 && full_precision(value)) continue;
+      plain = false;
+      const ScaledNumber exact = scaled_dot(eta.row(j), g);
+      if (exact.sign() <= 0) {
         throw InvalidArgument("field_limits: surface " + std::to_string(j) +
                               " is not transversal for word \"" + word_str(n, bits) + "\": eta_" +
                               std::to_string(j) + " . F_" + word_str(n, bits) + " = " +
-                              format_number(value) +
+                              format_scaled(ScaledNumber::from_parts(
+                                  exact.mantissa(), static_cast<long>(exact.exponent()) +
+                                                        shifts[static_cast<std::size_t>(j)])) +
                               " (must be > 0: the flow must cross every surface from - to +)");
       }
     }
+    scaled[static_cast<std::size_t>(column)] = plain ? 0 : 1;
   }
 
   // Column of gamma / eta_gamma holding Gamma(bits). No allocation.
@@ -119,8 +204,7 @@ struct JumpMap::Impl {
       throw InvalidArgument("field_limits: F_" + b.str() +
                             " is not finite: " + format_vector(gamma.col(column)));
     }
-    eta_gamma.col(column).noalias() = eta * gamma.col(column);
-    check_transversal(column, bits);
+    prepare_column(column, bits);
   }
 
   // The full d x 2^n table (evaluating every word for a lazy source).
@@ -138,8 +222,8 @@ struct JumpMap::Impl {
 JumpMap::JumpMap(const Eigen::Ref<const Eigen::MatrixXd>& normals,
                  const Eigen::Ref<const Eigen::MatrixXd>& limits)
     : impl_(std::make_unique<Impl>()) {
-  check_normals(normals);
   Impl& m = *impl_;
+  m.eta = working_normals(normals, m.shifts);
   m.n = static_cast<int>(normals.rows());
   m.d = static_cast<int>(normals.cols());
   if (m.n > kMaxTableSurfaces) {
@@ -159,24 +243,24 @@ JumpMap::JumpMap(const Eigen::Ref<const Eigen::MatrixXd>& normals,
                             " is not finite: " + format_vector(limits.col(w)));
     }
   }
-  m.eta = normals;
+  m.user_eta = normals;
   m.gamma = limits;
-  m.eta_gamma.noalias() = m.eta * m.gamma;
-  for (Eigen::Index w = 0; w < count; ++w) m.check_transversal(w, static_cast<std::uint64_t>(w));
+  m.resize_columns(count);
+  for (Eigen::Index w = 0; w < count; ++w) m.prepare_column(w, static_cast<std::uint64_t>(w));
 }
 
 JumpMap::JumpMap(const Eigen::Ref<const Eigen::MatrixXd>& normals, FieldLimitFunction limits,
                  JumpMapOptions options, LazyTag)
     : impl_(std::make_unique<Impl>()) {
-  check_normals(normals);
+  Impl& m = *impl_;
+  m.eta = working_normals(normals, m.shifts);
   if (!limits) throw InvalidArgument("field_limits: the limit function is empty");
   if (options.cache_words < 0) {
     throw InvalidArgument("cache_words must be >= 0, got " + std::to_string(options.cache_words));
   }
-  Impl& m = *impl_;
   m.n = static_cast<int>(normals.rows());
   m.d = static_cast<int>(normals.cols());
-  m.eta = normals;
+  m.user_eta = normals;
   m.function = std::move(limits);
   // n + 1 words per apply() must fit at once.
   m.capacity = std::max(options.cache_words == 0 ? 8 * (m.n + 1) : options.cache_words, m.n + 1);
@@ -186,51 +270,78 @@ JumpMap::JumpMap(const Eigen::Ref<const Eigen::MatrixXd>& normals, FieldLimitFun
   m.keys.assign(slots, 0);
   m.stamps.assign(slots, 0);
   m.gamma.setZero(m.d, static_cast<Eigen::Index>(slots));
-  m.eta_gamma.setZero(m.n, static_cast<Eigen::Index>(slots));
+  m.resize_columns(static_cast<Eigen::Index>(slots));
 }
 
-JumpMap::JumpMap(const JumpMap& other) : impl_(std::make_unique<Impl>(*other.impl_)) {}
+JumpMap::JumpMap(const JumpMap& other)
+    : impl_(other.impl_ ? std::make_unique<Impl>(*other.impl_) : nullptr) {}
 JumpMap& JumpMap::operator=(const JumpMap& other) {
-  if (this != &other) impl_ = std::make_unique<Impl>(*other.impl_);
+  if (this != &other) impl_ = other.impl_ ? std::make_unique<Impl>(*other.impl_) : nullptr;
   return *this;
 }
 JumpMap::JumpMap(JumpMap&&) noexcept = default;
 JumpMap& JumpMap::operator=(JumpMap&&) noexcept = default;
 JumpMap::~JumpMap() = default;
 
-int JumpMap::surfaces() const { return impl_->n; }
-int JumpMap::dim() const { return impl_->d; }
-const Eigen::MatrixXd& JumpMap::normals() const { return impl_->eta; }
+JumpMap::Impl& JumpMap::impl() const {
+  if (!impl_) {
+    throw std::logic_error(
+        "JumpMap: this object was moved from; assign a JumpMap to it before using it");
+  }
+  return *impl_;
+}
+
+int JumpMap::surfaces() const { return impl().n; }
+int JumpMap::dim() const { return impl().d; }
+const Eigen::MatrixXd& JumpMap::normals() const { return impl().user_eta; }
 
 Eigen::VectorXd JumpMap::limit(Signs b) const {
-  if (b.size() != impl_->n) {
+  Impl& m = impl();
+  if (b.size() != m.n) {
     throw InvalidArgument("limit: word \"" + b.str() + "\" has " + std::to_string(b.size()) +
-                          " surfaces, expected " + std::to_string(impl_->n));
+                          " surfaces, expected " + std::to_string(m.n));
   }
-  return impl_->gamma.col(impl_->fetch(b.bits()));
+  return m.gamma.col(m.fetch(b.bits()));
 }
 
 Eigen::VectorXd JumpMap::transversality(Signs b) const {
-  if (b.size() != impl_->n) {
+  Impl& m = impl();
+  if (b.size() != m.n) {
     throw InvalidArgument("transversality: word \"" + b.str() + "\" has " +
-                          std::to_string(b.size()) + " surfaces, expected " +
-                          std::to_string(impl_->n));
+                          std::to_string(b.size()) + " surfaces, expected " + std::to_string(m.n));
   }
-  return impl_->eta_gamma.col(impl_->fetch(b.bits()));
+  const Eigen::Index column = m.fetch(b.bits());
+  Eigen::VectorXd out(m.n);
+  for (int j = 0; j < m.n; ++j) {
+    const ScaledNumber value = scaled_dot(m.eta.row(j), m.gamma.col(column));
+    out[j] = ScaledNumber::from_parts(value.mantissa(), static_cast<long>(value.exponent()) +
+                                                            m.shifts[static_cast<std::size_t>(j)])
+                 .to_double();
+  }
+  return out;
 }
 
-void JumpMap::walk(const double* dx, double* out, int* order, double* times) const {
+bool JumpMap::walk(const double* dx, double* out, int* order, double* times) const {
   Impl& m = *impl_;
   const int n = m.n;
   double c[Signs::kMaxSurfaces];  // eta_j . (current perturbation), j uncrossed
+  double tau_k[Signs::kMaxSurfaces];
+  int order_k[Signs::kMaxSurfaces];
+  Eigen::Index columns[Signs::kMaxSurfaces + 1];
   Eigen::Map<const Eigen::VectorXd> x(dx, m.d);
   Eigen::Map<Eigen::VectorXd>(c, n).noalias() = m.eta * x;
-  if (out != nullptr && out != dx) Eigen::Map<Eigen::VectorXd>(out, m.d) = x;
-
+  for (int j = 0; j < n; ++j) {
+    if (!full_precision(c[j])) return false;
+  }
+  const std::uint32_t generation = m.generation;
+  // Bound on every partial sum of the image: below it the vector pass cannot overflow.
+  double bound = x.cwiseAbs().maxCoeff();
   std::uint64_t bits = 0;
   double t = 0.0;
   for (int k = 0; k < n; ++k) {
     const Eigen::Index column = m.fetch(bits);
+    if (m.scaled[static_cast<std::size_t>(column)]) return false;
+    columns[k] = column;
     const double* g = m.eta_gamma.col(column).data();
     // Next surface to cross: smallest time, lowest index on exact ties.
     int next = -1;
@@ -243,19 +354,102 @@ void JumpMap::walk(const double* dx, double* out, int* order, double* times) con
         tau = tj;
       }
     }
+    // A subnormal time (fields near 1e308) has lost its relative precision.
+    if (!full_precision(tau)) return false;
     t += tau;
-    if (out != nullptr) Eigen::Map<Eigen::VectorXd>(out, m.d) += tau * m.gamma.col(column);
+    bound += std::abs(tau) * m.gamma_max[column];
     for (int j = 0; j < n; ++j) {
       if (!((bits >> j) & 1u)) c[j] += tau * g[j];
     }
     c[next] = 0.0;
     bits |= std::uint64_t{1} << next;
+    tau_k[k] = tau;
+    order_k[k] = next;
     if (order != nullptr) order[k] = next;
     if (times != nullptr) times[k] = t;
   }
-  if (out != nullptr) {
-    Eigen::Map<Eigen::VectorXd>(out, m.d) -= t * m.gamma.col(m.fetch(bits));
+  columns[n] = m.fetch(bits);
+  if (m.scaled[static_cast<std::size_t>(columns[n])]) return false;
+  bound += std::abs(t) * m.gamma_max[columns[n]];
+  if (!std::isfinite(t) || !(bound < 0.25 * std::numeric_limits<double>::max())) return false;
+  if (out == nullptr) return true;
+  // The vector pass. A full lazy cache may have been cleared during the walk: then the columns
+  // are looked up again (the limits are deterministic, so they refill identically).
+  const bool refetch = generation != m.generation;
+  Eigen::Map<Eigen::VectorXd> image(out, m.d);
+  if (out != dx) image = x;
+  bits = 0;
+  for (int k = 0; k < n; ++k) {
+    image += tau_k[k] * m.gamma.col(refetch ? m.fetch(bits) : columns[k]);
+    bits |= std::uint64_t{1} << order_k[k];
   }
+  image -= t * m.gamma.col(refetch ? m.fetch(bits) : columns[n]);
+  return true;
+}
+
+void JumpMap::walk_scaled(const char* what, const double* dx, double* out, int* order,
+                          double* times) const {
+  Impl& m = *impl_;
+  const int n = m.n;
+  ScaledNumber c[Signs::kMaxSurfaces];
+  ScaledNumber g[Signs::kMaxSurfaces];
+  ScaledNumber tau_k[Signs::kMaxSurfaces];
+  std::uint64_t words[Signs::kMaxSurfaces + 1];
+  const Eigen::Map<const Eigen::VectorXd> x(dx, m.d);
+  for (int j = 0; j < n; ++j) c[j] = scaled_dot(m.eta.row(j), x);
+  std::uint64_t bits = 0;
+  ScaledNumber t;
+  for (int k = 0; k < n; ++k) {
+    words[k] = bits;
+    const Eigen::Index column = m.fetch(bits);
+    int next = -1;
+    ScaledNumber tau;
+    for (int j = 0; j < n; ++j) {
+      if ((bits >> j) & 1u) continue;
+      g[j] = scaled_dot(m.eta.row(j), m.gamma.col(column));
+      const ScaledNumber tj = -c[j] / g[j];
+      if (next < 0 || tj < tau) {
+        next = j;
+        tau = tj;
+      }
+    }
+    t = t + tau;
+    for (int j = 0; j < n; ++j) {
+      if (!((bits >> j) & 1u)) c[j] = c[j] + tau * g[j];
+    }
+    c[next] = ScaledNumber();
+    bits |= std::uint64_t{1} << next;
+    tau_k[k] = tau;
+    if (order != nullptr) order[k] = next;
+    if (times != nullptr) {
+      times[k] = t.to_double();
+      if (!std::isfinite(times[k])) {
+        throw InvalidArgument(std::string(what) + ": the crossing time of surface " +
+                              std::to_string(next) + " is " + format_scaled(t) +
+                              ", beyond the double range (dx is huge against the field limits)");
+      }
+    }
+  }
+  words[n] = bits;
+  if (out == nullptr) return;
+  // Component i of the image is x_i + sum_k tau_k Gamma(b_k)_i - t Gamma(b_n)_i. All are checked
+  // before any is written, so that dx (which out may alias) survives a refusal.
+  const auto component = [&](Eigen::Index i) {
+    ScaledNumber sum(x[i]);
+    for (int k = 0; k < n; ++k) {
+      sum = sum + tau_k[k] * ScaledNumber(m.gamma(i, m.fetch(words[k])));
+    }
+    return sum - t * ScaledNumber(m.gamma(i, m.fetch(words[n])));
+  };
+  for (Eigen::Index i = 0; i < m.d; ++i) {
+    const ScaledNumber value = component(i);
+    if (!std::isfinite(value.to_double())) {
+      throw InvalidArgument(std::string(what) + ": component " + std::to_string(i) +
+                            " of B(dx) is " + format_scaled(value) +
+                            ", beyond the double range (about 1.8e308)");
+    }
+  }
+  for (Eigen::Index i = 0; i < m.d; ++i) out[i] = component(i).to_double();
 }
 
 namespace {
@@ -272,62 +466,60 @@ void check_tangent(const char* what, const Eigen::Ref<const Eigen::VectorXd>& dx
 
 void JumpMap::apply(const Eigen::Ref<const Eigen::VectorXd>& dx,
                     Eigen::Ref<Eigen::VectorXd> out) const {
-  check_tangent("apply", dx, impl_->d);
-  if (out.size() != impl_->d) {
+  const Impl& m = impl();
+  check_tangent("apply", dx, m.d);
+  if (out.size() != m.d) {
     throw InvalidArgument("apply: output has " + std::to_string(out.size()) +
-                          " numbers, expected d = " + std::to_string(impl_->d));
+                          " numbers, expected d = " + std::to_string(m.d));
   }
-  walk(dx.data(), out.data(), nullptr, nullptr);
+  if (!walk(dx.data(), out.data(), nullptr, nullptr)) {
+    walk_scaled("apply", dx.data(), out.data(), nullptr, nullptr);
+  }
 }
 
 Eigen::VectorXd JumpMap::apply(const Eigen::Ref<const Eigen::VectorXd>& dx) const {
-  Eigen::VectorXd out(impl_->d);
+  Eigen::VectorXd out(impl().d);
   apply(dx, out);
   return out;
 }
 
 void JumpMap::apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx,
                           Eigen::Ref<Eigen::MatrixXd> out) const {
-  if (dx.rows() != impl_->d || out.rows() != impl_->d || out.cols() != dx.cols()) {
-    throw InvalidArgument("apply_block: expected d = " + std::to_string(impl_->d) +
+  const Impl& m = impl();
+  if (dx.rows() != m.d || out.rows() != m.d || out.cols() != dx.cols()) {
+    throw InvalidArgument("apply_block: expected d = " + std::to_string(m.d) +
                           " rows in and out and equal columns, got " + std::to_string(dx.rows()) +
                           " x " + std::to_string(dx.cols()) + " -> " + std::to_string(out.rows()) +
                           " x " + std::to_string(out.cols()));
   }
   for (Eigen::Index k = 0; k < dx.cols(); ++k) {
-    check_tangent("apply_block", dx.col(k), impl_->d);
-    walk(dx.col(k).data(), out.col(k).data(), nullptr, nullptr);
+    check_tangent("apply_block", dx.col(k), m.d);
+    if (!walk(dx.col(k).data(), out.col(k).data(), nullptr, nullptr)) {
+      walk_scaled("apply_block", dx.col(k).data(), out.col(k).data(), nullptr, nullptr);
+    }
   }
 }
 
 Eigen::MatrixXd JumpMap::apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx) const {
-  Eigen::MatrixXd out(impl_->d, dx.cols());
+  Eigen::MatrixXd out(impl().d, dx.cols());
   apply_block(dx, out);
   return out;
 }
 
 CrossingOrder JumpMap::order(const Eigen::Ref<const Eigen::VectorXd>& dx) const {
-  check_tangent("order", dx, impl_->d);
+  const Impl& m = impl();
+  check_tangent("order", dx, m.d);
   CrossingOrder result;
-  result.order.resize(static_cast<std::size_t>(impl_->n));
-  result.times.resize(static_cast<std::size_t>(impl_->n));
-  walk(dx.data(), nullptr, result.order.data(), result.times.data());
+  result.order.resize(static_cast<std::size_t>(m.n));
+  result.times.resize(static_cast<std::size_t>(m.n));
+  if (!walk(dx.data(), nullptr, result.order.data(), result.times.data())) {
+    walk_scaled("order", dx.data(), nullptr, result.order.data(), result.times.data());
+  }
   return result;
 }
 
-namespace {
-// One factor of (6.4): M <- (I + v eta_j^T) M with v = (F_after - F_before) / (eta_j . F_before).
-void left_multiply_factor(const Eigen::Ref<const Eigen::RowVectorXd>& eta_j,
-                          const Eigen::Ref<const Eigen::VectorXd>& before,
-                          const Eigen::Ref<const Eigen::VectorXd>& after, double eta_before,
-                          Eigen::MatrixXd& m) {
-  const Eigen::RowVectorXd w = eta_j * m;
-  m.noalias() += ((after - before) / eta_before) * w;
-}
-}  // namespace
-
 Eigen::MatrixXd JumpMap::saltation(const std::vector<int>& sigma) const {
-  Impl& m = *impl_;
+  Impl& m = impl();
   std::uint64_t seen = 0;
   bool valid = static_cast<int>(sigma.size()) == m.n;
   for (std::size_t k = 0; valid && k < sigma.size(); ++k) {
@@ -336,21 +528,25 @@ Eigen::MatrixXd JumpMap::saltation(const std::vector<int>& sigma) const {
     if (valid) seen |= std::uint64_t{1} << j;
   }
   if (!valid) {
-    std::string text;
-    for (int j : sigma) text += (text.empty() ? "" : ", ") + std::to_string(j);
-    throw InvalidArgument("saltation: order [" + text + "] is not a permutation of 0.." +
+    throw InvalidArgument("saltation: order " + order_text(sigma) + " is not a permutation of 0.." +
                           std::to_string(m.n - 1));
   }
+  // One factor of (6.4) per crossing: M <- (I + v eta_j^T) M, v = (F_after - F_before) /
+  // (eta_j . F_before).
   Eigen::MatrixXd result = Eigen::MatrixXd::Identity(m.d, m.d);
   std::uint64_t bits = 0;
   Eigen::VectorXd before = m.gamma.col(m.fetch(bits));
+  Eigen::VectorXd v(m.d);
   for (int j : sigma) {
     const double eta_before = m.eta_gamma(j, m.fetch(bits));
     bits |= std::uint64_t{1} << j;
     const Eigen::VectorXd after = m.gamma.col(m.fetch(bits));
-    left_multiply_factor(m.eta.row(j), before, after, eta_before, result);
+    jump_vector(m.eta.row(j), before, after, eta_before, v);
+    const Eigen::RowVectorXd w = m.eta.row(j) * result;
+    result.noalias() += v * w;
     before = after;
   }
+  check_piece("saltation", sigma, result);
   return result;
 }
 
@@ -401,7 +597,8 @@ class PieceEnumerator {
   void jump_vector(int j, std::uint64_t bits, Eigen::VectorXd& v) const {
     const auto before = static_cast<Eigen::Index>(bits);
     const auto after = static_cast<Eigen::Index>(bits | (std::uint64_t{1} << j));
-    v = (table_.col(after) - table_.col(before)) / eta_table_(j, before);
+    bflow::jump_vector(eta_.row(j), table_.col(before), table_.col(after), eta_table_(j, before),
+                       v);
   }
 
   // leaf = P + v_a w_a^T + v_b w_b^T, column by column (vectorised axpys, no temporaries).
@@ -519,7 +716,7 @@ Eigen::Map<const Eigen::MatrixXd> Pieces::matrix(std::size_t i) const {
 }
 
 Pieces JumpMap::pieces() const {
-  Impl& m = *impl_;
+  Impl& m = impl();
   check_enumerable("pieces", m.n);
   const double count = factorial(m.n);
   const double bytes = count * m.d * m.d * sizeof(double);
@@ -541,29 +738,36 @@ Pieces JumpMap::pieces() const {
                   result.orders_.begin() + static_cast<std::ptrdiff_t>(next * sigma.size()));
         return result.matrices_.get() + next * stride;
       },
-      [&](const std::vector<int>&, const Eigen::Map<const Eigen::MatrixXd>&) { ++next; });
+      [&](const std::vector<int>& sigma, const Eigen::Map<const Eigen::MatrixXd>& matrix) {
+        check_piece("pieces", sigma, matrix);
+        ++next;
+      });
   BFLOW_ASSERT(next == result.size());
   return result;
 }
 
 void JumpMap::for_each_piece(const PieceVisitor& visit) const {
-  Impl& m = *impl_;
+  Impl& m = impl();
   check_enumerable("for_each_piece", m.n);
   const Eigen::MatrixXd table = m.table();
   PieceEnumerator enumerator(m.eta, table);
   Eigen::MatrixXd scratch(m.d, m.d);
-  enumerator.run([&](const std::vector<int>&) { return scratch.data(); },
-                 [&](const std::vector<int>& sigma,
-                     const Eigen::Map<const Eigen::MatrixXd>& matrix) { visit(sigma, matrix); });
+  enumerator.run(
+      [&](const std::vector<int>&) { return scratch.data(); },
+      [&](const std::vector<int>& sigma, const Eigen::Map<const Eigen::MatrixXd>& matrix) {
+        check_piece("for_each_piece", sigma, matrix);
+        visit(sigma, matrix);
+      });
 }
 
 Triangulation JumpMap::triangulation() const {
-  if (impl_->n > kMaxEnumeratedSurfaces) {
+  Impl& m = impl();
+  if (m.n > kMaxEnumeratedSurfaces) {
     throw InvalidArgument(
-        "triangulation: n = " + std::to_string(impl_->n) +
+        "triangulation: n = " + std::to_string(m.n) +
         " surfaces give n! simplices; limited to n <= " + std::to_string(kMaxEnumeratedSurfaces));
   }
-  return Triangulation(impl_->eta, impl_->table());
+  return Triangulation(m.eta, m.table());
 }
 
 }  // namespace bflow

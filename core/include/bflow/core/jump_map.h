@@ -24,6 +24,18 @@
 //
 // Threads. apply(), order(), ... are const but a lazily evaluated Gamma is cached inside the
 // object; use one JumpMap per thread (copies are independent).
+//
+// Range. B does not change when a normal is scaled by a positive number, so rows of eta beyond
+// 2^+-300 are rescaled by an exact power of two: normals of 1e200 or 1e-200 are as good as
+// normals of 1. Quantities that leave the double range on the way while the answer
+// does not (eta . F for limits near 1e308, crossing times below 1e-308, partial sums of the
+// image) are computed with a separate binary exponent, so the result is right wherever it is
+// representable; where the image, a crossing time or a piece itself exceeds the double range,
+// the call throws InvalidArgument saying so. Inputs within about 1e-300 ... 1e300 never take
+// that path and cost nothing extra.
+//
+// Moving. A moved-from JumpMap may be assigned to or destroyed; any other call throws
+// std::logic_error.
 #ifndef BFLOW_CORE_JUMP_MAP_H_
 #define BFLOW_CORE_JUMP_MAP_H_
 
@@ -124,7 +136,7 @@ class JumpMap {
   static constexpr double kRankTolerance = 1e-10;
 
   /** Gamma given as a table: `limits` is d x 2^n, column b.bits() is Gamma(b). Checks every
-      word for transversality.
+      word for transversality (the sign of eta_j . Gamma(b), evaluated without overflow).
       @throws InvalidArgument on empty or mismatched sizes, n > d, n > 64 (or > 24 for a
       table), rank-deficient normals (quoting the singular values), non-finite numbers, or
       eta_j . Gamma(b) <= 0 (quoting j, b and the value). */
@@ -154,12 +166,14 @@ class JumpMap {
   const Eigen::MatrixXd& normals() const;
   /** Gamma(b) = F_b(rho). */
   Eigen::VectorXd limit(Signs b) const;
-  /** eta . Gamma(b) (n numbers, all > 0). */
+  /** eta . Gamma(b) with the normals as given (n numbers, all > 0; +inf where the product
+      exceeds the double range, which the computations of B never form). */
   Eigen::VectorXd transversality(Signs b) const;
 
   /** B(dx) by Algorithm 2.1. O(n d + n^2) time with Gamma cached (O(n^2 d) when each of the
       n + 1 words is evaluated afresh), O(1) extra space, no heap allocation. `out` may alias
-      `dx`. @throws InvalidArgument on a size mismatch or non-finite dx. */
+      `dx`. @throws InvalidArgument on a size mismatch, non-finite dx, or an image beyond the
+      double range (then `out` is not written). */
   void apply(const Eigen::Ref<const Eigen::VectorXd>& dx, Eigen::Ref<Eigen::VectorXd> out) const;
   Eigen::VectorXd apply(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
   /** B applied to each column of a d x k block; no heap allocation. */
@@ -167,11 +181,13 @@ class JumpMap {
                    Eigen::Ref<Eigen::MatrixXd> out) const;
   Eigen::MatrixXd apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx) const;
 
-  /** The order in which dx crosses the surfaces, and when ([B] (6.8)-(6.9)). */
+  /** The order in which dx crosses the surfaces, and when ([B] (6.8)-(6.9)).
+      @throws InvalidArgument when a crossing time exceeds the double range. */
   CrossingOrder order(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
 
   /** M_sigma of [B] (6.4) by n rank-1 updates, O(n d^2); the first crossing is the right-most
-      factor. @throws InvalidArgument unless sigma is a permutation of 0..n-1. */
+      factor. @throws InvalidArgument unless sigma is a permutation of 0..n-1, or when an
+      entry of M_sigma exceeds the double range. */
   Eigen::MatrixXd saltation(const std::vector<int>& sigma) const;
   /** M_sigma for sigma = order(dx): the linear piece active at dx. */
   Eigen::MatrixXd active_jacobian(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
@@ -179,10 +195,12 @@ class JumpMap {
   /** All n! pieces (sigma, M_sigma), sigma in lexicographic order. A common prefix of sigma is
       multiplied once, and the last two factors are applied together as one rank-2 update:
       about 2 e n! d^2 multiply-adds. @throws InvalidArgument for n > kMaxEnumeratedSurfaces or
-      when the result would exceed kMaxPiecesBytes (the message gives n!, d and the bytes). */
+      when the result would exceed kMaxPiecesBytes (the message gives n!, d and the bytes), or
+      when an entry of a piece exceeds the double range. */
   Pieces pieces() const;
   /** The same n! pieces, in the same order, handed to `visit` one at a time without storing
-      them (memory O(n d^2)). @throws InvalidArgument for n > kMaxEnumeratedSurfaces. */
+      them (memory O(n d^2)). @throws InvalidArgument for n > kMaxEnumeratedSurfaces, or
+      before visiting a piece with an entry beyond the double range. */
   void for_each_piece(const PieceVisitor& visit) const;
 
   /** The triangulation of [B] Section 5: an independent representation of B.
@@ -194,9 +212,18 @@ class JumpMap {
   struct LazyTag {};
   JumpMap(const Eigen::Ref<const Eigen::MatrixXd>& normals, FieldLimitFunction limits,
           JumpMapOptions options, LazyTag);
-  // Runs Algorithm 2.1. Writes the image to `out` (if not null) and the order and times (if
-  // not null). No allocation.
-  void walk(const double* dx, double* out, int* order, double* times) const;
+  // The Impl, or std::logic_error for a moved-from object.
+  Impl& impl() const;
+  // Runs Algorithm 2.1 in doubles. Writes the image to `out` (if not null) and the order and
+  // times (if not null). No allocation. Returns false, with `out` untouched, when a quantity
+  // leaves the range where doubles keep full relative precision (limits near 1e308, subnormal
+  // crossing times, an image near overflow): then walk_scaled() gives the answer.
+  bool walk(const double* dx, double* out, int* order, double* times) const;
+  // Algorithm 2.1 with every scalar a number with its own binary exponent: right wherever the
+  // image and the times are representable as doubles; otherwise throws InvalidArgument (`what`
+  // names the caller) without writing `out`.
+  void walk_scaled(const char* what, const double* dx, double* out, int* order,
+                   double* times) const;
   std::unique_ptr<Impl> impl_;
 };
 

@@ -43,19 +43,30 @@ struct BarycentricEvaluation {
   std::vector<int> order;
   /** Coordinates of P_Lperp dx on z-_{sigma({0..k})}, k = 1..n-1 (all >= 0 up to rounding). */
   Eigen::VectorXd coordinates;
+  /** First-order estimate of the rounding error in `image` (max norm): 16 (n + d) eps times
+      the sizes of the terms summed (|dx|, the linear part, sum_k |lambda_k| |z+_k|). Large
+      against |image| when the terms cancel, e.g. dx = (-1, -1e307) mapped to (-1, -1). */
+  double error_estimate = 0.0;
 };
 
 class Triangulation {
  public:
   /** From normals (n x d, oriented, full rank) and the full table of limits (d x 2^n).
-      @throws InvalidArgument on mismatched sizes or n > 10. Transversality and rank are the
-      JumpMap's to check; build through JumpMap::triangulation() for validated input. */
+      Normal rows beyond 2^+-300 and limits whose largest entry lies outside
+      2^-500 ... 2^500 are scaled by a power of two (scale_exponent()), which leaves B unchanged.
+      @throws InvalidArgument on mismatched sizes, n > 10, a zero or non-finite normal,
+      non-finite limits, or vertices that come out non-finite (nearly rank-deficient normals).
+      Transversality is the JumpMap's to check; build through JumpMap::triangulation() for
+      validated input. */
   Triangulation(const Eigen::Ref<const Eigen::MatrixXd>& normals,
                 const Eigen::Ref<const Eigen::MatrixXd>& limits);
 
   int surfaces() const { return static_cast<int>(normals_.rows()); }
   int dim() const { return static_cast<int>(normals_.cols()); }
 
+  /** The limits are used as Gamma * 2^-scale_exponent() (0 unless they are beyond 2^+-500);
+      zeta() and zeta_image() are in that scale. */
+  int scale_exponent() const { return scale_exponent_; }
   /** Z-: column b.bits() is zeta_b ([B] (5.1)), rho = 0. */
   const Eigen::MatrixXd& zeta() const { return zeta_; }
   /** Z+: column b.bits() is zeta_b + F_b ([B] (5.3)). */
@@ -65,14 +76,24 @@ class Triangulation {
   /** Orthonormal basis of the lineality space L, d x (d - n + 1). */
   const Eigen::MatrixXd& lineality_basis() const { return lineality_; }
 
-  /** B restricted to L, applied to the orthogonal projection of dx onto L. */
+  /** B restricted to L, applied to the orthogonal projection of dx onto L.
+      @throws InvalidArgument on a size mismatch, non-finite dx or an image beyond the double
+      range. */
   Eigen::VectorXd apply_linear_part(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
   /** B(dx) through (6.3) + (6.5); the simplex is found by trying all n! cones and taking the
-      one whose smallest barycentric coordinate is largest. O(n! n^2 d). */
+      one whose smallest barycentric coordinate is largest. O(n! n^2 d). A dx beyond 2^+-500 is
+      scaled by a power of two and the image scaled back (B is positively homogeneous).
+      @throws InvalidArgument on a size mismatch, non-finite dx, no cone with finite
+      coordinates, or an image beyond the double range. */
   BarycentricEvaluation apply_barycentric(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
 
  private:
-  Eigen::MatrixXd normals_;
+  // Limits or tangents whose largest entry is beyond 2^+-kScaleThreshold are rescaled.
+  static constexpr int kScaleThreshold = 500;
+  static int tangent_exponent(const Eigen::Ref<const Eigen::VectorXd>& dx);
+  Eigen::VectorXd linear_part(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
+  int scale_exponent_ = 0;
+  Eigen::MatrixXd normals_;  // rows beyond 2^+-300 rescaled by powers of two
   Eigen::MatrixXd limits_;
   Eigen::MatrixXd zeta_;
   Eigen::MatrixXd zeta_image_;
