@@ -103,10 +103,14 @@ std::string scalar_text(const OrderedJson& v) {
 }
 
 void write_json(std::ostream& out, const OrderedJson& v, bool compact) {
+  write_json(out, v, compact, 0);
+}
+
+void write_json(std::ostream& out, const OrderedJson& v, bool compact, int level) {
   if (compact) {
     out << v.dump(-1, ' ', false, OrderedJson::error_handler_t::replace);
   } else {
-    write_pretty(out, v, 0);
+    write_pretty(out, v, level);
   }
 }
 

@@ -28,6 +28,9 @@ std::string scalar_text(const OrderedJson& v);
 /** Indented JSON, but vectors, matrices of at most 16 numbers and objects of at most 4
     numbers or strings on one line; with `compact` one line. No trailing newline. */
 void write_json(std::ostream& out, const OrderedJson& v, bool compact);
+/** As write_json, for a value nested `level` containers deep (its inner lines are indented
+    for that depth), so that a large document can be written piece by piece. */
+void write_json(std::ostream& out, const OrderedJson& v, bool compact, int level);
 
 }  // namespace bflow::cli
 

@@ -52,6 +52,10 @@ class OutputError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// The barycentric image is printed only when its own error estimate is below this fraction of
+// |B(dx)|.
+constexpr double kBarycentricTolerance = 1e-8;
+
 [[noreturn]] void fail(const std::string& field, const std::string& problem) {
   throw InputError(field + ": " + problem);
 }
@@ -342,7 +346,57 @@ OrderedJson words_json(const Eigen::MatrixXd& columns, int n) {
 
 // ---------------------------------------------------------------------------------------------
 
-OrderedJson evaluate(const Json& document) {
+// Bytes of JSON text per number, an upper estimate: the shortest round-trip form of a double
+// has at most 24 characters, plus ", " or an indentation.
+constexpr double kBytesPerNumber = 26.0;
+
+double factorial(int n) {
+  double value = 1.0;
+  for (int k = 2; k <= n; ++k) value *= k;
+  return value;
+}
+
+// An upper estimate of the output's size, from the sizes alone (before anything is computed).
+double estimate_output_bytes(int n, int d, std::size_t tangents, bool pieces, bool triangulation) {
+  const double count = factorial(n);
+  double numbers = static_cast<double>(tangents) * (2.0 * d + 2.0 * n + double(d) * d);
+  double lines = static_cast<double>(tangents) * (d + 8.0);
+  if (pieces) {
+    numbers += count * (n + double(d) * d);
+    lines += count * (d + 6.0);
+  }
+  if (triangulation) {
+    numbers += std::ldexp(2.0 * d, n) + double(d) * (d - n + 1) + count * (n + (n + 1.0) * n);
+    lines += std::ldexp(2.0, n) + d + count * 6.0;
+  }
+  return 256.0 + numbers * kBytesPerNumber + lines * 16.0;
+}
+
+std::string format_bytes(double bytes) {
+  char text[64];
+  if (bytes >= 1024.0 * 1024.0 * 1024.0) {
+    std::snprintf(text, sizeof text, "%.3g GiB", bytes / (1024.0 * 1024.0 * 1024.0));
+  } else {
+    std::snprintf(text, sizeof text, "%.3g MiB", bytes / (1024.0 * 1024.0));
+  }
+  return text;
+}
+
+// The computed result: everything but the pieces as JSON, and the map to stream the pieces from.
+struct Evaluation {
+  OrderedJson head = OrderedJson::object();  // "n", "d", "results"
+  OrderedJson tail = OrderedJson::object();  // "triangulation", if asked
+  std::unique_ptr<JumpMap> jump;
+  bool pieces = false;
+  double estimated_bytes = 0.0;
+};
+
+// A computed quantity the double range cannot hold (the core says "beyond the double range").
+[[noreturn]] void computation_failed(const std::string& field, const InvalidArgument& e) {
+  throw OutputError(with_field(field, e.what()));
+}
+
+Evaluation evaluate(const Json& document, const JumpOptions& options) {
   check_keys(document);
   const Json& normals_json = required(document, "normals");
   const Json& limits_json = required(document, "field_limits");
@@ -355,36 +409,68 @@ OrderedJson evaluate(const Json& document) {
   const std::vector<Eigen::VectorXd> tangents = read_tangents(tangents_json, d);
   const bool want_pieces = read_flag(document, "pieces");
   const bool want_triangulation = read_flag(document, "triangulation");
+  if (want_pieces && n > JumpMap::kMaxEnumeratedSurfaces) {
+    fail("pieces", "n = " + std::to_string(n) +
+                       " surfaces give n! pieces; \"pieces\" is limited "
+                       "to n <= " +
+                       std::to_string(JumpMap::kMaxEnumeratedSurfaces));
+  }
+  if (want_triangulation && n > JumpMap::kMaxEnumeratedSurfaces) {
+    fail("triangulation", "n = " + std::to_string(n) +
+                              " surfaces give n! simplices; "
+                              "\"triangulation\" is limited to n <= " +
+                              std::to_string(JumpMap::kMaxEnumeratedSurfaces));
+  }
+  Evaluation result;
+  result.pieces = want_pieces;
+  result.estimated_bytes =
+      estimate_output_bytes(n, d, tangents.size(), want_pieces, want_triangulation);
+  if (result.estimated_bytes > static_cast<double>(options.max_output_bytes)) {
+    fail(want_pieces          ? "pieces"
+         : want_triangulation ? "triangulation"
+                              : "tangents",
+         "the output would be about " + format_bytes(result.estimated_bytes) +
+             " (n = " + std::to_string(n) + ", d = " + std::to_string(d) +
+             ", n! = " + format_number(factorial(n)) + "), above the limit of " +
+             format_bytes(static_cast<double>(options.max_output_bytes)) +
+             "; raise it with --max-output-bytes or ask for less");
+  }
 
-  std::unique_ptr<JumpMap> jump;
   try {
-    jump = std::make_unique<JumpMap>(eta, limits);
+    result.jump = std::make_unique<JumpMap>(eta, limits);
   } catch (const InvalidArgument& e) {
     // The core names "normals" or "field_limits" itself.
     const std::string message = e.what();
     throw InputError(message.rfind("normals:", 0) == 0 ? message
                                                        : with_field("field_limits", message));
   }
+  const JumpMap& jump = *result.jump;
 
   std::unique_ptr<Triangulation> triangulation;
   if (want_triangulation) {
     try {
-      triangulation = std::make_unique<Triangulation>(jump->triangulation());
+      triangulation = std::make_unique<Triangulation>(jump.triangulation());
     } catch (const InvalidArgument& e) {
-      throw InputError(with_field("triangulation", e.what()));
+      computation_failed("triangulation", e);
     }
   }
 
-  OrderedJson result = OrderedJson::object();
-  result["n"] = n;
-  result["d"] = d;
+  result.head["n"] = n;
+  result.head["d"] = d;
   OrderedJson results = OrderedJson::array();
   for (std::size_t k = 0; k < tangents.size(); ++k) {
     const std::string name = "results[" + std::to_string(k) + "]";
     const Eigen::VectorXd& dx = tangents[k];
-    const Eigen::VectorXd image = jump->apply(dx);
-    const CrossingOrder order = jump->order(dx);
-    const Eigen::MatrixXd jacobian = jump->active_jacobian(dx);
+    Eigen::VectorXd image;
+    CrossingOrder order;
+    Eigen::MatrixXd jacobian;
+    try {
+      image = jump.apply(dx);
+      order = jump.order(dx);
+      jacobian = jump.active_jacobian(dx);
+    } catch (const InvalidArgument& e) {
+      computation_failed("tangents[" + std::to_string(k) + "]", e);
+    }
     const Eigen::Map<const Eigen::VectorXd> times(order.times.data(),
                                                   static_cast<Eigen::Index>(order.times.size()));
     check_finite(image, name, "image");
@@ -396,31 +482,39 @@ OrderedJson evaluate(const Json& document) {
     item["crossing_times"] = vector_json(times);
     item["jacobian"] = rows_json(jacobian);
     if (triangulation) {
-      const Eigen::VectorXd barycentric = triangulation->apply_barycentric(dx).image;
-      check_finite(barycentric, name, "barycentric_image");
-      item["barycentric_image"] = vector_json(barycentric);
+      BarycentricEvaluation barycentric;
+      try {
+        barycentric = triangulation->apply_barycentric(dx);
+      } catch (const InvalidArgument& e) {
+        computation_failed("tangents[" + std::to_string(k) + "]: barycentric_image", e);
+      }
+      // The triangulation's own estimate of its rounding error: when its terms cancel (a dx of
+      // 1e307 mapped to 1) the barycentric image says nothing, and printing it would mislead.
+      if (!(barycentric.error_estimate <=
+            kBarycentricTolerance * image.lpNorm<Eigen::Infinity>())) {
+        throw OutputError(
+            "tangents[" + std::to_string(k) +
+            "]: barycentric_image: the triangulation cannot evaluate this tangent in double "
+            "precision (its error estimate " +
+            format_number(barycentric.error_estimate) +
+            " against |B(dx)| = " + format_number(image.lpNorm<Eigen::Infinity>()) +
+            ": its terms cancel); drop \"triangulation\" or rescale the data");
+      }
+      check_finite(barycentric.image, name, "barycentric_image");
+      item["barycentric_image"] = vector_json(barycentric.image);
     }
     results.push_back(std::move(item));
   }
-  result["results"] = std::move(results);
+  result.head["results"] = std::move(results);
 
   if (want_pieces) {
-    std::optional<Pieces> pieces;
+    // Every piece is computed once before anything is written, so that a piece beyond the
+    // double range is refused with nothing on stdout; then streamed again while writing.
     try {
-      pieces.emplace(jump->pieces());
+      jump.for_each_piece([](const std::vector<int>&, const Eigen::Ref<const Eigen::MatrixXd>&) {});
     } catch (const InvalidArgument& e) {
-      throw InputError(with_field("pieces", e.what()));
+      computation_failed("pieces", e);
     }
-    OrderedJson list = OrderedJson::array();
-    for (std::size_t k = 0; k < pieces->size(); ++k) {
-      const Piece piece = (*pieces)[k];
-      check_finite(piece.matrix, "pieces[" + std::to_string(k) + "]", "matrix");
-      OrderedJson item = OrderedJson::object();
-      item["order"] = piece.order;
-      item["matrix"] = rows_json(piece.matrix);
-      list.push_back(std::move(item));
-    }
-    result["pieces"] = std::move(list);
   }
 
   if (triangulation) {
@@ -437,24 +531,68 @@ OrderedJson evaluate(const Json& document) {
       simplices.push_back(std::move(item));
     }
     OrderedJson t = OrderedJson::object();
+    if (triangulation->scale_exponent() != 0) t["scale_exponent"] = triangulation->scale_exponent();
     t["zeta"] = words_json(triangulation->zeta(), n);
     t["zeta_image"] = words_json(triangulation->zeta_image(), n);
     t["lineality_basis"] = columns_json(triangulation->lineality_basis());
     t["simplices"] = std::move(simplices);
-    result["triangulation"] = std::move(t);
+    result.tail["triangulation"] = std::move(t);
   }
   return result;
 }
 
+// Writes the top-level object key by key, the pieces one at a time in between: the same text
+// as formatting the whole document at once, without ever holding the n! pieces.
+void write_evaluation(std::ostream& out, const Evaluation& e, bool compact) {
+  bool first = true;
+  const auto key = [&](const char* name) {
+    out << (first ? "" : (compact ? "," : ",\n")) << (compact ? "" : "  ") << '"' << name << '"'
+        << (compact ? ":" : ": ");
+    first = false;
+  };
+  out << (compact ? "{" : "{\n");
+  for (auto it = e.head.begin(); it != e.head.end(); ++it) {
+    key(it.key().c_str());
+    write_json(out, it.value(), compact, 1);
+  }
+  if (e.pieces) {
+    key("pieces");
+    out << (compact ? "[" : "[\n");
+    bool first_piece = true;
+    e.jump->for_each_piece(
+        [&](const std::vector<int>& sigma, const Eigen::Ref<const Eigen::MatrixXd>& matrix) {
+          OrderedJson item = OrderedJson::object();
+          item["order"] = sigma;
+          item["matrix"] = rows_json(matrix);
+          out << (first_piece ? "" : (compact ? "," : ",\n")) << (compact ? "" : "    ");
+          write_json(out, item, compact, 2);
+          first_piece = false;
+        });
+    out << (compact ? "]" : "\n  ]");
+  }
+  for (auto it = e.tail.begin(); it != e.tail.end(); ++it) {
+    key(it.key().c_str());
+    write_json(out, it.value(), compact, 1);
+  }
+  out << (compact ? "}" : "\n}") << '\n';
+}
+
+// Outputs up to this size are formatted in memory first, so that a failure leaves stdout empty;
+// larger ones (only n! pieces get there) are written as they are formatted.
+constexpr double kBufferedOutputBytes = 16.0 * 1024 * 1024;
+
 int run_jump_text(const std::string& text, std::ostream& out, std::ostream& err,
                   const JumpOptions& options) {
   try {
-    const OrderedJson result = evaluate(parse_document(text));
-    // Everything is formatted before anything is written: no partial JSON on failure.
-    std::ostringstream buffer;
-    write_json(buffer, result, options.compact);
-    buffer << '\n';
-    out << buffer.str() << std::flush;
+    const Evaluation evaluation = evaluate(parse_document(text), options);
+    if (evaluation.estimated_bytes <= kBufferedOutputBytes) {
+      std::ostringstream buffer;
+      write_evaluation(buffer, evaluation, options.compact);
+      out << buffer.str();
+    } else {
+      write_evaluation(out, evaluation, options.compact);
+    }
+    out << std::flush;
     if (!out) {
       report_error(err, "output: cannot write the result");
       return kExitFailure;
@@ -478,18 +616,39 @@ int run_jump_text(const std::string& text, std::ostream& out, std::ostream& err,
   }
 }
 
+// Reads at most `limit` bytes; false (with a message) when there are more or reading fails.
+bool read_capped(std::istream& in, long long limit, const std::string& what, std::string& text,
+                 std::ostream& err) {
+  char buffer[1 << 16];
+  while (in) {
+    in.read(buffer, sizeof buffer);
+    const std::streamsize got = in.gcount();
+    if (got <= 0) break;
+    text.append(buffer, static_cast<std::size_t>(got));
+    if (static_cast<long long>(text.size()) > limit) {
+      report_error(err, "input: " + what + " is longer than " + std::to_string(limit) +
+                            " bytes (--max-input-bytes " + std::to_string(limit) +
+                            "); raise the limit for a larger document");
+      return false;
+    }
+  }
+  if (in.bad()) {
+    report_error(err, "input: cannot read " + what);
+    return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 int run_jump(std::istream& in, std::ostream& out, std::ostream& err, const JumpOptions& options) {
   std::string text;
   try {
-    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    if (!read_capped(in, options.max_input_bytes, "the standard input", text, err)) {
+      return kExitBadInput;
+    }
   } catch (const std::exception& e) {
     report_error(err, std::string("input: cannot read: ") + e.what());
-    return kExitBadInput;
-  }
-  if (in.bad()) {
-    report_error(err, "input: cannot read the standard input");
     return kExitBadInput;
   }
   return run_jump_text(text, out, err, options);
@@ -497,6 +656,12 @@ int run_jump(std::istream& in, std::ostream& out, std::ostream& err, const JumpO
 
 int run_jump_file(const std::string& path, std::istream& stdin_stream, std::ostream& out,
                   std::ostream& err, const JumpOptions& options) {
+  if (options.max_input_bytes < 1 || options.max_output_bytes < 1) {
+    report_error(err, "--max-input-bytes and --max-output-bytes must be positive, got " +
+                          std::to_string(options.max_input_bytes) + " and " +
+                          std::to_string(options.max_output_bytes));
+    return kExitBadInput;
+  }
   if (path == "-") return run_jump(stdin_stream, out, err, options);
   std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"), std::fclose);
   if (!file) {
@@ -506,7 +671,16 @@ int run_jump_file(const std::string& path, std::istream& stdin_stream, std::ostr
   std::string text;
   char buffer[1 << 16];
   std::size_t got = 0;
-  while ((got = std::fread(buffer, 1, sizeof buffer, file.get())) > 0) text.append(buffer, got);
+  while ((got = std::fread(buffer, 1, sizeof buffer, file.get())) > 0) {
+    text.append(buffer, got);
+    if (static_cast<long long>(text.size()) > options.max_input_bytes) {
+      report_error(err, "input: " + quote(path, 200) + " is longer than " +
+                            std::to_string(options.max_input_bytes) + " bytes (--max-input-bytes " +
+                            std::to_string(options.max_input_bytes) +
+                            "); raise the limit for a larger document");
+      return kExitBadInput;
+    }
+  }
   if (std::ferror(file.get())) {
     report_error(err, "input: cannot read " + quote(path, 200) + ": " + std::strerror(errno));
     return kExitBadInput;

@@ -334,7 +334,12 @@ bool JumpMap::walk(const double* dx, double* out, int* order, double* times) con
     if (!full_precision(c[j])) return false;
   }
   const std::uint32_t generation = m.generation;
-  // Bound on every partial sum of the image: below it the vector pass cannot overflow.
+  // With a separate output the image is formed during the walk (a fallback still finds dx
+  // intact); when out aliases dx it is formed afterwards, from the times and columns kept.
+  const bool inline_image = out != nullptr && out != dx;
+  Eigen::Map<Eigen::VectorXd> image(out, out == nullptr ? 0 : m.d);
+  if (inline_image) image = x;
+  // Bound on every partial sum of the image: below it no sum can overflow.
   double bound = x.cwiseAbs().maxCoeff();
   std::uint64_t bits = 0;
   double t = 0.0;
@@ -358,6 +363,7 @@ bool JumpMap::walk(const double* dx, double* out, int* order, double* times) con
     if (!full_precision(tau)) return false;
     t += tau;
     bound += std::abs(tau) * m.gamma_max[column];
+    if (inline_image) image += tau * m.gamma.col(column);
     for (int j = 0; j < n; ++j) {
       if (!((bits >> j) & 1u)) c[j] += tau * g[j];
     }
@@ -373,17 +379,18 @@ bool JumpMap::walk(const double* dx, double* out, int* order, double* times) con
   bound += std::abs(t) * m.gamma_max[columns[n]];
   if (!std::isfinite(t) || !(bound < 0.25 * std::numeric_limits<double>::max())) return false;
   if (out == nullptr) return true;
-  // The vector pass. A full lazy cache may have been cleared during the walk: then the columns
-  // are looked up again (the limits are deterministic, so they refill identically).
-  const bool refetch = generation != m.generation;
-  Eigen::Map<Eigen::VectorXd> image(out, m.d);
-  if (out != dx) image = x;
-  bits = 0;
-  for (int k = 0; k < n; ++k) {
-    image += tau_k[k] * m.gamma.col(refetch ? m.fetch(bits) : columns[k]);
-    bits |= std::uint64_t{1} << order_k[k];
+  if (!inline_image) {
+    // A full lazy cache may have been cleared during the walk: then the columns are looked up
+    // again (the limits are deterministic, so they refill identically).
+    const bool refetch = generation != m.generation;
+    bits = 0;
+    for (int k = 0; k < n; ++k) {
+      image += tau_k[k] * m.gamma.col(refetch ? m.fetch(bits) : columns[k]);
+      bits |= std::uint64_t{1} << order_k[k];
+    }
+    columns[n] = refetch ? m.fetch(bits) : columns[n];
   }
-  image -= t * m.gamma.col(refetch ? m.fetch(bits) : columns[n]);
+  image -= t * m.gamma.col(columns[n]);
   return true;
 }
 
