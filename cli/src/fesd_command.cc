@@ -1,8 +1,12 @@
 // `bflow fesd`: FESD simulation of a built-in Filippov example (format in docs/cli.md).
+#include <algorithm>
 #include <cmath>
 #include <ctime>
 #include <exception>
+#include <new>
 #include <ostream>
+#include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -12,6 +16,7 @@
 #include "bflow/core/filippov.h"
 #include "bflow/examples/irma.h"
 #include "bflow/examples/switching_cases.h"
+#include "bflow/integrators/butcher.h"
 #include "bflow/integrators/fesd.h"
 #include "cli_commands.h"
 #include "cli_json.h"
@@ -38,20 +43,27 @@ std::string example_list() {
   return names;
 }
 
-FesdResult simulate_example(const std::string& name, double t_end, const FesdOptions& o) {
+// Calls f(model, x0) with the example's model and initial state.
+template <typename F>
+auto with_example(const std::string& name, F&& f) {
   if (name == "irma") {
-    return fesd_simulate(adapt_step(examples::Irma{}), examples::Irma::initial_state(), t_end, o);
+    return f(adapt_step(examples::Irma{}), Eigen::VectorXd(examples::Irma::initial_state()));
   }
   const examples::SwitchingCaseSolution exact = examples::exact_switching_case(name);
-  if (name == "crossing")
-    return fesd_simulate(adapt_step(examples::CrossingCase{}), exact.x0, t_end, o);
-  if (name == "sliding-enter") {
-    return fesd_simulate(adapt_step(examples::SlidingEnterCase{}), exact.x0, t_end, o);
-  }
-  if (name == "sliding-leave") {
-    return fesd_simulate(adapt_step(examples::SlidingLeaveCase{}), exact.x0, t_end, o);
-  }
-  return fesd_simulate(adapt_step(examples::SpontaneousCase{}), exact.x0, t_end, o);
+  if (name == "crossing") return f(adapt_step(examples::CrossingCase{}), exact.x0);
+  if (name == "sliding-enter") return f(adapt_step(examples::SlidingEnterCase{}), exact.x0);
+  if (name == "sliding-leave") return f(adapt_step(examples::SlidingLeaveCase{}), exact.x0);
+  return f(adapt_step(examples::SpontaneousCase{}), exact.x0);
+}
+
+// Bad input; the message starts with the option. Exit code 2.
+class OptionError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+[[noreturn]] void fail(const std::string& option, const std::string& problem) {
+  throw OptionError(option + ": " + problem);
 }
 
 int switches_of(const std::string& name) { return name == "irma" ? examples::Irma::kSwitches : 1; }
@@ -64,6 +76,47 @@ OrderedJson size_json(const DcsSize& s) {
   j["n_comp"] = s.complementarity;
   j["n_eq"] = s.equalities;
   return j;
+}
+
+// The JSON and its newline in one write (a failed write is detected where the command ends).
+void write_result(std::ostream& out, const OrderedJson& j, bool compact) {
+  std::ostringstream buffer;
+  write_json(buffer, j, compact);
+  buffer << '\n';
+  out << buffer.str() << std::flush;
+}
+
+// Every range the library would check, checked here first so that the message names the option
+// the user typed.
+void check_ranges(const FesdCommandOptions& options, DcsFormulation formulation) {
+  if (options.stages < 1 || options.stages > kMaxCollocationStages) {
+    fail("--stages", "the number of Runge-Kutta stages must be in [1, " +
+                         std::to_string(kMaxCollocationStages) + "], got " +
+                         std::to_string(options.stages));
+  }
+  if (options.nfe < 1) {
+    fail("--nfe", "the number of finite elements per integration step must be >= 1, got " +
+                      std::to_string(options.nfe));
+  }
+  if (options.nsim && *options.nsim < 1) {
+    fail("--nsim",
+         "the number of integration steps must be >= 1, got " + std::to_string(*options.nsim));
+  }
+  if (options.t && !(*options.t > 0.0 && std::isfinite(*options.t))) {
+    fail("--T", "the horizon must be finite and > 0, got " + format_number(*options.t));
+  }
+  // From max(2, n_c) on every depth gives the same products (theta without beta).
+  const int deepest = std::max(2, switches_of(options.example));
+  if (options.lifting != 0 && (options.lifting < 2 || options.lifting > deepest)) {
+    const std::string depths = deepest == 2 ? "2" : "in [2, " + std::to_string(deepest) + "]";
+    fail("--lifting", "the lifting depth must be 0 (none) or " + depths + " for " +
+                          options.example + " (larger depths are the same as " +
+                          std::to_string(deepest) + "), got " + std::to_string(options.lifting));
+  }
+  if (formulation == DcsFormulation::kStewart && options.lifting != 0) {
+    fail("--lifting", "a lifting depth (" + std::to_string(options.lifting) +
+                          ") applies to --formulation step only, not stewart");
+  }
 }
 
 }  // namespace
@@ -93,69 +146,110 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
       report_error(err, std::string("--scheme: ") + e.what());
       return kExitBadInput;
     }
-    if (options.sizes) {
-      // [F] Table 4 for the example's n_c switching functions, every base region a mode.
-      const SignMatrix s = SignMatrix::dense(switches_of(options.example));
-      OrderedJson j;
-      j["example"] = options.example;
-      j["n_c"] = s.switches();
-      j["stewart"] = size_json(dcs_size(s, DcsFormulation::kStewart));
-      j["step"] = size_json(dcs_size(s, DcsFormulation::kStep, options.lifting));
-      write_json(out, j, options.compact);
-      out << '\n';
-      return kExitOk;
-    }
+    check_ranges(options, formulation);
+    const int nsim = options.nsim.value_or(example->steps);
+    const double t_end = options.t.value_or(example->t_end);
     FesdOptions o;
     o.scheme = scheme;
     o.stages = options.stages;
     o.elements = options.nfe;
-    o.steps = options.nsim > 0 ? options.nsim : example->steps;
+    o.steps = nsim;
     o.standard = options.standard;
     o.formulation = formulation;
     o.lifting_depth = options.lifting;
     o.exact_hessian = options.exact_hessian;
-    const double t_end = options.t > 0 ? options.t : example->t_end;
-    const std::clock_t start = std::clock();
-    FesdResult r;
-    try {
-      r = simulate_example(options.example, t_end, o);
-    } catch (const InvalidArgument& e) {
-      report_error(err, std::string("fesd: ") + e.what());
-      return kExitBadInput;
+    // The library refuses the same sizes (naming N_FE and N_sim); here with the options' names.
+    const FesdProblemSize size =
+        with_example(options.example, [&](const StepModel& model, const Eigen::VectorXd&) {
+          return fesd_problem_size(model, o);
+        });
+    if (const std::string excess = size.step_excess(); !excess.empty()) {
+      fail("--nfe", std::to_string(options.nfe) + " finite elements of " +
+                        std::to_string(options.stages) + " stages give " + excess +
+                        " (see docs/fesd.md)");
     }
-    const double cpu = static_cast<double>(std::clock() - start) / CLOCKS_PER_SEC;
+    if (const std::string excess = size.run_excess(); !excess.empty()) {
+      fail("--nsim", std::to_string(nsim) + " integration steps of " + std::to_string(options.nfe) +
+                         " finite elements give " + excess + " (see docs/fesd.md)");
+    }
+
     OrderedJson j;
-    j["x_T"] = vector_json(r.x_end);
-    j["switch_times"] = r.switch_times;
-    j["steps"] = o.steps;
-    j["max_complementarity"] = r.max_complementarity;
-    j["cpu_seconds"] = cpu;
-    j["formulation"] = to_string(formulation);
-    j["nlp_iterations"] = r.nlp_iterations;
-    j["newton_steps"] = r.newton_steps;
-    // Steps IPOPT accepted only at its acceptable level with complementarity above sigma_final
-    // (the message then names the first).
-    j["acceptable_only"] = r.acceptable_only;
-    j["acceptable_only_steps"] = r.acceptable_only_steps;
-    if (r.sensitivity.size() > 0) j["sensitivity"] = rows_json(r.sensitivity);
-    if (!r.ok() || !r.message.empty()) {
-      j["status"] = to_string(r.status);
-      j["message"] = r.message;
+    if (options.sizes) {
+      // [F] Table 4 for the example's n_c switching functions, every base region a mode.
+      const SignMatrix s = SignMatrix::dense(switches_of(options.example));
+      j["example"] = options.example;
+      j["n_c"] = s.switches();
+      j["stewart"] = size_json(dcs_size(s, DcsFormulation::kStewart));
+      j["step"] = size_json(dcs_size(s, DcsFormulation::kStep, options.lifting));
+      OrderedJson nlp;
+      nlp["formulation"] = to_string(formulation);
+      nlp["lifting"] = options.lifting;
+      nlp["scheme"] = to_string(scheme);
+      nlp["stages"] = options.stages;
+      nlp["nfe"] = options.nfe;
+      nlp["unknowns"] = size.unknowns;
+      nlp["constraints"] = size.constraints;
+      nlp["jacobian_nonzeros"] = size.jacobian_nonzeros;
+      if (options.exact_hessian) nlp["hessian_nonzeros_bound"] = size.hessian_nonzeros;
+      j["nlp"] = nlp;
+    } else {
+      const std::clock_t start = std::clock();
+      const FesdResult r =
+          with_example(options.example, [&](const StepModel& model, const Eigen::VectorXd& x0) {
+            return fesd_simulate(model, x0, t_end, o);
+          });
+      const double cpu = static_cast<double>(std::clock() - start) / CLOCKS_PER_SEC;
+      j["T"] = t_end;
+      j["nsim"] = nsim;
+      j["x_T"] = vector_json(r.x_end);
+      j["switch_times"] = r.switch_times;
+      j["steps"] = o.steps;
+      j["max_complementarity"] = r.max_complementarity;
+      j["cpu_seconds"] = cpu;
+      j["formulation"] = to_string(formulation);
+      j["nlp_iterations"] = r.nlp_iterations;
+      j["newton_steps"] = r.newton_steps;
+      // Steps IPOPT accepted only at its acceptable level with complementarity above
+      // sigma_final (the message then names the first).
+      j["acceptable_only"] = r.acceptable_only;
+      j["acceptable_only_steps"] = r.acceptable_only_steps;
+      if (r.sensitivity.size() > 0) j["sensitivity"] = rows_json(r.sensitivity);
+      if (!r.ok() || !r.message.empty()) {
+        j["status"] = to_string(r.status);
+        j["message"] = r.message;
+      }
+      // The partial record of a failed run: x_T is the state where it stopped.
+      if (!r.ok()) j["t_reached"] = r.grid.back();
+      if (options.trajectory) {
+        OrderedJson t;
+        t["t"] = r.grid;
+        t["x"] = columns_json(r.states);
+        t["h"] = r.step_sizes;
+        t["active_sets"] = r.active_sets;
+        j["trajectory"] = t;
+      }
+      write_result(out, j, options.compact);
+      if (!r.ok()) {
+        report_error(err, with_field("fesd", r.message));
+        return kExitFailure;
+      }
+      if (r.acceptable_only) err << "warning: " << one_line(with_field("fesd", r.message)) << '\n';
+      return kExitOk;
     }
-    if (options.trajectory) {
-      OrderedJson t;
-      t["t"] = r.grid;
-      t["x"] = columns_json(r.states);
-      t["h"] = r.step_sizes;
-      t["active_sets"] = r.active_sets;
-      j["trajectory"] = t;
-    }
-    write_json(out, j, options.compact);
-    out << '\n';
-    if (r.ok() && r.acceptable_only) err << "warning: " << one_line(r.message) << '\n';
-    return r.ok() ? kExitOk : kExitFailure;
+    write_result(out, j, options.compact);
+    return kExitOk;
+  } catch (const OptionError& e) {
+    report_error(err, e.what());
+    return kExitBadInput;
+  } catch (const InvalidArgument& e) {
+    // What the library rejects that no option decides (the messages start with "fesd:").
+    report_error(err, with_field("fesd", e.what()));
+    return kExitBadInput;
+  } catch (const std::bad_alloc&) {
+    report_error(err, "fesd: out of memory");
+    return kExitFailure;
   } catch (const std::exception& e) {
-    report_error(err, std::string("internal: ") + e.what());
+    report_error(err, std::string("fesd: internal: ") + e.what());
     return kExitFailure;
   }
 }

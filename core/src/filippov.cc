@@ -1,6 +1,7 @@
 #include "bflow/core/filippov.h"
 
 #include <algorithm>
+#include <cstdint>
 #include <map>
 
 #include "bflow/core/errors.h"
@@ -87,7 +88,8 @@ SignMatrix::SignMatrix(Eigen::MatrixXi s, std::vector<int> mode_of_row)
 }
 
 bool SignMatrix::is_dense() const {
-  if (rows() != (1 << switches()) || modes_ != rows()) return false;
+  // rows() is an int: 2^n_c rows cannot exist from n_c = 31 on (and the shift would overflow).
+  if (switches() >= 31 || rows() != (1 << switches()) || modes_ != rows()) return false;
   return (s_.array() != 0).all();  // no two rows overlap, so 2^n_c full rows are all patterns
 }
 
@@ -154,7 +156,7 @@ DcsFormulation parse_dcs_formulation(const std::string& text) {
 
 DcsSize dcs_size(const SignMatrix& s, DcsFormulation formulation, int lifting_depth) {
   DcsSize size;
-  const int n_c = s.switches();
+  const std::int64_t n_c = s.switches();
   if (formulation == DcsFormulation::kStewart) {
     if (!s.is_dense()) {
       throw InvalidArgument(
@@ -163,7 +165,7 @@ DcsSize dcs_size(const SignMatrix& s, DcsFormulation formulation, int lifting_de
           std::to_string(s.rows()) + " rows for " + std::to_string(n_c) +
           " switching functions and " + std::to_string(s.modes()) + " modes");
     }
-    size.modes = 1 << n_c;
+    size.modes = std::int64_t{1} << n_c;
     size.algebraic = 2 * size.modes + 1;  // theta, lambda, mu
     size.complementarity = size.modes;
     size.equalities = size.modes + 1;
@@ -173,6 +175,32 @@ DcsSize dcs_size(const SignMatrix& s, DcsFormulation formulation, int lifting_de
   size.lifting = s.lifting_variables(lifting_depth);
   size.algebraic = size.modes + 3 * n_c + size.lifting;  // theta, alpha, lambda+, lambda-, beta
   size.complementarity = 2 * n_c;
+  size.equalities = n_c + size.lifting + size.modes;
+  return size;
+}
+
+DcsSize dcs_size_dense(int n_c, DcsFormulation formulation, int lifting_depth) {
+  if (n_c < 1 || n_c > kMaxTable4Switches) {
+    throw InvalidArgument("dcs_size_dense: need 1 <= n_c <= " + std::to_string(kMaxTable4Switches) +
+                          " switching functions, got " + std::to_string(n_c));
+  }
+  if (lifting_depth == 1) {
+    throw InvalidArgument("lifting depth n_d must be >= 2 (or 0 for none), got 1");
+  }
+  DcsSize size;
+  size.modes = std::int64_t{1} << n_c;
+  if (formulation == DcsFormulation::kStewart) {
+    size.algebraic = 2 * size.modes + 1;
+    size.complementarity = size.modes;
+    size.equalities = size.modes + 1;
+    return size;
+  }
+  // One beta per distinct prefix of length j after each column j = n_d .. n_c - 1 (1-based).
+  if (lifting_depth >= 2 && lifting_depth < n_c) {
+    size.lifting = size.modes - (std::int64_t{1} << lifting_depth);
+  }
+  size.algebraic = size.modes + 3 * std::int64_t{n_c} + size.lifting;
+  size.complementarity = 2 * std::int64_t{n_c};
   size.equalities = n_c + size.lifting + size.modes;
   return size;
 }

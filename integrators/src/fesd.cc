@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
+#include <cstdio>
 #include <deque>
 #include <limits>
 #include <map>
@@ -55,6 +57,8 @@ struct Layout {
   int off_x = 0, off_z = 0, block = 0;
   int equalities = 0;  // per element
   int local = 0;
+  // fesd_problem_size()'s counts, checked against the structures built from this layout.
+  std::int64_t jacobian_nonzeros = 0, hessian_nonzeros_bound = 0;
 
   Layout(const PointDcs& point, int states, int switches, const ButcherTableau& tableau, int n_fe)
       : dcs(&point), d(states), nc(switches), s(tableau.stages), elements(n_fe) {
@@ -251,6 +255,8 @@ class StepNlp final : public Ipopt::TNLP {
       jac_rows_.push_back(l_.elements * l_.rows_per_element());
       jac_cols_.push_back(l_.var(n, 0));
     }
+    BFLOW_ASSERT(static_cast<std::int64_t>(jac_rows_.size()) == l_.jacobian_nonzeros);
+    BFLOW_ASSERT(static_cast<std::int64_t>(hess_rows_.size()) <= l_.hessian_nonzeros_bound);
   }
 
   void set_sigma(double sigma) { sigma_ = sigma; }
@@ -938,10 +944,6 @@ void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorX
   if (!(t_end > 0.0) || !std::isfinite(t_end)) {
     throw InvalidArgument("fesd: T must be finite and > 0, got " + format_number(t_end));
   }
-  if (o.elements < 1 || o.steps < 1) {
-    throw InvalidArgument("fesd: need N_FE >= 1 and N_sim >= 1, got N_FE = " +
-                          std::to_string(o.elements) + ", N_sim = " + std::to_string(o.steps));
-  }
   if (!(o.sigma_initial > 0.0) || !(o.sigma_final > 0.0) || o.sigma_final > o.sigma_initial ||
       !(o.sigma_factor > 0.0 && o.sigma_factor < 1.0)) {
     throw InvalidArgument(
@@ -949,6 +951,14 @@ void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorX
         "got sigma_initial = " +
         format_number(o.sigma_initial) + ", sigma_final = " + format_number(o.sigma_final) +
         ", sigma_factor = " + format_number(o.sigma_factor));
+  }
+}
+
+// The options that decide the problem's shape.
+void check_structure(const StepModel& model, const FesdOptions& o) {
+  if (o.elements < 1 || o.steps < 1) {
+    throw InvalidArgument("fesd: need N_FE >= 1 and N_sim >= 1, got N_FE = " +
+                          std::to_string(o.elements) + ", N_sim = " + std::to_string(o.steps));
   }
   if (o.lifting_depth == 1 || o.lifting_depth < 0) {
     throw InvalidArgument("fesd: the lifting depth n_d must be 0 (none) or >= 2, got " +
@@ -964,6 +974,33 @@ void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorX
                           std::to_string(model.switches()) + " is more than " +
                           std::to_string(kMaxStewartSwitches) + " (use the step formulation)");
   }
+}
+
+// Non-negative counts that saturate at the largest std::int64_t instead of overflowing.
+constexpr std::int64_t kMaxCount = std::numeric_limits<std::int64_t>::max();
+std::int64_t add(std::int64_t a, std::int64_t b) { return a > kMaxCount - b ? kMaxCount : a + b; }
+std::int64_t mul(std::int64_t a, std::int64_t b) {
+  if (a == 0 || b == 0) return 0;
+  return a > kMaxCount / b ? kMaxCount : a * b;
+}
+// k (k + 1) / 2: the lower triangle of a k x k block.
+std::int64_t triangle(std::int64_t k) {
+  return k % 2 == 0 ? mul(k / 2, add(k, 1)) : mul(k, add(k, 1) / 2);
+}
+
+std::string count_text(std::int64_t count) {
+  return count == kMaxCount ? "more than " + std::to_string(kMaxCount - 1) : std::to_string(count);
+}
+
+std::string bytes_text(double bytes) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.2g", bytes);
+  return buffer;
+}
+
+std::string memory_limit_text() {
+  return "above the limit of 4 GiB = " +
+         std::to_string(static_cast<std::int64_t>(kFesdMaxMemoryBytes)) + " bytes";
 }
 
 // The caller's IPOPT options, after bflow's.
@@ -989,12 +1026,115 @@ void apply_user_options(Ipopt::IpoptApplication& app, const FesdOptions& options
 
 }  // namespace
 
+static_assert(std::numeric_limits<Ipopt::Index>::max() == kFesdMaxIndex,
+              "kFesdMaxIndex must be the largest value of IPOPT's Index");
+
+std::string FesdProblemSize::step_excess() const {
+  const std::string index_limit = ", above IPOPT's limit of " + std::to_string(kFesdMaxIndex);
+  if (unknowns > kFesdMaxIndex) {
+    return count_text(unknowns) + " NLP unknowns per integration step" + index_limit;
+  }
+  if (constraints > kFesdMaxIndex) {
+    return count_text(constraints) + " NLP constraints per integration step" + index_limit;
+  }
+  if (jacobian_nonzeros > kFesdMaxIndex) {
+    return count_text(jacobian_nonzeros) + " Jacobian nonzeros per integration step" + index_limit;
+  }
+  if (hessian_nonzeros > kFesdMaxIndex) {
+    return "up to " + count_text(hessian_nonzeros) + " Hessian nonzeros per integration step" +
+           index_limit;
+  }
+  if (!(step_bytes <= kFesdMaxMemoryBytes)) {
+    return std::to_string(unknowns) + " NLP unknowns per integration step, needing about " +
+           bytes_text(step_bytes) + " bytes, " + memory_limit_text();
+  }
+  return "";
+}
+
+std::string FesdProblemSize::run_excess() const {
+  if (step_bytes + run_bytes <= kFesdMaxMemoryBytes) return "";
+  return count_text(total_elements) + " finite elements in all, needing about " +
+         bytes_text(step_bytes + run_bytes) + " bytes, " + memory_limit_text();
+}
+
+FesdProblemSize fesd_problem_size(const StepModel& model, const FesdOptions& options) {
+  check_structure(model, options);
+  const ButcherTableau tab = collocation_tableau(options.scheme, options.stages);
+  const int n_c = model.switches();
+  FesdProblemSize size;
+  if (options.formulation == DcsFormulation::kStewart || options.lifting_depth != 0) {
+    // [F] Table 4: the lifted step and Stewart's point DCS (fesd_dcs.h) are exactly its sizes.
+    const SignMatrix* signs = model.sign_matrix();
+    const DcsSize table = options.formulation == DcsFormulation::kStewart
+                              ? dcs_size_dense(n_c, DcsFormulation::kStewart)
+                          : signs != nullptr
+                              ? dcs_size(*signs, DcsFormulation::kStep, options.lifting_depth)
+                              : dcs_size_dense(n_c, DcsFormulation::kStep, options.lifting_depth);
+    size.point_variables = table.algebraic;
+    size.point_equalities = table.equalities;
+    size.point_pairs = table.complementarity;
+  } else {
+    // The step DCS with theta eliminated: a, lambda^p, lambda^n; c = lambda^p - lambda^n.
+    size.point_variables = 3 * std::int64_t{n_c};
+    size.point_equalities = n_c;
+    size.point_pairs = 2 * std::int64_t{n_c};
+  }
+  const std::int64_t d = model.states(), s = tab.stages, n_fe = options.elements;
+  size.points = s + (tab.stiffly_accurate() ? 0 : 1);
+  // Layout: per element [h | X_1..X_s | x_{n+1} | z of every point]; its rows the collocation
+  // and end equations, the algebraic equalities and one aggregated product per pair.
+  const std::int64_t block = add(1 + (s + 1) * d, mul(size.points, size.point_variables));
+  const std::int64_t rows =
+      add(add((s + 1) * d, mul(size.points, size.point_equalities)), size.point_pairs);
+  // Inputs of element n >= 1: the previous end x_n and its last point's v of every pair.
+  const std::int64_t local = add(d + size.point_pairs, block);
+  size.unknowns = mul(n_fe, block);
+  size.constraints = add(mul(n_fe, rows), 1);
+  size.jacobian_nonzeros =
+      add(add(mul(rows, block), mul(n_fe - 1, mul(rows, local))), n_fe);  // + the row sum h
+  if (options.exact_hessian) {
+    // Each equilibration term: h_{n-1}, h_n, the pairs' v at n - 1's start, z of n - 1 and n.
+    const std::int64_t term = add(2 + size.point_pairs, mul(2 * size.points, size.point_variables));
+    size.hessian_nonzeros =
+        add(add(triangle(block), mul(n_fe - 1, triangle(local))), mul(n_fe - 1, triangle(term)));
+  }
+  size.total_elements = mul(options.steps, n_fe);
+  const double unknowns = static_cast<double>(size.unknowns);
+  const bool dense = (options.newton && !options.standard) || options.sensitivities;
+  size.step_bytes = (dense ? 16.0 * unknowns * unknowns : 0.0) +
+                    24.0 * static_cast<double>(size.jacobian_nonzeros) +
+                    80.0 * static_cast<double>(size.hessian_nonzeros) +
+                    200.0 * (unknowns + static_cast<double>(size.constraints));
+  size.run_bytes = static_cast<double>(size.total_elements) *
+                       (96.0 + 16.0 * static_cast<double>(d) + 4.0 * n_c) +
+                   16.0 * options.steps;
+  return size;
+}
+
 FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
                          double t_end, const FesdOptions& options) {
   check_options(model, x0, t_end, options);
+  // Every size is checked before anything of the problem is allocated.
+  const FesdProblemSize size = fesd_problem_size(model, options);
+  if (const std::string excess = size.step_excess(); !excess.empty()) {
+    throw InvalidArgument("fesd: N_FE = " + std::to_string(options.elements) +
+                          " finite elements of n_s = " + std::to_string(options.stages) +
+                          " stages give " + excess + " (see docs/fesd.md)");
+  }
+  if (const std::string excess = size.run_excess(); !excess.empty()) {
+    throw InvalidArgument("fesd: N_sim = " + std::to_string(options.steps) +
+                          " integration steps of N_FE = " + std::to_string(options.elements) +
+                          " finite elements give " + excess + " (see docs/fesd.md)");
+  }
   const ButcherTableau tab = collocation_tableau(options.scheme, options.stages);
   const PointDcs dcs(model, options.formulation, options.lifting_depth);
-  const Layout l(dcs, model.states(), model.switches(), tab, options.elements);
+  Layout l(dcs, model.states(), model.switches(), tab, options.elements);
+  // The closed forms against the layout (its int sizes cannot overflow within kFesdMaxIndex).
+  BFLOW_ASSERT(l.nz == size.point_variables && l.neq == size.point_equalities &&
+               l.npairs == size.point_pairs && l.points == size.points);
+  BFLOW_ASSERT(l.variables() == size.unknowns && l.constraints() == size.constraints);
+  l.jacobian_nonzeros = size.jacobian_nonzeros;
+  l.hessian_nonzeros_bound = size.hessian_nonzeros;
   const double step = t_end / options.steps;
   // Active-set decisions: a complementarity variable counts as zero below this.
   // A complementarity variable counts as zero below this: with products <= sigma_final, the zero

@@ -1,4 +1,6 @@
 // `bflow fesd` in-process: the JSON of a run against the exact solution, Table 4, bad options.
+#include <cstdint>
+#include <limits>
 #include <sstream>
 #include <string>
 
@@ -79,16 +81,155 @@ TEST(FesdCommandTest, BadOptionsAreNamed) {
   EXPECT_THAT(err.str(), ::testing::StartsWith("error: --scheme: unknown collocation scheme"));
   err.str("");
   o.scheme = "radau";
-  o.stages = 0;
-  EXPECT_EQ(run_fesd(o, out, err), kExitBadInput);
-  EXPECT_THAT(err.str(), ::testing::HasSubstr("stages must be in [1, 9], got 0"));
-  err.str("");
-  o.stages = 2;
   o.formulation = "stewart";
-  o.lifting = 3;
+  o.lifting = 2;
   EXPECT_EQ(run_fesd(o, out, err), kExitBadInput);
-  EXPECT_THAT(err.str(), ::testing::HasSubstr("applies to the step formulation only"));
+  EXPECT_EQ(err.str(),
+            "error: --lifting: a lifting depth (2) applies to --formulation step only, not "
+            "stewart\n");
   EXPECT_TRUE(out.str().empty());
+}
+
+// Each option out of range, given in-process: exit code 2, exactly this line, nothing on stdout.
+// The same from the command line: the bflow_cli_fesd_* tests (tests/cli/CMakeLists.txt).
+TEST(FesdCommandTest, OptionsOutOfRangeAreRefusedWithTheirValues) {
+  struct Case {
+    void (*set)(FesdCommandOptions&);
+    const char* line;
+  };
+  const Case cases[] = {
+      {[](FesdCommandOptions& o) { o.t = -1.0; },
+       "error: --T: the horizon must be finite and > 0, got -1"},
+      {[](FesdCommandOptions& o) { o.t = 0.0; },
+       "error: --T: the horizon must be finite and > 0, got 0"},
+      {[](FesdCommandOptions& o) { o.t = std::numeric_limits<double>::quiet_NaN(); },
+       "error: --T: the horizon must be finite and > 0, got nan"},
+      {[](FesdCommandOptions& o) { o.t = std::numeric_limits<double>::infinity(); },
+       "error: --T: the horizon must be finite and > 0, got inf"},
+      {[](FesdCommandOptions& o) { o.nsim = 0; },
+       "error: --nsim: the number of integration steps must be >= 1, got 0"},
+      {[](FesdCommandOptions& o) { o.nsim = -5; },
+       "error: --nsim: the number of integration steps must be >= 1, got -5"},
+      {[](FesdCommandOptions& o) { o.lifting = -7; },
+       "error: --lifting: the lifting depth must be 0 (none) or 2 for crossing (larger depths "
+       "are the same as 2), got -7"},
+      {[](FesdCommandOptions& o) {
+         o.lifting = -7;
+         o.sizes = true;
+       },
+       "error: --lifting: the lifting depth must be 0 (none) or 2 for crossing (larger depths "
+       "are the same as 2), got -7"},
+      {[](FesdCommandOptions& o) { o.lifting = 1; },
+       "error: --lifting: the lifting depth must be 0 (none) or 2 for crossing (larger depths "
+       "are the same as 2), got 1"},
+      {[](FesdCommandOptions& o) { o.stages = 0; },
+       "error: --stages: the number of Runge-Kutta stages must be in [1, 9], got 0"},
+      {[](FesdCommandOptions& o) { o.stages = 10; },
+       "error: --stages: the number of Runge-Kutta stages must be in [1, 9], got 10"},
+      {[](FesdCommandOptions& o) { o.nfe = 0; },
+       "error: --nfe: the number of finite elements per integration step must be >= 1, got 0"},
+      {[](FesdCommandOptions& o) { o.nfe = -1; },
+       "error: --nfe: the number of finite elements per integration step must be >= 1, got -1"},
+      // 10 unknowns per element (d = 1, n_c = 1, Radau IIA 2): 10 N_FE.
+      {[](FesdCommandOptions& o) { o.nfe = 1073741824; },
+       "error: --nfe: 1073741824 finite elements of 2 stages give 10737418240 NLP unknowns per "
+       "integration step, above IPOPT's limit of 2147483647 (see docs/fesd.md)"},
+      {[](FesdCommandOptions& o) {
+         o.nfe = 1073741824;
+         o.sizes = true;
+       },
+       "error: --nfe: 1073741824 finite elements of 2 stages give 10737418240 NLP unknowns per "
+       "integration step, above IPOPT's limit of 2147483647 (see docs/fesd.md)"},
+      {[](FesdCommandOptions& o) { o.nfe = 2147483647; },
+       "error: --nfe: 2147483647 finite elements of 2 stages give 21474836470 NLP unknowns per "
+       "integration step, above IPOPT's limit of 2147483647 (see docs/fesd.md)"},
+      // 9 stages: 1 + 10 + 9 * 3 = 38 unknowns per element.
+      {[](FesdCommandOptions& o) {
+         o.nfe = 1073741824;
+         o.stages = 9;
+       },
+       "error: --nfe: 1073741824 finite elements of 9 stages give 40802189312 NLP unknowns per "
+       "integration step, above IPOPT's limit of 2147483647 (see docs/fesd.md)"},
+      // Within IPOPT's Index, but the dense Newton Jacobian alone would be 2.3 GB.
+      {[](FesdCommandOptions& o) { o.nfe = 1700; },
+       "error: --nfe: 1700 finite elements of 2 stages give 17000 NLP unknowns per integration "
+       "step, needing about 4.6e+09 bytes, above the limit of 4 GiB = 4294967296 bytes (see "
+       "docs/fesd.md)"},
+      {[](FesdCommandOptions& o) { o.nsim = 2147483647; },
+       "error: --nsim: 2147483647 integration steps of 3 finite elements give 6442450941 finite "
+       "elements in all, needing about 7.8e+11 bytes, above the limit of 4 GiB = 4294967296 "
+       "bytes (see docs/fesd.md)"},
+  };
+  for (const Case& c : cases) {
+    FesdCommandOptions o;
+    o.example = "crossing";
+    c.set(o);
+    std::ostringstream out, err;
+    EXPECT_EQ(run_fesd(o, out, err), kExitBadInput) << c.line;
+    EXPECT_EQ(err.str(), std::string(c.line) + "\n");
+    EXPECT_EQ(out.str(), "");
+  }
+}
+
+TEST(FesdCommandTest, TheHorizonAndStepsUsedAreEchoed) {
+  FesdCommandOptions o;
+  o.example = "sliding-leave";  // defaults T = 2, N_sim = 4
+  std::ostringstream out, err;
+  ASSERT_EQ(run_fesd(o, out, err), kExitOk) << err.str();
+  auto j = nlohmann::json::parse(out.str());
+  EXPECT_EQ(j["T"].get<double>(), 2.0);
+  EXPECT_EQ(j["nsim"].get<int>(), 4);
+  EXPECT_EQ(out.str().rfind("{\n  \"T\": 2.0,\n  \"nsim\": 4,\n  \"x_T\": ", 0), 0u) << out.str();
+  o.example = "crossing";
+  o.t = 0.5;
+  o.nsim = 2;
+  out.str("");
+  ASSERT_EQ(run_fesd(o, out, err), kExitOk) << err.str();
+  j = nlohmann::json::parse(out.str());
+  EXPECT_EQ(j["T"].get<double>(), 0.5);
+  EXPECT_EQ(j["nsim"].get<int>(), 2);
+  // x' = 3 from -1 until the switch at t = 1/3, then x' = 1: x(0.5) = 1/6.
+  EXPECT_NEAR(j["x_T"][0].get<double>(), 1.0 / 6.0, 1e-14);
+}
+
+TEST(FesdCommandTest, SizesIncludeOneStepsNlp) {
+  FesdCommandOptions o;
+  o.example = "crossing";
+  o.sizes = true;
+  std::ostringstream out, err;
+  ASSERT_EQ(run_fesd(o, out, err), kExitOk) << err.str();
+  const auto j = nlohmann::json::parse(out.str());
+  // 3 elements of 10 unknowns and 7 rows, 92 N - 21 Jacobian nonzeros (fesd_limits_test.cc).
+  EXPECT_EQ(j["nlp"]["unknowns"].get<std::int64_t>(), 30);
+  EXPECT_EQ(j["nlp"]["constraints"].get<std::int64_t>(), 22);
+  EXPECT_EQ(j["nlp"]["jacobian_nonzeros"].get<std::int64_t>(), 92 * 3 - 21);
+}
+
+// IRMA in one integration step of one element of implicit Euler (Radau IIA 1) crosses several
+// surfaces at once: no guess fits, IPOPT's homotopy fails, the step is halved 4 times and the run
+// stops at t = 25 (measured; about 3 s). The JSON is the partial record, stderr one line.
+TEST(FesdCommandTest, AFailedStepPrintsThePartialRecordAndOneErrorLine) {
+  FesdCommandOptions o;
+  o.example = "irma";
+  o.nfe = 1;
+  o.nsim = 1;
+  o.stages = 1;
+  o.compact = true;
+  std::ostringstream out, err;
+  EXPECT_EQ(run_fesd(o, out, err), kExitFailure);
+  const std::string line = err.str();
+  EXPECT_THAT(line, ::testing::StartsWith("error: fesd: the integration step at t = "));
+  EXPECT_THAT(line, ::testing::HasSubstr("did not converge"));
+  EXPECT_EQ(line.find("fesd: fesd:"), std::string::npos);
+  EXPECT_EQ(line.find('\n'), line.size() - 1);  // exactly one line
+  const auto j = nlohmann::json::parse(out.str());
+  EXPECT_EQ(j["T"].get<double>(), 100.0);
+  EXPECT_EQ(j["nsim"].get<int>(), 1);
+  EXPECT_EQ(j["status"].get<std::string>(), "step failed");
+  EXPECT_EQ("error: " + j["message"].get<std::string>() + "\n", line);
+  EXPECT_GT(j["t_reached"].get<double>(), 0.0);
+  EXPECT_LT(j["t_reached"].get<double>(), 100.0);
+  EXPECT_EQ(j["x_T"].size(), 5u);
 }
 
 }  // namespace

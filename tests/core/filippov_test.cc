@@ -97,6 +97,46 @@ TEST(SignMatrixTest, LiftingCountsAndTable4) {
   EXPECT_EQ(step.equalities, 4 + 12 + 16);
 }
 
+// Table 4 in closed form: equal to the counts of the built S up to n_c = 12, and exact in 64 bits
+// beyond 2^31, where S cannot be built (2^40 rows).
+TEST(SignMatrixTest, Table4ClosedFormMatchesTheSignMatrixAndHoldsAbove2To31) {
+  for (int n_c = 1; n_c <= 12; ++n_c) {
+    const SignMatrix s = SignMatrix::dense(n_c);
+    for (int depth : {0, 2, 3, n_c - 1, n_c, n_c + 1}) {
+      if (depth == 1) continue;
+      for (DcsFormulation f : {DcsFormulation::kStep, DcsFormulation::kStewart}) {
+        const int d = f == DcsFormulation::kStewart ? 0 : depth;
+        const DcsSize built = dcs_size(s, f, d), closed = dcs_size_dense(n_c, f, d);
+        EXPECT_EQ(closed.modes, built.modes) << n_c << " " << d;
+        EXPECT_EQ(closed.lifting, built.lifting) << n_c << " " << d;
+        EXPECT_EQ(closed.algebraic, built.algebraic) << n_c << " " << d;
+        EXPECT_EQ(closed.complementarity, built.complementarity) << n_c << " " << d;
+        EXPECT_EQ(closed.equalities, built.equalities) << n_c << " " << d;
+      }
+    }
+  }
+  // n_c = 40, n_d = 2: n_f = 2^40 = 1099511627776, n_beta = 2^40 - 4.
+  const DcsSize step = dcs_size_dense(40, DcsFormulation::kStep, 2);
+  EXPECT_EQ(step.modes, 1099511627776);
+  EXPECT_EQ(step.lifting, 1099511627772);
+  EXPECT_EQ(step.algebraic, 2199023255668);  // 2^40 + 3 * 40 + 2^40 - 4
+  EXPECT_EQ(step.complementarity, 80);
+  EXPECT_EQ(step.equalities, 2199023255588);  // 40 + (2^40 - 4) + 2^40
+  const DcsSize stewart = dcs_size_dense(40, DcsFormulation::kStewart);
+  EXPECT_EQ(stewart.algebraic, 2199023255553);  // 2^41 + 1
+  EXPECT_EQ(stewart.complementarity, 1099511627776);
+  EXPECT_EQ(stewart.equalities, 1099511627777);
+  EXPECT_EQ(dcs_size_dense(kMaxTable4Switches, DcsFormulation::kStewart).algebraic,
+            4611686018427387905);  // 2^62 + 1
+  using bflow::testing::message_of;
+  EXPECT_EQ(message_of([] { dcs_size_dense(62, DcsFormulation::kStep); }),
+            "dcs_size_dense: need 1 <= n_c <= 61 switching functions, got 62");
+  EXPECT_EQ(message_of([] { dcs_size_dense(0, DcsFormulation::kStep); }),
+            "dcs_size_dense: need 1 <= n_c <= 61 switching functions, got 0");
+  EXPECT_EQ(message_of([] { dcs_size_dense(5, DcsFormulation::kStep, 1); }),
+            "lifting depth n_d must be >= 2 (or 0 for none), got 1");
+}
+
 // [F] Example 5: n_c = 3, n_d = 2 gives beta_1..4 = the four products of (a_1 | 1 - a_1) and
 // (a_2 | 1 - a_2), and theta_i = beta_k times (a_3 | 1 - a_3).
 TEST(SignMatrixTest, LiftingOfExample5IsBilinear) {

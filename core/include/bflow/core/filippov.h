@@ -21,6 +21,7 @@
 #ifndef BFLOW_CORE_FILIPPOV_H_
 #define BFLOW_CORE_FILIPPOV_H_
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -133,18 +134,33 @@ const char* to_string(DcsFormulation formulation);
 /** "step" or "stewart". @throws InvalidArgument naming the text. */
 DcsFormulation parse_dcs_formulation(const std::string& text);
 
-/** Per-stage algebraic problem size of a DCS ([F] Table 4). */
+/** Per-stage algebraic problem size of a DCS ([F] Table 4), in 64 bits: the closed forms grow
+    like 2^n_c. */
 struct DcsSize {
-  int modes = 0;            ///< n_f
-  int lifting = 0;          ///< n_beta
-  int algebraic = 0;        ///< n_alg
-  int complementarity = 0;  ///< n_comp
-  int equalities = 0;       ///< n_eq
+  std::int64_t modes = 0;            ///< n_f
+  std::int64_t lifting = 0;          ///< n_beta
+  std::int64_t algebraic = 0;        ///< n_alg
+  std::int64_t complementarity = 0;  ///< n_comp
+  std::int64_t equalities = 0;       ///< n_eq
 };
 
 /** Table 4 for S: Stewart needs is_dense(); step uses S's own n_f and lifting depth n_d
     (0 = no lifting). @throws InvalidArgument for Stewart on a non-dense S or n_d == 1. */
 DcsSize dcs_size(const SignMatrix& s, DcsFormulation formulation, int lifting_depth = 0);
+
+/** The largest n_c dcs_size_dense() takes: every size of Table 4 then fits in std::int64_t
+    (Stewart's n_alg = 2^(n_c + 1) + 1 <= 2^62 + 1). */
+inline constexpr int kMaxTable4Switches = 61;
+
+/** Table 4 in closed form for the dense S of n_c switching functions (every base region a mode),
+    without building S: equal to dcs_size(SignMatrix::dense(n_c), ...) where that exists
+    (n_c <= 16), and defined up to kMaxTable4Switches. With n_f = 2^n_c:
+      Stewart  n_alg = 2 n_f + 1, n_comp = n_f, n_eq = n_f + 1;
+      step     n_beta = 2^n_c - 2^n_d (2 <= n_d < n_c, else 0), n_alg = n_f + 3 n_c + n_beta,
+               n_comp = 2 n_c, n_eq = n_c + n_beta + n_f.
+    E.g. n_c = 40, n_d = 2: n_beta = 1099511627772, n_alg = 2199023255668.
+    @throws InvalidArgument unless 1 <= n_c <= kMaxTable4Switches, or for n_d == 1. */
+DcsSize dcs_size_dense(int n_c, DcsFormulation formulation, int lifting_depth = 0);
 
 }  // namespace bflow
 

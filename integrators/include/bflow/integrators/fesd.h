@@ -48,6 +48,8 @@
 #ifndef BFLOW_INTEGRATORS_FESD_H_
 #define BFLOW_INTEGRATORS_FESD_H_
 
+#include <cstdint>
+#include <limits>
 #include <memory>
 #include <string>
 #include <type_traits>
@@ -199,9 +201,11 @@ struct EventDrivenView {
 
 struct FesdOptions {
   CollocationScheme scheme = CollocationScheme::kRadauIIA;
-  int stages = 2;         ///< n_s, 1..9
-  int elements = 3;       ///< N_FE per integration step
-  int steps = 1;          ///< N_sim integration steps over [0, T]
+  int stages = 2;  ///< n_s, 1..9
+  /** N_FE per integration step, >= 1; with N_sim bounded by kFesdMaxIndex and
+      kFesdMaxMemoryBytes through fesd_problem_size(). */
+  int elements = 3;
+  int steps = 1;          ///< N_sim integration steps over [0, T], >= 1
   bool standard = false;  ///< standard time-stepping (34): fixed h, no switch detection
   /** The DCS discretised: the Heaviside step DCS (22) or Stewart's (28) on the 2^n_c base
       regions (modes f(x, vertex); equal to the step inclusion for f multi-affine in a). */
@@ -283,8 +287,68 @@ struct FesdResult {
   bool ok() const { return status == FesdStatus::kConverged; }
 };
 
+/** IPOPT's Index is an int: the unknowns, constraints and Jacobian and Hessian nonzeros of one
+    integration step's NLP must each be at most this (2147483647). */
+inline constexpr std::int64_t kFesdMaxIndex = std::numeric_limits<int>::max();
+
+/** The most memory a run may need by FesdProblemSize's estimate (4 GiB = 4294967296 bytes). The
+    dense Newton and sensitivity systems of a step (about 16 unknowns^2 bytes) reach it first:
+    with Radau IIA 2, N_FE = 1636 is the most for a scalar model with one switching function
+    (10 unknowns per element), N_FE = 281 for IRMA (58 per element). */
+inline constexpr double kFesdMaxMemoryBytes = 4294967296.0;
+
+/** The size of the problem fesd_simulate builds, in 64 bits, from the model's dimensions and
+    the options alone (nothing is allocated). Per collocation point: `point_variables` z,
+    `point_equalities` and `point_pairs` complementarity pairs, which are [F] Table 4's n_alg,
+    n_eq and n_comp for the lifted step and Stewart's formulation (dcs_size; the unlifted step
+    eliminates theta: 3 n_c, n_c, 2 n_c); `points` per element is n_s, or n_s + 1 for
+    Gauss-Legendre. One integration step's NLP (N_FE elements, d states) has
+      unknowns    = N_FE (1 + (n_s + 1) d + points point_variables),
+      constraints = N_FE (rows) + 1,  rows = (n_s + 1) d + points point_equalities + point_pairs,
+      jacobian_nonzeros = rows (1 + (n_s + 1) d + points point_variables)
+                          + (N_FE - 1) rows (d + point_pairs + 1 + (n_s + 1) d
+                                             + points point_variables) + N_FE.
+    A count that would pass 2^63 - 1 saturates there (far above every limit). */
+struct FesdProblemSize {
+  std::int64_t point_variables = 0;
+  std::int64_t point_equalities = 0;
+  std::int64_t point_pairs = 0;
+  std::int64_t points = 0;
+  std::int64_t unknowns = 0;
+  std::int64_t constraints = 0;
+  std::int64_t jacobian_nonzeros = 0;
+  /** With exact_hessian: an upper bound on the lower triangle's nonzeros (the element and
+      equilibration blocks, counted as if they did not overlap); else 0. */
+  std::int64_t hessian_nonzeros = 0;
+  /** N_sim N_FE: the elements of the whole run (before any step is halved). */
+  std::int64_t total_elements = 0;
+  /** Estimated bytes of one step: the dense Newton and sensitivity Jacobians and their
+      factors (16 unknowns^2, when options.newton or options.sensitivities), 24 per Jacobian
+      nonzero (bflow's and IPOPT's triplets), 80 per Hessian nonzero (its position map) and
+      200 per unknown and constraint (IPOPT's vectors). The linear solver's fill-in comes on top. */
+  double step_bytes = 0.0;
+  /** Estimated bytes of the run's results: per element its grid time, length, state and active
+      set (48 + 8 d + 4 n_c), per integration step 16. */
+  double run_bytes = 0.0;
+
+  /** "" when one step is within kFesdMaxIndex and kFesdMaxMemoryBytes, else the first size
+      over its limit with both numbers, e.g. "10737418240 NLP unknowns per integration step,
+      above IPOPT's limit of 2147483647". */
+  std::string step_excess() const;
+  /** "" when step_bytes + run_bytes <= kFesdMaxMemoryBytes, else both numbers. */
+  std::string run_excess() const;
+};
+
+/** The problem size of fesd_simulate(model, x0, T, options) (no x0 or T needed).
+    @throws InvalidArgument for options that have no size (N_FE or N_sim < 1, stages outside
+    [1, 9], a lifting depth of 1 or < 0, lifting with Stewart's formulation, Stewart with more
+    than 10 switching functions), quoting the values. */
+FesdProblemSize fesd_problem_size(const StepModel& model, const FesdOptions& options);
+
 /** Integrates x' in f(x, a) from x0 over [0, t_end] by FESD.
-    @throws InvalidArgument for bad options or a non-finite x0 (quoting the values). */
+    @throws InvalidArgument for bad options or a non-finite x0 (quoting the values), and, before
+    allocating anything, for a problem whose fesd_problem_size() exceeds kFesdMaxIndex or
+    kFesdMaxMemoryBytes (naming N_FE, or N_sim when the run's results are what does not fit). */
 FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
                          double t_end, const FesdOptions& options = {});
 
