@@ -19,9 +19,9 @@ namespace {
 
 constexpr const char* kMainFooter = R"(Exit codes:
   0  success
-  1  the computation or its output failed (a non-finite result, a simulation that stops
-     early, a failed self-check of the demo, a file that cannot be written, gnuplot missing
-     or failing)
+  1  the computation or its output failed (a non-finite result or an overflow, a
+     simulation that stops early, a failed self-check of the demo, a file or the standard
+     output that cannot be written, gnuplot missing or failing)
   2  bad input or usage: the one line on stderr, "error: <field>: <problem>", names it
 
 Run 'bflow jump --help', 'bflow flow --help' and 'bflow fesd --help' for the formats. Documentation: docs/cli.md.)";
@@ -33,7 +33,8 @@ constexpr const char* kJumpFooter =
   "field_limits":  {"--": [d numbers], ...} Gamma(b) = F_b(rho) for every sign word b of
                                             n characters; character j is surface j
   "tangents":      [[d numbers], ...]       directions dx before the event (may be [])
-  "pieces":        true | false             optional: all n! pieces (n <= 10)
+  "pieces":        true | false             optional: all n! pieces (n <= 10; refused when
+                                            the output would exceed --max-output-bytes)
   "triangulation": true | false             optional: the triangulation of [B] Section 5
 Any other key is an error.
 
@@ -110,8 +111,9 @@ runs gnuplot to draw DIR/demo_biped.png.
 non-linear Delta: B on unit vectors every 45 degrees and on F_--, the pieces, checks against
 the triangulation and one-sided differences of the exact flow; DIR/demo_circle.{dat,gp,png}.
 
-Exits with code 1 if a check fails, a file cannot be written, or gnuplot is missing or fails;
-the last line printed is the path of the PNG.)";
+DIR is created if missing and must be writable: otherwise the demo stops with code 1 before
+computing anything. Exits with code 1 if a check fails, a file or the standard output cannot be
+written, or gnuplot is missing or fails; the last line printed is the path of the PNG.)";
 
 }  // namespace
 
@@ -138,6 +140,13 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->required()
         ->type_name("FILE|-");
     jump->add_flag("--compact", jump_options.compact, "Print the result on one line");
+    jump->add_option("--max-input-bytes", jump_options.max_input_bytes,
+                     "Refuse an input longer than this (default 64 MiB)")
+        ->type_name("BYTES");
+    jump->add_option("--max-output-bytes", jump_options.max_output_bytes,
+                     "Refuse a request whose output is estimated above this, e.g. all n! pieces "
+                     "for large n (default 1 GiB)")
+        ->type_name("BYTES");
     jump->footer(kJumpFooter);
 
     FlowCommandOptions flow_options;
@@ -217,14 +226,16 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     fesd->add_option("--stages", fesd_options.stages, "Runge-Kutta stages n_s, 1..9")
         ->type_name("S")
         ->capture_default_str();
-    fesd->add_option("--nfe", fesd_options.nfe, "Finite elements per integration step")
+    fesd->add_option("--nfe", fesd_options.nfe,
+                     "Finite elements per integration step, >= 1 (at most what the size limits "
+                     "of docs/fesd.md allow)")
         ->type_name("N")
         ->capture_default_str();
     fesd->add_option("--nsim", fesd_options.nsim,
-                     "Integration steps over [0, T] (default: irma 20, the others 4)")
+                     "Integration steps over [0, T], >= 1 (default: irma 20, the others 4)")
         ->type_name("M");
     fesd->add_option("--T", fesd_options.t,
-                     "Horizon (default: irma 100, sliding-leave 2, the others 1)")
+                     "Horizon, finite and > 0 (default: irma 100, sliding-leave 2, the others 1)")
         ->type_name("T");
     fesd->add_flag("--exact-hessian", fesd_options.exact_hessian,
                    "IPOPT with the exact Hessian (nested forward AD) instead of limited-memory");
@@ -233,10 +244,11 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     fesd->add_flag("--trajectory", fesd_options.trajectory,
                    "Add the grid, the states, the step sizes and the active sets");
     fesd->add_flag("--sizes", fesd_options.sizes,
-                   "Print the problem sizes of Stewart's and the step reformulation ([F] Table 4)");
+                   "Print the problem sizes of Stewart's and the step reformulation ([F] Table 4) "
+                   "and of one integration step's NLP");
     fesd->add_option("--lifting", fesd_options.lifting,
-                     "Step formulation: lifting depth n_d >= 2 of Algorithm 1 (theta and beta as "
-                     "unknowns; 0: none)")
+                     "Step formulation: lifting depth n_d of Algorithm 1, 2..max(2, n_c) (theta "
+                     "and beta as unknowns; 0: none)")
         ->type_name("ND");
     fesd->add_flag("--compact", fesd_options.compact, "Print the result on one line");
 
@@ -257,7 +269,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
       app.parse(args);
     } catch (const CLI::ParseError& e) {
       if (e.get_exit_code() == static_cast<int>(CLI::ExitCodes::Success)) {
-        return app.exit(e, out, err);  // --help, --version
+        return finish_output(out, err, app.exit(e, out, err));  // --help, --version
       }
       std::string message = e.what();
       if (message.empty()) message = e.get_name();
@@ -270,10 +282,13 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
       report_error(err, where + message + " (see '" + help + "')");
       return kExitBadInput;
     }
-    if (jump->parsed()) return run_jump_file(input, in, out, err, jump_options);
-    if (flow->parsed()) return run_flow(flow_options, out, err);
-    if (fesd->parsed()) return run_fesd(fesd_options, out, err);
-    return run_demo(demo_options, out, err);
+    // Every command ends here: a result that could not be written is a failure (exit code 1).
+    if (jump->parsed()) {
+      return finish_output(out, err, run_jump_file(input, in, out, err, jump_options));
+    }
+    if (flow->parsed()) return finish_output(out, err, run_flow(flow_options, out, err));
+    if (fesd->parsed()) return finish_output(out, err, run_fesd(fesd_options, out, err));
+    return finish_output(out, err, run_demo(demo_options, out, err));
   } catch (const std::exception& e) {
     report_error(err, std::string("internal: ") + e.what());
     return kExitFailure;

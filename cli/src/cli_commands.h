@@ -37,9 +37,21 @@ inline constexpr int kExitBadInput = 2;
 /** The version string printed by `bflow --version` ("bflow 0.1.0"). */
 std::string version_string();
 
+/** Default of JumpOptions::max_input_bytes: 64 MiB. */
+inline constexpr long long kJumpDefaultMaxInputBytes = 64LL << 20;
+/** Default of JumpOptions::max_output_bytes: 1 GiB. */
+inline constexpr long long kJumpDefaultMaxOutputBytes = 1LL << 30;
+
 struct JumpOptions {
   /** One line of JSON instead of the indented form. */
   bool compact = false;
+  /** Longest input read, in bytes (--max-input-bytes); a longer input is refused (exit 2)
+      after reading one byte more, so an endless stream such as /dev/zero ends at once. */
+  long long max_input_bytes = kJumpDefaultMaxInputBytes;
+  /** Largest output, in bytes, as estimated before anything is computed (--max-output-bytes):
+      a request above it (n! pieces for large n) is refused (exit 2) with the estimate. Pieces
+      are streamed, one at a time, so memory stays O(n d^2) whatever this limit. */
+  long long max_output_bytes = kJumpDefaultMaxOutputBytes;
 };
 
 /** `bflow jump`: reads the JSON document from `in` (see docs/cli.md), writes the JSON result
@@ -110,29 +122,38 @@ struct DemoOptions {
     when a self-check fails, a file cannot be written, or gnuplot fails. Never throws. */
 int run_demo(const DemoOptions& options, std::ostream& out, std::ostream& err);
 
-/** `bflow fesd`: the options as given on the command line. */
+/** `bflow fesd`: the options as given on the command line. run_fesd() checks every range and
+    names the option in its message. */
 struct FesdCommandOptions {
   /** irma, crossing, sliding-enter, sliding-leave or spontaneous; required. */
   std::string example;
   std::string formulation = "step";  ///< step or stewart
   std::string scheme = "radau";      ///< radau or gauss
   int stages = 2;                    ///< n_s, 1..9
-  int nfe = 3;                       ///< finite elements per integration step
-  int nsim = 0;                      ///< integration steps; 0: the example's default
-  double t = 0.0;                    ///< horizon; 0: the example's default
-  bool standard = false;             ///< standard time-stepping, no switch detection
-  bool exact_hessian = false;        ///< IPOPT with exact Hessians instead of limited-memory
-  bool trajectory = false;           ///< add the grid, states, step sizes and active sets
-  bool sizes = false;                ///< print [F] Table 4 for the example instead
-  int lifting = 0;                   ///< lifting depth n_d (0: none), also for --sizes
+  /** Finite elements per integration step, >= 1 and within bflow::kFesdMaxIndex and
+      bflow::kFesdMaxMemoryBytes (bflow::fesd_problem_size). */
+  int nfe = 3;
+  /** Integration steps, >= 1 (the run's results within the memory bound); not given: the
+      example's default. */
+  std::optional<int> nsim;
+  /** Horizon, finite and > 0; not given: the example's default. */
+  std::optional<double> t;
+  bool standard = false;       ///< standard time-stepping, no switch detection
+  bool exact_hessian = false;  ///< IPOPT with exact Hessians instead of limited-memory
+  bool trajectory = false;     ///< add the grid, states, step sizes and active sets
+  bool sizes = false;          ///< print [F] Table 4 and the NLP size for the example instead
+  /** Lifting depth n_d: 0 (none) or 2..max(2, n_c), also for --sizes. */
+  int lifting = 0;
   bool compact = false;
 };
 
 /** `bflow fesd`: simulates a built-in Filippov example by FESD (bflow::fesd_simulate) and
-    prints x(T), the switch times, the complementarity residual, the CPU time and the
-    sensitivity dx(T)/dx0 as JSON (see docs/cli.md); with `sizes`, the problem sizes of
-    Stewart's and the step reformulation ([F] Table 4). Exit code 2 for a bad option, 1 when an
-    integration step does not converge. Never throws. */
+    prints the horizon and steps used, x(T), the switch times, the complementarity residual, the
+    CPU time and the sensitivity dx(T)/dx0 as JSON (see docs/cli.md); with `sizes`, the problem
+    sizes of Stewart's and the step reformulation ([F] Table 4) and of one step's NLP. Exit code
+    2 for a bad option (out of range, or a problem above the size limits), 1 when an integration
+    step does not converge (the JSON then holds what was reached, and `err` one "error: fesd:"
+    line). Never throws. */
 int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream& err);
 
 /** The whole command line (argv[0] is ignored): parses it and dispatches. Never throws. */

@@ -2,9 +2,14 @@
 #ifndef BFLOW_CLI_CLI_UTIL_H_
 #define BFLOW_CLI_CLI_UTIL_H_
 
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <ostream>
+#include <streambuf>
 #include <string>
+
+#include "cli_commands.h"
 
 namespace bflow::cli {
 
@@ -52,6 +57,76 @@ inline std::string quote(const std::string& text, std::size_t max_chars = 60) {
 inline std::string with_field(const std::string& field, const std::string& message) {
   if (message.compare(0, field.size() + 1, field + ":") == 0) return message;
   return field + ": " + message;
+}
+
+/** A stream buffer that writes through a C stream (main() puts one under std::cout) and
+    remembers the errno of its first failed write or flush, which a later failure of the
+    ostream no longer carries. It keeps no buffer of its own: the C stream buffers, so output
+    stays in order with anything else written to that C stream. */
+class StdioOutputBuffer : public std::streambuf {
+ public:
+  explicit StdioOutputBuffer(std::FILE* file) : file_(file) {}
+
+  /** True once a write or a flush has failed. */
+  bool failed() const { return failed_; }
+  /** The errno of the first failure; 0 when none, or when the C library did not set one. */
+  int error_number() const { return error_number_; }
+
+ protected:
+  int_type overflow(int_type c) override {
+    if (traits_type::eq_int_type(c, traits_type::eof())) return traits_type::not_eof(c);
+    const char ch = traits_type::to_char_type(c);
+    return xsputn(&ch, 1) == 1 ? c : traits_type::eof();
+  }
+
+  std::streamsize xsputn(const char* s, std::streamsize n) override {
+    if (n <= 0) return 0;
+    errno = 0;
+    const std::size_t written = std::fwrite(s, 1, static_cast<std::size_t>(n), file_);
+    if (written != static_cast<std::size_t>(n)) record_failure();
+    return static_cast<std::streamsize>(written);
+  }
+
+  int sync() override {
+    errno = 0;
+    if (std::fflush(file_) == 0) return 0;
+    record_failure();
+    return -1;
+  }
+
+ private:
+  void record_failure() {
+    if (!failed_) error_number_ = errno;
+    failed_ = true;
+  }
+
+  std::FILE* file_;
+  bool failed_ = false;
+  int error_number_ = 0;
+};
+
+/** Ends a command: flushes `out` and returns `code`, unless writing `out` failed (now or
+    earlier): then, if the command had succeeded (`code` is kExitOk), reports the one line
+    "error: stdout: write failed (<errno text>)" on `err` and returns kExitFailure. A command
+    that already failed has printed its one error line and keeps its code. Idempotent: every
+    entry point and main() call it on the same stream. */
+inline int finish_output(std::ostream& out, std::ostream& err, int code) {
+  const bool failed_before = out.fail();
+  errno = 0;
+  if (!failed_before) out.flush();
+  const int flush_errno = errno;
+  if (!out.fail()) return code;
+  if (code != kExitOk) return code;
+  int error_number = 0;
+  if (const auto* buffer = dynamic_cast<const StdioOutputBuffer*>(out.rdbuf())) {
+    error_number = buffer->error_number();
+  } else if (!failed_before) {
+    error_number = flush_errno;  // the flush that just failed set it, if anything did
+  }
+  std::string message = "stdout: write failed";
+  if (error_number != 0) message += std::string(" (") + std::strerror(error_number) + ")";
+  report_error(err, message);
+  return kExitFailure;
 }
 
 }  // namespace bflow::cli

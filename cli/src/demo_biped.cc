@@ -410,8 +410,7 @@ int demo_biped(const DemoOptions& options, std::ostream& out, std::ostream& /*er
   const bool all_passed = print_checks(out, checks);
 
   // Files: the circle, the arcs of each piece bounded by the exact boundary rays, the rays.
-  const fs::path dir(options.output_dir);
-  make_directory(dir);
+  const fs::path dir(options.output_dir);  // made and probed by run_demo()
   std::vector<Sample> boundary_samples;
   for (double sign : {1.0, -1.0}) {
     const Eigen::Vector2d p = sign * boundary;

@@ -217,8 +217,7 @@ int demo_pwconst(const DemoOptions& options, std::ostream& out, std::ostream& /*
   const bool all_passed = print_checks(out, checks);
 
   // Files.
-  const fs::path dir(options.output_dir);
-  make_directory(dir);
+  const fs::path dir(options.output_dir);  // made and probed by run_demo()
 
   // The arcs of the two pieces, bounded exactly by the rays +-p where the order changes (for
   // n = d = 2 the cones are the half-planes on either side of the line spanned by F_--).
@@ -303,18 +302,20 @@ int run_demo(const DemoOptions& options, std::ostream& out, std::ostream& err) {
     report_error(err, "--output: the directory name is empty");
     return kExitBadInput;
   }
+  int code = kExitFailure;
   try {
-    return options.scene == "biped" ? demo_biped(options, out, err)
-                                    : demo_pwconst(options, out, err);
+    // Before anything is computed or printed: a directory that cannot be written is refused.
+    prepare_output_directory(options.output_dir);
+    code =
+        options.scene == "biped" ? demo_biped(options, out, err) : demo_pwconst(options, out, err);
   } catch (const DemoError& e) {
     out << std::flush;
     report_error(err, e.what());
-    return kExitFailure;
   } catch (const std::exception& e) {
     out << std::flush;
     report_error(err, std::string("demo: internal: ") + e.what());
-    return kExitFailure;
   }
+  return finish_output(out, err, code);
 }
 
 }  // namespace bflow::cli

@@ -1,7 +1,9 @@
 #include "demo_util.h"
 
+#include <fcntl.h>
 #include <spawn.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <cerrno>
 #include <cmath>
@@ -49,13 +51,23 @@ bool print_checks(std::ostream& out, const std::vector<Check>& checks) {
   return all_passed;
 }
 
-void make_directory(const fs::path& dir) {
+void prepare_output_directory(const fs::path& dir) {
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec || !fs::is_directory(dir)) {
     throw DemoError("demo: cannot create directory " + quote(dir.string(), 200) + ": " +
                     (ec ? ec.message() : std::string("a file of that name exists")));
   }
+  // A directory can exist and still refuse files (permissions, a read-only or virtual file
+  // system such as /proc); creating one is the only test that holds for every cause.
+  const fs::path probe = dir / (".bflow-demo-probe-" + std::to_string(::getpid()));
+  const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+  if (fd < 0) {
+    throw DemoError("demo: cannot write in directory " + quote(dir.string(), 200) + ": " +
+                    std::strerror(errno));
+  }
+  ::close(fd);
+  ::unlink(probe.c_str());
 }
 
 void write_file(const fs::path& path, const std::string& contents) {

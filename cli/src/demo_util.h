@@ -47,8 +47,10 @@ struct Check {
 /** Prints one line per check and a verdict; returns true when all passed. */
 bool print_checks(std::ostream& out, const std::vector<Check>& checks);
 
-/** Creates `dir` (and its parents). @throws DemoError naming it. */
-void make_directory(const std::filesystem::path& dir);
+/** Creates `dir` (and its parents) and checks that a file can be created in it, so that the
+    demo is refused before it computes anything. @throws DemoError naming the directory and the
+    reason (errno's text). */
+void prepare_output_directory(const std::filesystem::path& dir);
 
 /** Writes `contents` to `path`. @throws DemoError naming the file and the reason. */
 void write_file(const std::filesystem::path& path, const std::string& contents);
@@ -58,7 +60,7 @@ void write_file(const std::filesystem::path& path, const std::string& contents);
 void run_gnuplot(const std::filesystem::path& dir, const std::string& script,
                  const std::string& png);
 
-/** The two demo scenes (run_demo() dispatches and catches). */
+/** The two demo scenes (run_demo() prepares the output directory, dispatches and catches). */
 int demo_pwconst(const DemoOptions& options, std::ostream& out, std::ostream& err);
 int demo_biped(const DemoOptions& options, std::ostream& out, std::ostream& err);
 

@@ -6,12 +6,21 @@
 // whole derivative (transition matrices and jump maps), which is then evaluated on every
 // direction; --fd adds finite differences of the simulated flow (bflow::fd::compare), the
 // independent check. Nothing is written to `out` unless the whole result is computed, except
-// the partial record of a simulation that stops early (exit code 1).
+// the partial record of a simulation that stops early or overflows (exit code 1).
+//
+// Overflow. The options are finite, but a finite start can still overflow: a huge velocity
+// makes |F| exceed the double range, a huge direction makes its image infinite. The library
+// then often reports what follows as bad input: a margin eta . F / (|eta| |F|) that is 0 because
+// |F| is infinite reads as grazing, tangents that became infinite end flow_derivative() with an
+// InvalidArgument. The command watches the model's evaluations (OverflowWatch) and reports such
+// a run as a failed computation, exit code 1, with "status": "overflow".
+#include <atomic>
 #include <cerrno>
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
 #include <exception>
+#include <mutex>
 #include <new>
 #include <optional>
 #include <ostream>
@@ -45,8 +54,9 @@ class InputError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-// A result that cannot be printed honestly. Exit code 1.
-class OutputError : public std::runtime_error {
+// A number of the result that overflowed; the message names it. Exit code 1 with the record
+// computed so far.
+class OverflowError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
@@ -201,10 +211,126 @@ struct Request {
 };
 
 void check_finite(const Eigen::Ref<const Eigen::MatrixXd>& values, const std::string& what) {
-  if (!values.allFinite()) {
-    throw OutputError("flow: " + what + " is not finite (overflow in the computation)");
-  }
+  if (!values.allFinite()) throw OverflowError(what + " is not finite");
 }
+
+bool finite(double value) { return std::isfinite(value); }
+template <int N>
+bool finite(const ceres::Jet<double, N>& value) {
+  return std::isfinite(value.a) && value.v.allFinite();
+}
+double value_part(double value) { return value; }
+template <int N>
+double value_part(const ceres::Jet<double, N>& value) {
+  return value.a;
+}
+
+// Forwards to a model and keeps the first overflow seen in its evaluations: a state, tangent,
+// field value or surface that is not finite, or a field whose norm |F| is beyond the double
+// range (the library divides by |F| in its transversality margins). The integrator may meet
+// one in a trial step it then rejects; the command consults the watch only when the library
+// has rejected the run. Shared between threads, like the model.
+class OverflowWatch final : public SegmentModel {
+ public:
+  explicit OverflowWatch(const SegmentModel& model) : model_(model) {}
+
+  /** The first overflow, e.g. "|F_--| is beyond the double range at x = [...]"; "" if none. */
+  std::string overflow() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return overflow_;
+  }
+
+  int states() const override { return model_.states(); }
+  int surfaces() const override { return model_.surfaces(); }
+  void field(const double* x, Signs b, double* xdot) const override { watch(x, b, xdot); }
+  void field(const Jet1* x, Signs b, Jet1* xdot) const override { watch(x, b, xdot); }
+  void field(const Jet2* x, Signs b, Jet2* xdot) const override { watch(x, b, xdot); }
+  void field(const Jet4* x, Signs b, Jet4* xdot) const override { watch(x, b, xdot); }
+  void field(const Jet6* x, Signs b, Jet6* xdot) const override { watch(x, b, xdot); }
+  void field(const JetChunk* x, Signs b, JetChunk* xdot) const override { watch(x, b, xdot); }
+  void field_tangents(const Eigen::Ref<const Eigen::VectorXd>& x, Signs b,
+                      const Eigen::Ref<const Eigen::MatrixXd>& v, Eigen::Ref<Eigen::VectorXd> f,
+                      Eigen::Ref<Eigen::MatrixXd> fv) const override {
+    model_.field_tangents(x, b, v, f, fv);
+    if (seen_.load(std::memory_order_relaxed)) return;
+    if (!x.allFinite() || !v.allFinite()) {
+      note("the integration reached a state or tangent that is not finite");
+    } else if (!f.allFinite() || !fv.allFinite()) {
+      note("F_" + b.str() +
+           " or its derivative on the tangents is not finite at x = " + format_vector(x));
+    } else if (!std::isfinite(f.squaredNorm())) {
+      note(norm_overflow(b, x));
+    }
+  }
+  void surface_values(const double* x, double* h) const override {
+    model_.surface_values(x, h);
+    watch_surfaces(x, h, nullptr);
+  }
+  Eigen::MatrixXd surface_normals(const Eigen::Ref<const Eigen::VectorXd>& x) const override {
+    Eigen::MatrixXd normals = model_.surface_normals(x);
+    if (!seen_.load(std::memory_order_relaxed) && x.allFinite() && !normals.allFinite()) {
+      note("a surface normal is not finite at x = " + format_vector(x));
+    }
+    return normals;
+  }
+  void surface_rates(const double* x, const double* v, double* h, double* rate) const override {
+    model_.surface_rates(x, v, h, rate);
+    watch_surfaces(x, h, rate);
+  }
+
+ private:
+  template <typename T>
+  void watch(const T* x, Signs b, T* xdot) const {
+    model_.field(x, b, xdot);
+    if (seen_.load(std::memory_order_relaxed)) return;
+    const int d = model_.states();
+    bool state_finite = true;
+    bool field_finite = true;
+    double squared_norm = 0.0;
+    for (int i = 0; i < d; ++i) {
+      state_finite = state_finite && finite(x[i]);
+      field_finite = field_finite && finite(xdot[i]);
+      squared_norm += value_part(xdot[i]) * value_part(xdot[i]);
+    }
+    if (state_finite && field_finite && std::isfinite(squared_norm)) return;
+    Eigen::VectorXd point(d);
+    for (int i = 0; i < d; ++i) point[i] = value_part(x[i]);
+    if (!state_finite) {
+      note("the integration reached a state or tangent that is not finite");
+    } else if (!field_finite) {
+      note("F_" + b.str() +
+           " or its derivative on the tangents is not finite at x = " + format_vector(point));
+    } else {
+      note(norm_overflow(b, point));
+    }
+  }
+
+  void watch_surfaces(const double* x, const double* h, const double* rate) const {
+    if (seen_.load(std::memory_order_relaxed)) return;
+    const int d = model_.states();
+    const int n = model_.surfaces();
+    const Eigen::Map<const Eigen::VectorXd> point(x, d);
+    if (!point.allFinite()) return;  // reported by the field
+    bool ok = Eigen::Map<const Eigen::VectorXd>(h, n).allFinite();
+    if (rate != nullptr) ok = ok && Eigen::Map<const Eigen::VectorXd>(rate, n).allFinite();
+    if (!ok) note("a surface value or rate is not finite at x = " + format_vector(point));
+  }
+
+  static std::string norm_overflow(Signs b, const Eigen::Ref<const Eigen::VectorXd>& x) {
+    return "|F_" + b.str() + "| is beyond the double range at x = " + format_vector(x);
+  }
+
+  void note(std::string what) const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (overflow_.empty()) overflow_ = std::move(what);
+    seen_.store(true, std::memory_order_relaxed);
+  }
+
+  const SegmentModel& model_;
+  mutable std::atomic<bool> seen_{false};
+  mutable std::mutex mutex_;
+  mutable std::string overflow_;
+};
 
 OrderedJson events_json(const std::vector<EventRecord>& events) {
   OrderedJson list = OrderedJson::array();
@@ -267,12 +393,14 @@ struct Evaluation {
   std::vector<std::string> warnings;
 };
 
-Evaluation evaluate(const SegmentModel& model, const Eigen::VectorXd& x0,
-                    const std::vector<Eigen::VectorXd>& directions, const Request& request,
-                    OrderedJson result) {
+// The simulations run on `watched` (which forwards to `model`); `result` gathers the record.
+Evaluation evaluate_watched(const SegmentModel& model, const OverflowWatch& watched,
+                            const Eigen::VectorXd& x0,
+                            const std::vector<Eigen::VectorXd>& directions, const Request& request,
+                            OrderedJson& result) {
   result["x0"] = vector_json(x0);
   // A run without tangents first: an early stop is reported with what was reached.
-  const FlowResult plain = simulate(model, x0, request.t, request.flow);
+  const FlowResult plain = simulate(watched, x0, request.t, request.flow);
   if (!plain.ok()) {
     result["status"] = to_string(plain.status);
     result["message"] = plain.message;
@@ -288,7 +416,7 @@ Evaluation evaluate(const SegmentModel& model, const Eigen::VectorXd& x0,
   }
   FlowResult trajectory;
   const FlowDerivative derivative =
-      flow_derivative(model, x0, request.t, request.flow, &trajectory);
+      flow_derivative(watched, x0, request.t, request.flow, &trajectory);
   check_finite(trajectory.x, "x_t");
   result["x_t"] = vector_json(trajectory.x);
   result["events"] = events_json(trajectory.events);
@@ -328,6 +456,28 @@ Evaluation evaluate(const SegmentModel& model, const Eigen::VectorXd& x0,
   std::vector<std::string> warnings;
   for (const FlowNotice& notice : trajectory.notices) warnings.push_back(notice.message);
   return {std::move(result), kExitOk, "", std::move(warnings)};
+}
+
+// The run, with overflow told apart from bad input: a library rejection that follows an
+// overflow, or a result that is not finite, is a failed computation (exit code 1) whose record
+// holds what was computed before it, "status": "overflow" and the "message".
+Evaluation evaluate(const SegmentModel& model, const Eigen::VectorXd& x0,
+                    const std::vector<Eigen::VectorXd>& directions, const Request& request,
+                    OrderedJson result) {
+  const OverflowWatch watched(model);
+  std::string overflow;
+  try {
+    return evaluate_watched(model, watched, x0, directions, request, result);
+  } catch (const OverflowError& e) {
+    overflow = e.what();
+  } catch (const InvalidArgument& e) {
+    overflow = watched.overflow();
+    if (overflow.empty()) throw;
+    overflow += "; the library then reported: " + std::string(e.what());
+  }
+  result["status"] = "overflow";
+  result["message"] = overflow;
+  return {std::move(result), kExitFailure, "flow: the computation overflowed: " + overflow, {}};
 }
 
 Evaluation run(const FlowCommandOptions& options) {
@@ -465,19 +615,13 @@ Evaluation run(const FlowCommandOptions& options) {
   return with_model(model, Eigen::VectorXd(-0.5 * field.limits().col(0)));
 }
 
-}  // namespace
-
-int run_flow(const FlowCommandOptions& options, std::ostream& out, std::ostream& err) {
+int flow_command(const FlowCommandOptions& options, std::ostream& out, std::ostream& err) {
   try {
     const Evaluation evaluation = run(options);
     std::ostringstream buffer;
     write_json(buffer, evaluation.result, options.compact);
     buffer << '\n';
-    out << buffer.str() << std::flush;
-    if (!out) {
-      report_error(err, "output: cannot write the result");
-      return kExitFailure;
-    }
+    out << buffer.str();
     for (const std::string& warning : evaluation.warnings) {
       err << "warning: " << one_line(warning) << '\n';
     }
@@ -486,9 +630,6 @@ int run_flow(const FlowCommandOptions& options, std::ostream& out, std::ostream&
   } catch (const InputError& e) {
     report_error(err, e.what());
     return kExitBadInput;
-  } catch (const OutputError& e) {
-    report_error(err, e.what());
-    return kExitFailure;
   } catch (const InvalidArgument& e) {
     // Sliding, grazing, an integrator that is not built, x0 on a surface, ...
     report_error(err, std::string("flow: ") + e.what());
@@ -500,6 +641,12 @@ int run_flow(const FlowCommandOptions& options, std::ostream& out, std::ostream&
     report_error(err, std::string("flow: internal: ") + e.what());
     return kExitFailure;
   }
+}
+
+}  // namespace
+
+int run_flow(const FlowCommandOptions& options, std::ostream& out, std::ostream& err) {
+  return finish_output(out, err, flow_command(options, out, err));
 }
 
 }  // namespace bflow::cli

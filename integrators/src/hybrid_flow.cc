@@ -194,11 +194,19 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
   record.sides_after = sides.flipped(flip);
   Eigen::VectorXd f_after(d);
   model.field(rho.data(), record.sides_after, f_after.data());
+  // Cosines from vectors scaled by their largest entry first, so that a field of 1e200 (whose
+  // squared norm overflows) is judged by its direction, not reported as grazing.
+  const auto direction = [](Eigen::VectorXd v) {
+    v /= v.cwiseAbs().maxCoeff();
+    return Eigen::VectorXd(v.normalized());
+  };
+  const Eigen::VectorXd u_before = direction(f_before);
+  const Eigen::VectorXd u_after = direction(f_after);
   for (int k = 0; k < n; ++k) {
     const int j = group[static_cast<std::size_t>(k)];
-    const double norm = eta.row(k).norm();
-    const double before = eta.row(k).dot(f_before) / (norm * f_before.norm());
-    const double after = eta.row(k).dot(f_after) / (norm * f_after.norm());
+    const Eigen::VectorXd normal = direction(eta.row(k).transpose());
+    const double before = normal.dot(u_before);
+    const double after = normal.dot(u_after);
     record.margin_before.push_back(before);
     record.margin_after.push_back(after);
     if (!(before >= options.grazing_threshold)) {

@@ -1,6 +1,9 @@
 // `bflow demo` in-process, both scenes (biped, the default, and pwconst): the printed tables
-// and data files hold the library's numbers, and a missing gnuplot, an unusable directory or an
-// unknown scene is reported on one line with a non-zero code.
+// and data files hold the library's numbers, and a missing gnuplot, an unusable directory (before
+// anything is computed), output that cannot be written or an unknown scene is reported on one
+// line with a non-zero code.
+#include <unistd.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -8,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <streambuf>
 #include <string>
 #include <vector>
 
@@ -187,6 +191,69 @@ TEST(DemoCommandTest, UnusableDirectoryIsReported) {
   EXPECT_EQ(o.code, 1);
   EXPECT_THAT(o.err, StartsWith("error: demo: cannot create directory \"" + file.string() + "\""));
   EXPECT_EQ(std::count(o.err.begin(), o.err.end(), '\n'), 1);
+}
+
+// The directory is made and probed before anything is computed: nothing is printed. /proc is a
+// directory that takes no new file, even for root.
+TEST(DemoCommandTest, UnwritableDirectoryIsRefusedBeforeAnythingIsPrinted) {
+  for (const std::string scene : {"biped", "pwconst"}) {
+    SCOPED_TRACE(scene);
+    const Outcome device = demo("/dev/null/x", /*no_plot=*/true, scene);
+    EXPECT_EQ(device.code, 1);
+    EXPECT_EQ(device.out, "");
+    EXPECT_EQ(device.err,
+              "error: demo: cannot create directory \"/dev/null/x\": Not a directory\n");
+    const Outcome proc = demo("/proc", /*no_plot=*/true, scene);
+    EXPECT_EQ(proc.code, 1);
+    EXPECT_EQ(proc.out, "");
+    EXPECT_THAT(proc.err, StartsWith("error: demo: cannot write in directory \"/proc\": "));
+    EXPECT_EQ(std::count(proc.err.begin(), proc.err.end(), '\n'), 1);
+  }
+}
+
+TEST(DemoCommandTest, ReadOnlyDirectoryIsRefused) {
+  if (::geteuid() == 0) GTEST_SKIP() << "root may write in a read-only directory";
+  const fs::path dir = fresh_dir("demo_read_only");
+  fs::create_directories(dir);
+  fs::permissions(dir, fs::perms::owner_read | fs::perms::owner_exec);
+  const Outcome o = demo(dir, /*no_plot=*/true);
+  fs::permissions(dir, fs::perms::owner_all);
+  EXPECT_EQ(o.code, 1);
+  EXPECT_EQ(o.out, "");
+  EXPECT_EQ(o.err,
+            "error: demo: cannot write in directory \"" + dir.string() + "\": Permission denied\n");
+  EXPECT_TRUE(fs::is_empty(dir));  // the probe is not left behind
+}
+
+// Refuses every write.
+class FailingBuffer : public std::streambuf {
+ protected:
+  int_type overflow(int_type) override { return traits_type::eof(); }
+  std::streamsize xsputn(const char*, std::streamsize) override { return 0; }
+};
+
+TEST(DemoCommandTest, UnwritableOutputExitsOneWithOneLine) {
+  for (const std::string scene : {"biped", "pwconst"}) {
+    SCOPED_TRACE(scene);
+    const fs::path dir = fresh_dir("demo_unwritable_output_" + scene);
+    FailingBuffer failing;
+    std::ostream out(&failing);
+    std::ostringstream err;
+    EXPECT_EQ(run_demo(DemoOptions{dir.string(), /*no_plot=*/true, scene}, out, err), 1);
+    EXPECT_EQ(err.str(), "error: stdout: write failed\n");
+  }
+}
+
+TEST(DemoCommandTest, WritableDirectoryKeepsNoProbe) {
+  const fs::path dir = fresh_dir("demo_no_probe");
+  const Outcome o = demo(dir, /*no_plot=*/true);
+  ASSERT_EQ(o.code, 0) << o.err;
+  std::vector<std::string> names;
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    names.push_back(entry.path().filename().string());
+  }
+  std::sort(names.begin(), names.end());
+  EXPECT_EQ(names, (std::vector<std::string>{"demo_circle.dat", "demo_circle.gp"}));
 }
 
 // ---------------------------------------------------------------------------------------------

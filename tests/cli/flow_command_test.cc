@@ -1,10 +1,17 @@
 // `bflow flow` in-process: the JSON holds the library's numbers (closed forms for the linear
 // piecewise-constant field, the jump module for a random one, finite differences for the
-// biped), and every malformed option gets one precise error line with exit code 2.
+// biped), and every malformed option gets one precise error line with exit code 2. A finite
+// start that overflows, and output that cannot be written, exit with 1 and one line (the
+// output check, finish_output() of cli_util.h, is tested here too).
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <ostream>
 #include <sstream>
+#include <streambuf>
 #include <string>
 #include <vector>
 
@@ -17,6 +24,7 @@
 #include "bflow/core/jump_map.h"
 #include "bflow/examples/piecewise_constant.h"
 #include "cli_commands.h"
+#include "cli_util.h"
 
 namespace bflow::cli {
 namespace {
@@ -485,6 +493,180 @@ TEST(FlowCommandTest, ZeroTimeIsTheIdentity) {
   for (const Json& direction : out["directions"]) {
     EXPECT_EQ(vector_of(direction["image"]), vector_of(direction["dx"]));
     EXPECT_EQ(direction["orders"].size(), 0u);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Overflow: finite options, a computation that leaves the double range. Exit code 1 with the
+// record computed so far, "status": "overflow"; never exit code 2 (the input is well-formed).
+
+TEST(FlowCommandTest, OverflowingStartIsAFailedComputation) {
+  struct Case {
+    std::string x0;
+    std::string what;  // the first overflow the command saw
+  };
+  // -1e100: the state stays finite, the tangents through the touchdown do not (the library ends
+  // flow_derivative with an InvalidArgument). -1e300: |F| = 1e300 has no finite norm, so the
+  // state itself leaves the double range in the first step.
+  for (const Case& c : {Case{"0,1,0,0,-1e100,0",
+                             "F_++ or its derivative on the tangents is not "
+                             "finite at x = [0, -9.999999999999e+86, "},
+                        Case{"0,1,0,0,-1e300,0",
+                             "|F_--| is beyond the double range at x = "
+                             "[0, 1, 0, 0, -1e+300, 0]; the library then "
+                             "reported: flow_derivative: the simulation ended "
+                             "with non-finite state"}}) {
+    SCOPED_TRACE(c.x0);
+    FlowCommandOptions options = biped({});
+    options.x0 = c.x0;
+    const Outcome o = flow(options);
+    EXPECT_EQ(o.code, 1);
+    EXPECT_THAT(o.err, StartsWith("error: flow: the computation overflowed: " + c.what));
+    EXPECT_EQ(std::count(o.err.begin(), o.err.end(), '\n'), 1);
+    const Json out = Json::parse(o.out);
+    EXPECT_EQ(out["scene"], "biped");
+    EXPECT_EQ(vector_of(out["x0"])[4], std::stod(c.x0.substr(8)));
+    EXPECT_EQ(out["status"], "overflow");
+    EXPECT_THAT(out["message"].get<std::string>(), StartsWith(c.what));
+    EXPECT_FALSE(out.contains("x_t"));
+    EXPECT_FALSE(out.contains("directions"));
+  }
+}
+
+// B is linear on each piece: a direction scaled by 1e300 has the image scaled by 1e300; at
+// 1e308 the image leaves the double range, and the trajectory, computed, is still printed.
+TEST(FlowCommandTest, DirectionWhoseImageOverflowsIsAFailedComputation) {
+  FlowCommandOptions unit = biped({});
+  unit.dx = {"1,0,0,0,0,0"};
+  const Json reference = result_of(unit);
+  const Eigen::VectorXd image = vector_of(reference["directions"][0]["image"]);
+
+  FlowCommandOptions large = biped({});
+  large.dx = {"1e300,0,0,0,0,0"};
+  const Json scaled = result_of(large);
+  EXPECT_LT((vector_of(scaled["directions"][0]["image"]) / 1e300 - image).norm(),
+            1e-15 * image.norm());
+
+  FlowCommandOptions huge = biped({});
+  huge.dx = {"1e308,0,0,0,0,0"};
+  const Outcome o = flow(huge);
+  EXPECT_EQ(o.code, 1);
+  EXPECT_EQ(o.err, "error: flow: the computation overflowed: directions[0].image is not finite\n");
+  const Json out = Json::parse(o.out);
+  EXPECT_EQ(out["status"], "overflow");
+  EXPECT_EQ(out["message"], "directions[0].image is not finite");
+  EXPECT_EQ(out["x_t"], reference["x_t"]);
+  EXPECT_EQ(out["events"], reference["events"]);
+  EXPECT_FALSE(out.contains("directions"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Output that cannot be written.
+
+// Refuses every write.
+class FailingBuffer : public std::streambuf {
+ protected:
+  int_type overflow(int_type) override { return traits_type::eof(); }
+  std::streamsize xsputn(const char*, std::streamsize) override { return 0; }
+};
+
+// Takes every write, fails every flush.
+class FailingFlushBuffer : public std::stringbuf {
+ protected:
+  int sync() override { return -1; }
+};
+
+const char* const kWriteFailed = "error: stdout: write failed\n";
+
+TEST(FinishOutputTest, WrittenOutputKeepsTheCode) {
+  for (int code : {kExitOk, kExitFailure, kExitBadInput}) {
+    std::ostringstream out, err;
+    out << "result\n";
+    EXPECT_EQ(finish_output(out, err, code), code);
+    EXPECT_EQ(err.str(), "");
+  }
+}
+
+TEST(FinishOutputTest, FailedWriteIsOneLineAndExitCodeOne) {
+  FailingBuffer failing;
+  std::ostream out(&failing);
+  std::ostringstream err;
+  out << "result\n";
+  EXPECT_EQ(finish_output(out, err, kExitOk), kExitFailure);
+  EXPECT_EQ(err.str(), kWriteFailed);
+  // Idempotent: the entry point and main() both call it.
+  EXPECT_EQ(finish_output(out, err, kExitFailure), kExitFailure);
+  EXPECT_EQ(err.str(), kWriteFailed);
+}
+
+TEST(FinishOutputTest, FailedCommandKeepsItsCodeAndItsOneLine) {
+  FailingBuffer failing;
+  std::ostream out(&failing);
+  out << "partial\n";
+  for (int code : {kExitFailure, kExitBadInput}) {
+    std::ostringstream err;
+    EXPECT_EQ(finish_output(out, err, code), code);
+    EXPECT_EQ(err.str(), "");
+  }
+}
+
+TEST(FinishOutputTest, FailedFlushIsAFailedWrite) {
+  FailingFlushBuffer failing;
+  std::ostream out(&failing);
+  std::ostringstream err;
+  out << "result\n";
+  ASSERT_TRUE(out.good());
+  EXPECT_EQ(finish_output(out, err, kExitOk), kExitFailure);
+  EXPECT_EQ(err.str(), kWriteFailed);
+}
+
+// /dev/full: every write(2) fails with ENOSPC. The buffer keeps that errno, however many other
+// calls overwrite errno before the command ends.
+TEST(FinishOutputTest, StdioBufferNamesTheErrnoOfTheFirstFailure) {
+  for (std::size_t size : {std::size_t{1}, std::size_t{1} << 20}) {  // fails on flush, on write
+    SCOPED_TRACE(size);
+    std::FILE* file = std::fopen("/dev/full", "w");
+    ASSERT_NE(file, nullptr) << std::strerror(errno);
+    StdioOutputBuffer buffer(file);
+    std::ostream out(&buffer);
+    std::ostringstream err;
+    out << std::string(size, 'x');
+    errno = EINVAL;
+    EXPECT_EQ(finish_output(out, err, kExitOk), kExitFailure);
+    EXPECT_TRUE(buffer.failed());
+    EXPECT_EQ(buffer.error_number(), ENOSPC);
+    EXPECT_EQ(err.str(),
+              "error: stdout: write failed (" + std::string(std::strerror(ENOSPC)) + ")\n");
+    std::fclose(file);
+  }
+}
+
+TEST(FlowCommandTest, UnwritableOutputExitsOneWithOneLine) {
+  FailingBuffer failing;
+  std::ostream out(&failing);
+  {
+    std::ostringstream err;
+    EXPECT_EQ(run_flow(pwconst({}), out, err), kExitFailure);
+    EXPECT_EQ(err.str(), kWriteFailed);
+  }
+  {
+    // A simulation that stops early has its own line; the lost partial record adds none.
+    FlowCommandOptions options = biped({});
+    options.max_steps = "1";
+    std::ostringstream err;
+    EXPECT_EQ(run_flow(options, out, err), kExitFailure);
+    const std::string line = err.str();
+    EXPECT_THAT(line, StartsWith("error: flow: the simulation stopped at t = "));
+    EXPECT_EQ(std::count(line.begin(), line.end(), '\n'), 1);
+  }
+  {
+    FlowCommandOptions options = pwconst({});
+    options.scene = "pendulum";
+    std::ostringstream err;
+    EXPECT_EQ(run_flow(options, out, err), kExitBadInput);
+    const std::string line = err.str();
+    EXPECT_THAT(line, StartsWith("error: --scene: unknown scene \"pendulum\""));
+    EXPECT_EQ(std::count(line.begin(), line.end(), '\n'), 1);
   }
 }
 

@@ -4,6 +4,8 @@
 #   PROGRAM          the executable
 #   ARGS             optional: its arguments, separated by '|'
 #   STDIN            optional: file fed to its standard input
+#   STDOUT_FILE      optional: file its standard output goes to instead of being captured
+#                    (/dev/full: every write fails); STDOUT_REGEX then sees an empty stdout
 #   EXPECTED_CODE    optional: the exit code that must be returned (default 0)
 #   EXPECTED_STDERR  optional: stderr must be exactly this line (plus its newline)
 #   STDERR_REGEX     optional: stderr must match this regular expression
@@ -19,8 +21,14 @@ string(REPLACE "|" ";" arguments "${ARGS}")
 if(DEFINED STDIN)
   set(input INPUT_FILE "${STDIN}")
 endif()
-execute_process(COMMAND "${PROGRAM}" ${arguments} ${input}
-                RESULT_VARIABLE code OUTPUT_VARIABLE out ERROR_VARIABLE err)
+set(out "")
+if(DEFINED STDOUT_FILE)
+  set(output OUTPUT_FILE "${STDOUT_FILE}")
+else()
+  set(output OUTPUT_VARIABLE out)
+endif()
+execute_process(COMMAND "${PROGRAM}" ${arguments} ${input} ${output}
+                RESULT_VARIABLE code ERROR_VARIABLE err)
 list(JOIN arguments " " joined)
 string(STRIP "${PROGRAM} ${joined}" command)
 message("${command}\n-- stdout --\n${out}-- stderr --\n${err}-- exit code ${code}")
