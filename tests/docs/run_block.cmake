@@ -1,0 +1,52 @@
+# cmake -DMODE=program|shell|compare|skip|fail ... -P run_block.cmake: one documentation block's
+# test (doc_blocks.cmake).
+#   program  -DPROGRAM= -DEXPECTED=: exit 0, and stdout contains every line of EXPECTED
+#   shell    -DSCRIPT= -DBIN_DIR= -DWORK_DIR=: bash -euo pipefail SCRIPT in WORK_DIR with
+#            BIN_DIR first in PATH, exit 0
+#   compare  -DBLOCK= -DFILE=: the two files are identical
+#   skip     -DMESSAGE=: prints "skipped: MESSAGE" (the test's SKIP_REGULAR_EXPRESSION)
+#   fail     -DMESSAGE=: fails with MESSAGE
+if(MODE STREQUAL "program")
+  execute_process(COMMAND ${PROGRAM} RESULT_VARIABLE code OUTPUT_VARIABLE out ERROR_VARIABLE err)
+  message("${out}${err}")
+  if(NOT code EQUAL 0)
+    message(FATAL_ERROR "${PROGRAM} exited with ${code}")
+  endif()
+  file(READ ${EXPECTED} expected)
+  # Expected lines may hold semicolons: split by hand, not as a CMake list.
+  while(NOT expected STREQUAL "")
+    string(FIND "${expected}" "\n" end)
+    string(SUBSTRING "${expected}" 0 ${end} line)
+    math(EXPR end "${end} + 1")
+    string(SUBSTRING "${expected}" ${end} -1 expected)
+    string(FIND "${out}" "${line}" at)
+    if(at EQUAL -1)
+      message(FATAL_ERROR "the output lacks \"${line}\" (a // prints: comment of the block)")
+    endif()
+    message("prints \"${line}\": ok")
+  endwhile()
+elseif(MODE STREQUAL "shell")
+  file(REMOVE_RECURSE ${WORK_DIR})
+  file(MAKE_DIRECTORY ${WORK_DIR})
+  set(ENV{PATH} "${BIN_DIR}:$ENV{PATH}")
+  file(READ ${SCRIPT} script)
+  message("${script}")
+  execute_process(COMMAND bash -euo pipefail ${SCRIPT} WORKING_DIRECTORY ${WORK_DIR}
+                  RESULT_VARIABLE code OUTPUT_VARIABLE out ERROR_VARIABLE err)
+  message("${out}${err}")
+  if(NOT code EQUAL 0)
+    message(FATAL_ERROR "the commands exited with ${code}")
+  endif()
+elseif(MODE STREQUAL "compare")
+  file(READ ${BLOCK} block)
+  file(READ ${FILE} file)
+  if(NOT block STREQUAL file)
+    message(FATAL_ERROR "the block differs from ${FILE}:\n--- block\n${block}--- file\n${file}")
+  endif()
+elseif(MODE STREQUAL "skip")
+  message("skipped: ${MESSAGE}")
+elseif(MODE STREQUAL "fail")
+  message(FATAL_ERROR "${MESSAGE}")
+else()
+  message(FATAL_ERROR "run_block.cmake: unknown MODE \"${MODE}\"")
+endif()
