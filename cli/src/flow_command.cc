@@ -516,8 +516,11 @@ Evaluation run(const FlowCommandOptions& options) {
   }
   if (options.rtol) {
     request.flow.integrator.rtol = parse_number(*options.rtol, "--rtol");
-    if (!(request.flow.integrator.rtol > 0.0)) {
-      fail("--rtol", "must be > 0, got " + format_number(request.flow.integrator.rtol));
+    const double rtol = request.flow.integrator.rtol;
+    if (!(rtol >= IntegratorOptions::kMinRtol) || !std::isfinite(rtol)) {
+      fail("--rtol", "must be >= " + format_number(IntegratorOptions::kMinRtol) +
+                         " (below that no step can meet it in double precision), got " +
+                         format_number(rtol));
     }
   }
   if (options.atol) {

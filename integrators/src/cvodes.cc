@@ -383,10 +383,11 @@ void check_request(const SegmentModel& model, const SegmentRequest& request,
     throw InvalidArgument(who + "t0 and t_end must be finite, got t0 = " +
                           format_number(request.t0) + ", t_end = " + format_number(request.t_end));
   }
-  if (!(options.rtol > 0.0) || !(options.absolute_tolerance() > 0.0) ||
-      !std::isfinite(options.rtol) || !std::isfinite(options.absolute_tolerance())) {
-    throw InvalidArgument(who + "rtol and atol must be positive and finite, got rtol = " +
-                          format_number(options.rtol) +
+  if (!(options.rtol >= IntegratorOptions::kMinRtol) || !std::isfinite(options.rtol) ||
+      !(options.absolute_tolerance() > 0.0) || !std::isfinite(options.absolute_tolerance())) {
+    throw InvalidArgument(who +
+                          "need a finite rtol >= " + format_number(IntegratorOptions::kMinRtol) +
+                          " and a positive finite atol, got rtol = " + format_number(options.rtol) +
                           ", atol = " + format_number(options.absolute_tolerance()));
   }
   if (!(options.initial_step >= 0.0) || !(options.min_step >= 0.0) || !(options.max_step > 0.0) ||

@@ -177,6 +177,11 @@ class Stepper {
         continue;
       }
       ++result.steps;
+      if (!last && t + h == t) {
+        return fail(result, IntegrationStatus::kStepSizeUnderflow, t, x,
+                    "dopri5: step size " + format_number(h) + " no longer advances t = " +
+                        format_number(t) + " (the tolerances ask for more than double precision)");
+      }
       if (watch && n_ > 0) {
         double theta = 0.0;
         if (locate_crossing(x, h, theta, result.crossed)) {
@@ -692,9 +697,11 @@ void check_request(const SegmentModel& model, const SegmentRequest& request,
     throw InvalidArgument("dopri5: need finite t_end >= t0, got t0 = " + format_number(request.t0) +
                           ", t_end = " + format_number(request.t_end));
   }
-  if (!(options.rtol > 0) || !(options.absolute_tolerance() > 0)) {
+  if (!(options.rtol >= IntegratorOptions::kMinRtol) || !std::isfinite(options.rtol) ||
+      !(options.absolute_tolerance() > 0) || !std::isfinite(options.absolute_tolerance())) {
     throw InvalidArgument(
-        "dopri5: rtol and atol must be positive, got rtol = " + format_number(options.rtol) +
+        "dopri5: need a finite rtol >= " + format_number(IntegratorOptions::kMinRtol) +
+        " and a positive finite atol, got rtol = " + format_number(options.rtol) +
         ", atol = " + format_number(options.absolute_tolerance()));
   }
 }

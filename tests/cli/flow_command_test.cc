@@ -401,7 +401,12 @@ TEST(FlowCommandTest, MalformedOptionsExitTwoWithOneLine) {
       {{"--scene", "pwconst", "--t", "soon"}, "--t: \"soon\" is not a number"},
       {{"--scene", "pwconst", "--t", "1e999"}, "--t: \"1e999\" is out of the range of a double"},
       {{"--scene", "pwconst", "--t", "nan"}, "--t: \"nan\" is not a finite number"},
-      {{"--scene", "pwconst", "--rtol", "0"}, "--rtol: must be > 0, got 0"},
+      {{"--scene", "pwconst", "--rtol", "0"},
+       "--rtol: must be >= 1e-15 (below that no step can meet it in double precision), got 0"},
+      // 1e-300 used to shrink the steps forever.
+      {{"--scene", "pwconst", "--rtol", "1e-300"},
+       "--rtol: must be >= 1e-15 (below that no step can meet it in double precision), got "
+       "1e-300"},
       {{"--scene", "pwconst", "--atol", "-1e-9"}, "--atol: must be > 0, got -1e-09"},
       {{"--scene", "pwconst", "--integrator", "euler"},
        "--integrator: integrator \"euler\" is unknown; choose dopri5, cvodes-bdf or cvodes-adams"},

@@ -92,7 +92,10 @@ enum class IntegrationStatus {
 const char* to_string(IntegrationStatus status);
 
 struct IntegratorOptions {
+  /** Relative tolerance, >= kMinRtol: below about 5 ulps no step can meet it in double
+      precision, so a smaller value is refused rather than left to shrink steps forever. */
   double rtol = 1e-8;
+  static constexpr double kMinRtol = 1e-15;
   /** Absolute tolerance. Unset (the default): 1e-2 x rtol, so that tightening rtol alone keeps
       tightening the error on states of order one, instead of stopping where a fixed atol takes
       over. Set it for states far from order one (atol ~ 1e-2 rtol |x|). */
