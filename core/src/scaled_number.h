@@ -67,6 +67,9 @@ class ScaledNumber {
   int e_ = 0;
 };
 
+/** A row of a column-major matrix, bound without a copy (rows have an inner stride). */
+using RowRef = Eigen::Ref<const Eigen::RowVectorXd, 0, Eigen::InnerStride<>>;
+
 /** The binary exponent e with max |v_i| in [2^(e-1), 2^e) (0 for a zero vector). */
 inline int max_exponent(const Eigen::Ref<const Eigen::VectorXd>& v) {
   int e = 0;
@@ -78,8 +81,7 @@ inline int max_exponent(const Eigen::Ref<const Eigen::VectorXd>& v) {
     largest entry is near 1, the dot product taken, and the scale put back in the exponent.
     Entries of v more than 2^1074 below its largest are lost, far below the rounding of any
     dot product. */
-inline ScaledNumber scaled_dot(const Eigen::Ref<const Eigen::RowVectorXd>& a,
-                               const Eigen::Ref<const Eigen::VectorXd>& v) {
+inline ScaledNumber scaled_dot(const RowRef& a, const Eigen::Ref<const Eigen::VectorXd>& v) {
   const int e = max_exponent(v);
   double sum = 0.0;
   for (Eigen::Index i = 0; i < v.size(); ++i) sum += a[i] * std::ldexp(v[i], -e);
