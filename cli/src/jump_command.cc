@@ -617,6 +617,13 @@ int run_jump_text(const std::string& text, std::ostream& out, std::ostream& err,
 }
 
 // Reads at most `limit` bytes; false (with a message) when there are more or reading fails.
+// The refusal of an input longer than --max-input-bytes; `what` names the input.
+void report_too_long(std::ostream& err, const std::string& what, long long limit) {
+  report_error(err, "input: " + what + " is longer than " + std::to_string(limit) +
+                        " bytes (--max-input-bytes " + std::to_string(limit) +
+                        "); raise the limit for a larger document");
+}
+
 bool read_capped(std::istream& in, long long limit, const std::string& what, std::string& text,
                  std::ostream& err) {
   char buffer[1 << 16];
@@ -626,9 +633,7 @@ bool read_capped(std::istream& in, long long limit, const std::string& what, std
     if (got <= 0) break;
     text.append(buffer, static_cast<std::size_t>(got));
     if (static_cast<long long>(text.size()) > limit) {
-      report_error(err, "input: " + what + " is longer than " + std::to_string(limit) +
-                            " bytes (--max-input-bytes " + std::to_string(limit) +
-                            "); raise the limit for a larger document");
+      report_too_long(err, what, limit);
       return false;
     }
   }
@@ -674,10 +679,7 @@ int run_jump_file(const std::string& path, std::istream& stdin_stream, std::ostr
   while ((got = std::fread(buffer, 1, sizeof buffer, file.get())) > 0) {
     text.append(buffer, got);
     if (static_cast<long long>(text.size()) > options.max_input_bytes) {
-      report_error(err, "input: " + quote(path, 200) + " is longer than " +
-                            std::to_string(options.max_input_bytes) + " bytes (--max-input-bytes " +
-                            std::to_string(options.max_input_bytes) +
-                            "); raise the limit for a larger document");
+      report_too_long(err, quote(path, 200), options.max_input_bytes);
       return kExitBadInput;
     }
   }
