@@ -20,6 +20,7 @@
 
 #include "bflow/core/errors.h"
 #include "fesd_dcs.h"
+#include "fesd_element.h"
 
 namespace bflow {
 
@@ -39,42 +40,22 @@ namespace {
 
 constexpr double kInfinity = 1e19;  // IPOPT's default nlp_upper_bound_inf
 
+using fesd_detail::element_residual;
+using fesd_detail::equilibration_term;
 using fesd_detail::Pair;
 using fesd_detail::PairState;
 using fesd_detail::PointDcs;
 
-// Where each unknown of one integration step lives. Per finite element n (0-based):
-//   [h | X_1..X_s (s d) | x_{n+1} (d) | z_1..z_P (P nz)]
-// with z a point's algebraic variables (fesd_dcs.h) and P = s points (Radau IIA: the last stage
-// is the element's end) or s + 1 (Gauss-Legendre: the stages and the end point of (42)). An
-// element's "local" vector puts its start in front:
-//   [x_n (d) | v of every pair at the start (npairs) | its own block].
-struct Layout {
-  const PointDcs* dcs = nullptr;
-  int d = 0, nc = 0, s = 0, points = 0, elements = 0;
-  int nz = 0, neq = 0, npairs = 0;
-  bool end_point = false;  // Gauss-Legendre: an extra point at the element's end
-  int off_x = 0, off_z = 0, block = 0;
-  int equalities = 0;  // per element
-  int local = 0;
+// Where each unknown of one integration step lives: N_FE element blocks in a row
+// (fesd_element.h); the first element starts from the step's start (constants).
+struct Layout : fesd_detail::ElementShape {
+  int elements = 0;
   // fesd_problem_size()'s counts, checked against the structures built from this layout.
   std::int64_t jacobian_nonzeros = 0, hessian_nonzeros_bound = 0;
 
   Layout(const PointDcs& point, int states, int switches, const ButcherTableau& tableau, int n_fe)
-      : dcs(&point), d(states), nc(switches), s(tableau.stages), elements(n_fe) {
-    nz = point.size();
-    neq = point.equations();
-    npairs = static_cast<int>(point.pairs().size());
-    end_point = !tableau.stiffly_accurate();
-    points = s + (end_point ? 1 : 0);
-    off_x = 1 + s * d;
-    off_z = off_x + d;
-    block = off_z + points * nz;
-    equalities = s * d + d + points * neq;
-    local = d + npairs + block;
-  }
+      : ElementShape(point, states, switches, tableau), elements(n_fe) {}
   int variables() const { return elements * block; }
-  int rows_per_element() const { return equalities + npairs; }
   int constraints() const { return elements * rows_per_element() + 1; }
   int var(int n, int offset) const { return n * block + offset; }
   // Global index of z_k at point m of element n.
@@ -87,118 +68,6 @@ struct Layout {
     return z(n - 1, points - 1, dcs->pairs()[static_cast<std::size_t>(k - d)].v);
   }
 };
-
-// Equalities and aggregated complementarity products of one element from its local vector.
-template <typename T>
-void element_residual(const ButcherTableau& tab, const Layout& l, bool standard, const T* in,
-                      T* out) {
-  const PointDcs& dcs = *l.dcs;
-  const int d = l.d, s = l.s, nz = l.nz;
-  const T* xn = in;
-  const T* v0 = in + d;
-  const T* blk = in + d + l.npairs;
-  const T& h = blk[0];
-  const T* stage = blk + 1;
-  const T* xnext = blk + l.off_x;
-  const T* z = blk + l.off_z;
-  // Scratch kept per thread and scalar type: this runs for every Jacobian chunk and every IPOPT
-  // evaluation, so it allocates only when the sizes grow.
-  thread_local std::vector<T> f;
-  f.resize(static_cast<std::size_t>(s * d));
-  for (int m = 0; m < s; ++m) dcs.field(stage + m * d, z + m * nz, f.data() + m * d);
-  T* eq = out;
-  for (int m = 0; m < s; ++m) {
-    for (int i = 0; i < d; ++i) {
-      T sum(0.0);
-      for (int k = 0; k < s; ++k) sum += tab.a(m, k) * f[static_cast<std::size_t>(k * d + i)];
-      eq[m * d + i] = stage[m * d + i] - xn[i] - h * sum;
-    }
-  }
-  for (int i = 0; i < d; ++i) {
-    T sum(0.0);
-    for (int k = 0; k < s; ++k) sum += tab.b(k) * f[static_cast<std::size_t>(k * d + i)];
-    eq[s * d + i] = xnext[i] - xn[i] - h * sum;
-  }
-  T* alg = eq + s * d + d;
-  for (int m = 0; m < l.points; ++m) {
-    dcs.algebraic(m < s ? stage + m * d : xnext, z + m * nz, alg + m * l.neq);
-  }
-  T* comp = eq + l.equalities;
-  for (int k = 0; k < l.npairs; ++k) {
-    const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
-    if (standard) {
-      // (34): each point's own pair only.
-      T sum(0.0);
-      for (int m = 0; m < l.points; ++m) {
-        sum += PointDcs::member_u(pair, z + m * nz) * z[m * nz + pair.v];
-      }
-      comp[k] = sum;
-    } else {
-      // (35) and (37) summed over all pairs of points of the element, the start included:
-      // sum_m sum_m' u_m v_m' = (sum_m u_m)(sum_m' v_m').
-      T sum_u(0.0), sum_v = v0[k];
-      for (int m = 0; m < l.points; ++m) {
-        sum_u += PointDcs::member_u(pair, z + m * nz);
-        sum_v += z[m * nz + pair.v];
-      }
-      comp[k] = sum_u * sum_v;
-    }
-  }
-}
-
-// Step equilibration between elements n - 1 and n ((39) with the indicator of Section 4.4):
-// inputs [h_{n-1}, h_n, v of every pair at the start of n - 1 (npairs), z of n - 1 (P nz),
-// z of n (P nz)].
-template <typename T>
-T equilibration_term(const Layout& l, double h_ref, const T* in) {
-  const PointDcs& dcs = *l.dcs;
-  const int nz = l.nz, pts = l.points;
-  const T* v0 = in + 2;
-  const T* back = v0 + l.npairs;
-  const T* fwd = back + pts * nz;
-  const T* back_last = back + (pts - 1) * nz;
-  const bool stewart = dcs.kind() == PointDcs::Kind::kStewart;
-  // nu per group: products of backward and forward sums of the v members (for Stewart also the
-  // u members, theta); zero exactly where the group's active set changes.
-  thread_local std::vector<T> nu;
-  nu.assign(static_cast<std::size_t>(dcs.groups()), T(0.0));
-  for (int k = 0; k < l.npairs; ++k) {
-    const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
-    T bv = v0[k], fv = back_last[pair.v];  // the forward element starts where the back one ends
-    T bu(0.0), fu(0.0);
-    for (int m = 0; m < pts; ++m) {
-      bv += back[m * nz + pair.v];
-      fv += fwd[m * nz + pair.v];
-      if (stewart) {
-        bu += back[m * nz + pair.u];
-        fu += fwd[m * nz + pair.u];
-      }
-    }
-    nu[static_cast<std::size_t>(pair.group)] += bv * fv + bu * fu;
-  }
-  T eta(1.0);
-  for (const T& value : nu) eta *= value / (value + 1e-6);
-  const T dh = (in[1] - in[0]) / h_ref;
-  T value = (eta + 1e-3) * dh * dh;
-  // Leaving a sliding arc (step formulation): the selection is continuous where a trajectory
-  // leaves the surface (it reaches its bound exactly there), so a jump of a_j after an element
-  // that slides on c_j is penalised. This picks the exact leaving time among the boundaries the
-  // collocation conditions allow (they admit any within O(h) of it), and keeps a trajectory on
-  // the surface when leaving is optional (the spontaneous case). Stewart's homotopy goes without
-  // it: a penalty on the jumps of theta, weighted by the number of active modes, made IPOPT
-  // fail at every switch; the Newton path imposes the continuity exactly in both formulations.
-  if (stewart) return value;
-  for (int j = 0; j < l.nc; ++j) {
-    const Pair& q = dcs.pairs()[static_cast<std::size_t>(j)];
-    const Pair& p = dcs.pairs()[static_cast<std::size_t>(l.nc + j)];
-    T lambda(0.0);
-    for (int m = 0; m < pts; ++m) lambda += back[m * nz + p.v] + back[m * nz + q.v];
-    const T sliding = 1e-6 / (1e-6 + lambda);
-    const T jump = fwd[q.u] - back_last[q.u];
-    value += 1e3 * sliding * jump * jump;
-  }
-  return value;
-}
 
 // Global indices of the inputs of equilibration_term at boundary n (1 <= n < N): -1 = constant.
 std::vector<int> equilibration_inputs(const Layout& l, int n) {
@@ -388,22 +257,12 @@ class StepNlp final : public Ipopt::TNLP {
     std::fill(grad, grad + n, 0.0);
     if (options_.standard) return true;
     std::vector<double> values;
+    const double h_ref = step_ / l_.elements;
     for (std::size_t e = 0; e < equilibration_index_.size(); ++e) {
-      const std::vector<int>& idx = equilibration_index_[e];
       gather(x, e, values);
-      const int size = static_cast<int>(idx.size());
-      std::vector<JetChunk> in(static_cast<std::size_t>(size));
-      for (int first = 0; first < size; first += kTangentChunk) {
-        for (int k = 0; k < size; ++k)
-          in[static_cast<std::size_t>(k)] = JetChunk(values[static_cast<std::size_t>(k)]);
-        const int width = std::min(kTangentChunk, size - first);
-        for (int c = 0; c < width; ++c) in[static_cast<std::size_t>(first + c)].v[c] = 1.0;
-        const JetChunk term = equilibration_term(l_, step_ / l_.elements, in.data());
-        for (int c = 0; c < width; ++c) {
-          const int g = idx[static_cast<std::size_t>(first + c)];
-          if (g >= 0) grad[g] += term.v[c];
-        }
-      }
+      fesd_detail::add_gradient(
+          equilibration_index_[e], values, 1.0,
+          [&](const JetChunk* in) { return equilibration_term(l_, h_ref, in); }, grad);
     }
     return true;
   }
@@ -460,7 +319,7 @@ class StepNlp final : public Ipopt::TNLP {
     for (int n = 0; n < l_.elements; ++n) {
       local_inputs(x, n, base);
       for (int k = 0; k < l_.local; ++k) globals[static_cast<std::size_t>(k)] = l_.global(n, k);
-      add_hessian(
+      hessian_.add(
           globals, base, l_.rows_per_element(), lambda + n * l_.rows_per_element(),
           [&](const HessianScalar* in, HessianScalar* out) {
             element_residual(tab_, l_, options_.standard, in, out);
@@ -471,7 +330,7 @@ class StepNlp final : public Ipopt::TNLP {
       const double h_ref = step_ / l_.elements;
       for (std::size_t e = 0; e < equilibration_index_.size(); ++e) {
         gather(x, e, base);
-        add_hessian(
+        hessian_.add(
             equilibration_index_[e], base, 1, &obj_factor,
             [&](const HessianScalar* in, HessianScalar* out) {
               out[0] = equilibration_term(l_, h_ref, in);
@@ -523,72 +382,14 @@ class StepNlp final : public Ipopt::TNLP {
   // Lower-triangle positions of the Lagrangian's Hessian: every pair of an element's unknowns
   // and of an equilibration term's unknowns.
   void build_hessian_structure() {
-    std::map<std::pair<int, int>, int> position;
-    const auto add_block = [&](const std::vector<int>& globals) {
-      for (int a : globals) {
-        for (int b : globals) {
-          if (a < 0 || b < 0 || a < b) continue;
-          if (position.emplace(std::make_pair(a, b), static_cast<int>(position.size())).second) {
-            hess_rows_.push_back(a);
-            hess_cols_.push_back(b);
-          }
-        }
-      }
-    };
     for (int n = 0; n < l_.elements; ++n) {
       std::vector<int> globals;
       for (int k = 0; k < l_.local; ++k) globals.push_back(l_.global(n, k));
-      add_block(globals);
+      hessian_.add_block(globals);
     }
-    for (const std::vector<int>& idx : equilibration_index_) add_block(idx);
-    hess_position_ = std::move(position);
-  }
-
-  // Adds weight * the Hessian of sum_r weights[r] f_r(in) over the unknowns `globals` (-1 for a
-  // constant) into the lower-triangle values, f evaluated at `base` by `eval`, in blocks of
-  // kHessianChunk x kHessianChunk second derivatives per evaluation.
-  template <typename Eval>
-  void add_hessian(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
-                   const double* weights, Eval eval, double* values) const {
-    std::vector<int> free;
-    for (std::size_t k = 0; k < globals.size(); ++k) {
-      if (globals[k] >= 0) free.push_back(static_cast<int>(k));
-    }
-    const int count = static_cast<int>(free.size());
-    std::vector<HessianScalar> in(globals.size()), out(static_cast<std::size_t>(outputs));
-    for (int first_a = 0; first_a < count; first_a += kHessianChunk) {
-      for (int first_b = first_a; first_b < count; first_b += kHessianChunk) {
-        for (std::size_t k = 0; k < globals.size(); ++k)
-          in[k] = HessianScalar(HessianInner(base[k]));
-        const int width_a = std::min(kHessianChunk, count - first_a);
-        const int width_b = std::min(kHessianChunk, count - first_b);
-        for (int i = 0; i < width_a; ++i) {
-          in[static_cast<std::size_t>(free[static_cast<std::size_t>(first_a + i)])]
-              .value()
-              .derivatives()[i] = 1.0;
-        }
-        for (int j = 0; j < width_b; ++j) {
-          in[static_cast<std::size_t>(free[static_cast<std::size_t>(first_b + j)])]
-              .derivatives()[j] = HessianInner(1.0);
-        }
-        eval(in.data(), out.data());
-        for (int i = 0; i < width_a; ++i) {
-          const int ga =
-              globals[static_cast<std::size_t>(free[static_cast<std::size_t>(first_a + i)])];
-          for (int j = 0; j < width_b; ++j) {
-            const int gb =
-                globals[static_cast<std::size_t>(free[static_cast<std::size_t>(first_b + j)])];
-            // Diagonal blocks hold both (a, b) and (b, a): take each once.
-            if (first_a == first_b && ga < gb) continue;
-            double h = 0.0;
-            for (int r = 0; r < outputs; ++r) {
-              h += weights[r] * out[static_cast<std::size_t>(r)].derivatives()[j].derivatives()[i];
-            }
-            values[hess_position_.at({std::max(ga, gb), std::min(ga, gb)})] += h;
-          }
-        }
-      }
-    }
+    for (const std::vector<int>& idx : equilibration_index_) hessian_.add_block(idx);
+    hess_rows_.assign(hessian_.rows().begin(), hessian_.rows().end());
+    hess_cols_.assign(hessian_.cols().begin(), hessian_.cols().end());
   }
 
   const ButcherTableau& tab_;
@@ -602,7 +403,7 @@ class StepNlp final : public Ipopt::TNLP {
   std::vector<std::vector<int>> equilibration_index_;
   std::vector<std::vector<double>> equilibration_constants_;
   std::vector<Ipopt::Index> hess_rows_, hess_cols_;
-  std::map<std::pair<int, int>, int> hess_position_;
+  fesd_detail::HessianBlocks hessian_;
   std::vector<Ipopt::Index> jac_rows_, jac_cols_;
   Ipopt::SolverReturn status_ = Ipopt::SUCCESS;
 };

@@ -1,0 +1,287 @@
+// One FESD finite element, written once for simulation (fesd.cc, one integration step per NLP)
+// and optimal control (ocp/src/ocp.cc, all control stages in one NLP): its unknowns, its
+// equations ([F] (33), (36)-(43)), the step equilibration between two elements ((39)) and the
+// assembly of exact second derivatives by nested forward AD.
+//
+// An element's own unknowns ("block"):
+//   [h | X_1..X_s (s d) | x_{n+1} (d) | z_1..z_P (P nz)]
+// with z a point's algebraic variables (fesd_dcs.h) and P = s points (Radau IIA: the last stage
+// is the element's end) or s + 1 (Gauss-Legendre: the stages and the end point of (42)). Its
+// "local" vector puts what it reads from elsewhere in front:
+//   [x_n (d) | v of every pair at the start (npairs) | u (nu) | T (1 if time-scaled) | block]
+// u is the control of the element's stage (the model then sees the point [X; u]); with time
+// scaling the element's physical length is T h.
+#ifndef BFLOW_INTEGRATORS_SRC_FESD_ELEMENT_H_
+#define BFLOW_INTEGRATORS_SRC_FESD_ELEMENT_H_
+
+#include <algorithm>
+#include <cstdint>
+#include <map>
+#include <utility>
+#include <vector>
+
+#include "bflow/integrators/butcher.h"
+#include "bflow/integrators/fesd.h"
+#include "fesd_dcs.h"
+
+namespace bflow {
+namespace fesd_detail {
+
+struct ElementShape {
+  const PointDcs* dcs = nullptr;
+  int d = 0, nc = 0, s = 0, points = 0;
+  int nu = 0;           // controls read by the element (0 in simulation)
+  bool scaled = false;  // a time-scaling variable T multiplies h
+  int nz = 0, neq = 0, npairs = 0;
+  bool end_point = false;  // Gauss-Legendre: an extra point at the element's end
+  int off_x = 0, off_z = 0, block = 0;
+  int equalities = 0;  // per element
+  int params = 0;      // nu + (scaled ? 1 : 0)
+  int local = 0;
+
+  ElementShape(const PointDcs& point, int states, int switches, const ButcherTableau& tableau,
+               int controls = 0, bool time_scaled = false)
+      : dcs(&point), d(states), nc(switches), s(tableau.stages), nu(controls), scaled(time_scaled) {
+    nz = point.size();
+    neq = point.equations();
+    npairs = static_cast<int>(point.pairs().size());
+    end_point = !tableau.stiffly_accurate();
+    points = s + (end_point ? 1 : 0);
+    off_x = 1 + s * d;
+    off_z = off_x + d;
+    block = off_z + points * nz;
+    equalities = s * d + d + points * neq;
+    params = nu + (scaled ? 1 : 0);
+    local = d + npairs + params + block;
+  }
+  int rows_per_element() const { return equalities + npairs; }
+  // Offset in the local vector of the element's own block.
+  int own() const { return d + npairs + params; }
+};
+
+// Equalities and aggregated complementarity products of one element from its local vector.
+template <typename T>
+void element_residual(const ButcherTableau& tab, const ElementShape& l, bool standard, const T* in,
+                      T* out) {
+  const PointDcs& dcs = *l.dcs;
+  const int d = l.d, s = l.s, nz = l.nz, nu = l.nu;
+  const T* xn = in;
+  const T* v0 = in + d;
+  const T* u = in + d + l.npairs;
+  const T* blk = in + l.own();
+  const T h = l.scaled ? blk[0] * u[nu] : blk[0];
+  const T* stage = blk + 1;
+  const T* xnext = blk + l.off_x;
+  const T* z = blk + l.off_z;
+  // Scratch kept per thread and scalar type: this runs for every Jacobian chunk and every IPOPT
+  // evaluation, so it allocates only when the sizes grow.
+  thread_local std::vector<T> f, point, rate;
+  f.resize(static_cast<std::size_t>(s * d));
+  // The model sees [x; u] at a point (d + nu values; its rates of u are ignored).
+  const auto at = [&](const T* x) -> const T* {
+    if (nu == 0) return x;
+    point.resize(static_cast<std::size_t>(d + nu));
+    std::copy(x, x + d, point.begin());
+    std::copy(u, u + nu, point.begin() + d);
+    return point.data();
+  };
+  for (int m = 0; m < s; ++m) {
+    if (nu == 0) {
+      dcs.field(stage + m * d, z + m * nz, f.data() + m * d);
+    } else {
+      rate.resize(static_cast<std::size_t>(d + nu));
+      dcs.field(at(stage + m * d), z + m * nz, rate.data());
+      std::copy(rate.begin(), rate.begin() + d, f.begin() + m * d);
+    }
+  }
+  T* eq = out;
+  for (int m = 0; m < s; ++m) {
+    for (int i = 0; i < d; ++i) {
+      T sum(0.0);
+      for (int k = 0; k < s; ++k) sum += tab.a(m, k) * f[static_cast<std::size_t>(k * d + i)];
+      eq[m * d + i] = stage[m * d + i] - xn[i] - h * sum;
+    }
+  }
+  for (int i = 0; i < d; ++i) {
+    T sum(0.0);
+    for (int k = 0; k < s; ++k) sum += tab.b(k) * f[static_cast<std::size_t>(k * d + i)];
+    eq[s * d + i] = xnext[i] - xn[i] - h * sum;
+  }
+  T* alg = eq + s * d + d;
+  for (int m = 0; m < l.points; ++m) {
+    dcs.algebraic(at(m < s ? stage + m * d : xnext), z + m * nz, alg + m * l.neq);
+  }
+  T* comp = eq + l.equalities;
+  for (int k = 0; k < l.npairs; ++k) {
+    const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+    if (standard) {
+      // (34): each point's own pair only.
+      T sum(0.0);
+      for (int m = 0; m < l.points; ++m) {
+        sum += PointDcs::member_u(pair, z + m * nz) * z[m * nz + pair.v];
+      }
+      comp[k] = sum;
+    } else {
+      // (35) and (37) summed over all pairs of points of the element, the start included:
+      // sum_m sum_m' u_m v_m' = (sum_m u_m)(sum_m' v_m').
+      T sum_u(0.0), sum_v = v0[k];
+      for (int m = 0; m < l.points; ++m) {
+        sum_u += PointDcs::member_u(pair, z + m * nz);
+        sum_v += z[m * nz + pair.v];
+      }
+      comp[k] = sum_u * sum_v;
+    }
+  }
+}
+
+// Step equilibration between elements n - 1 and n ((39) with the indicator of Section 4.4):
+// inputs [h_{n-1}, h_n, v of every pair at the start of n - 1 (npairs), z of n - 1 (P nz),
+// z of n (P nz)].
+template <typename T>
+T equilibration_term(const ElementShape& l, double h_ref, const T* in) {
+  const PointDcs& dcs = *l.dcs;
+  const int nz = l.nz, pts = l.points;
+  const T* v0 = in + 2;
+  const T* back = v0 + l.npairs;
+  const T* fwd = back + pts * nz;
+  const T* back_last = back + (pts - 1) * nz;
+  const bool stewart = dcs.kind() == PointDcs::Kind::kStewart;
+  // nu per group: products of backward and forward sums of the v members (for Stewart also the
+  // u members, theta); zero exactly where the group's active set changes.
+  thread_local std::vector<T> nu;
+  nu.assign(static_cast<std::size_t>(dcs.groups()), T(0.0));
+  for (int k = 0; k < l.npairs; ++k) {
+    const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+    T bv = v0[k], fv = back_last[pair.v];  // the forward element starts where the back one ends
+    T bu(0.0), fu(0.0);
+    for (int m = 0; m < pts; ++m) {
+      bv += back[m * nz + pair.v];
+      fv += fwd[m * nz + pair.v];
+      if (stewart) {
+        bu += back[m * nz + pair.u];
+        fu += fwd[m * nz + pair.u];
+      }
+    }
+    nu[static_cast<std::size_t>(pair.group)] += bv * fv + bu * fu;
+  }
+  T eta(1.0);
+  for (const T& value : nu) eta *= value / (value + 1e-6);
+  const T dh = (in[1] - in[0]) / h_ref;
+  T value = (eta + 1e-3) * dh * dh;
+  // Leaving a sliding arc (step formulation): the selection is continuous where a trajectory
+  // leaves the surface (it reaches its bound exactly there), so a jump of a_j after an element
+  // that slides on c_j is penalised. This picks the exact leaving time among the boundaries the
+  // collocation conditions allow (they admit any within O(h) of it), and keeps a trajectory on
+  // the surface when leaving is optional (the spontaneous case). Stewart's homotopy goes without
+  // it: a penalty on the jumps of theta, weighted by the number of active modes, made IPOPT
+  // fail at every switch; the Newton path imposes the continuity exactly in both formulations.
+  if (stewart) return value;
+  for (int j = 0; j < l.nc; ++j) {
+    const Pair& q = dcs.pairs()[static_cast<std::size_t>(j)];
+    const Pair& p = dcs.pairs()[static_cast<std::size_t>(l.nc + j)];
+    T lambda(0.0);
+    for (int m = 0; m < pts; ++m) lambda += back[m * nz + p.v] + back[m * nz + q.v];
+    const T sliding = 1e-6 / (1e-6 + lambda);
+    const T jump = fwd[q.u] - back_last[q.u];
+    value += 1e3 * sliding * jump * jump;
+  }
+  return value;
+}
+
+// Adds weight * the gradient of f(in) over the unknowns `globals` (-1 for a constant) into grad,
+// f evaluated at `base` by `eval` (JetChunk in, JetChunk out), kTangentChunk directions at once.
+template <typename Eval>
+void add_gradient(const std::vector<int>& globals, const std::vector<double>& base, double weight,
+                  Eval eval, double* grad) {
+  const int size = static_cast<int>(globals.size());
+  thread_local std::vector<JetChunk> in;
+  in.resize(globals.size());
+  for (int first = 0; first < size; first += kTangentChunk) {
+    for (int k = 0; k < size; ++k)
+      in[static_cast<std::size_t>(k)] = JetChunk(base[static_cast<std::size_t>(k)]);
+    const int width = std::min(kTangentChunk, size - first);
+    for (int c = 0; c < width; ++c) in[static_cast<std::size_t>(first + c)].v[c] = 1.0;
+    const JetChunk value = eval(in.data());
+    for (int c = 0; c < width; ++c) {
+      const int g = globals[static_cast<std::size_t>(first + c)];
+      if (g >= 0) grad[g] += weight * value.v[c];
+    }
+  }
+}
+
+// The lower triangle of a Lagrangian's Hessian assembled from blocks: each block is a function of
+// a few unknowns (`globals`, -1 for a constant), and its second derivatives come from nested
+// forward AD (HessianScalar), kHessianChunk x kHessianChunk per evaluation.
+class HessianBlocks {
+ public:
+  // Registers every pair of the block's unknowns (call for every block before values are added).
+  void add_block(const std::vector<int>& globals) {
+    for (int a : globals) {
+      for (int b : globals) {
+        if (a < 0 || b < 0 || a < b) continue;
+        if (position_.emplace(std::make_pair(a, b), static_cast<int>(position_.size())).second) {
+          rows_.push_back(a);
+          cols_.push_back(b);
+        }
+      }
+    }
+  }
+  std::size_t size() const { return rows_.size(); }
+  const std::vector<int>& rows() const { return rows_; }
+  const std::vector<int>& cols() const { return cols_; }
+
+  // Adds the Hessian of sum_r weights[r] f_r(in) (f = `eval`, `outputs` values) at `base` into
+  // the lower-triangle values.
+  template <typename Eval>
+  void add(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
+           const double* weights, Eval eval, double* values) const {
+    std::vector<int> free;
+    for (std::size_t k = 0; k < globals.size(); ++k) {
+      if (globals[k] >= 0) free.push_back(static_cast<int>(k));
+    }
+    const int count = static_cast<int>(free.size());
+    std::vector<HessianScalar> in(globals.size()), out(static_cast<std::size_t>(outputs));
+    for (int first_a = 0; first_a < count; first_a += kHessianChunk) {
+      for (int first_b = first_a; first_b < count; first_b += kHessianChunk) {
+        for (std::size_t k = 0; k < globals.size(); ++k)
+          in[k] = HessianScalar(HessianInner(base[k]));
+        const int width_a = std::min(kHessianChunk, count - first_a);
+        const int width_b = std::min(kHessianChunk, count - first_b);
+        for (int i = 0; i < width_a; ++i) {
+          in[static_cast<std::size_t>(free[static_cast<std::size_t>(first_a + i)])]
+              .value()
+              .derivatives()[i] = 1.0;
+        }
+        for (int j = 0; j < width_b; ++j) {
+          in[static_cast<std::size_t>(free[static_cast<std::size_t>(first_b + j)])]
+              .derivatives()[j] = HessianInner(1.0);
+        }
+        eval(in.data(), out.data());
+        for (int i = 0; i < width_a; ++i) {
+          const int ga =
+              globals[static_cast<std::size_t>(free[static_cast<std::size_t>(first_a + i)])];
+          for (int j = 0; j < width_b; ++j) {
+            const int gb =
+                globals[static_cast<std::size_t>(free[static_cast<std::size_t>(first_b + j)])];
+            // Diagonal blocks hold both (a, b) and (b, a): take each once.
+            if (first_a == first_b && ga < gb) continue;
+            double h = 0.0;
+            for (int r = 0; r < outputs; ++r) {
+              h += weights[r] * out[static_cast<std::size_t>(r)].derivatives()[j].derivatives()[i];
+            }
+            values[position_.at({std::max(ga, gb), std::min(ga, gb)})] += h;
+          }
+        }
+      }
+    }
+  }
+
+ private:
+  std::map<std::pair<int, int>, int> position_;
+  std::vector<int> rows_, cols_;
+};
+
+}  // namespace fesd_detail
+}  // namespace bflow
+
+#endif  // BFLOW_INTEGRATORS_SRC_FESD_ELEMENT_H_
