@@ -1,0 +1,427 @@
+// Optimal control of nonsmooth systems through FESD ([F] Sections 1, 4.6): the whole problem
+// (44) is transcribed into one mathematical program with complementarity constraints (45) and
+// solved by a homotopy of relaxed NLPs on IPOPT. Switch detection stays implicit: the element
+// lengths are unknowns, so the switches of the optimal trajectory land on element boundaries.
+//
+// A problem is written once, as for simulation (fesd.h), with controls u:
+//
+//   struct Car {
+//     static constexpr int kStates = 2, kControls = 1, kSwitches = 1;
+//     template <typename T> void switching(const T* x, T* c) const { c[0] = x[1] - T(10.0); }
+//     template <typename T> void field(const T* x, const T* u, const T* a, T* xdot) const {
+//       xdot[0] = x[1];
+//       xdot[1] = (T(1.0) + T(2.0) * a[0]) * u[0];   // u for v < 10, 3 u for v > 10
+//     }
+//     // Optional, each found by name: costs and constraints.
+//     template <typename T> T lagrange(const T* x, const T* u) const;       // L(x, u)
+//     template <typename T> T mayer(const T* x) const;                      // R(x(T))
+//     static constexpr int kPath = 1;                                       // g(x, u)
+//     template <typename T> void path(const T* x, const T* u, T* g) const;
+//     static constexpr int kTerminal = 2;                                   // g_T(x(T))
+//     template <typename T> void terminal(const T* x, T* g) const;
+//   };
+//   bflow::OcpProblem problem;           // x0, horizon, bounds, guesses (data)
+//   bflow::OcpResult r = bflow::ocp_solve(bflow::adapt_ocp(Car{}), problem, options);
+//
+// A piecewise-smooth model with controls (modes f_i(x, u) and a sign matrix, unions allowed) is
+// wrapped by ControlledPiecewiseSmoothAsStep.
+//
+// Transcription. N control stages of equal length T / N, u constant on each; every stage has
+// N_FE finite elements of an n_s-stage Radau IIA or Gauss-Legendre method on the DCS of the
+// chosen formulation, exactly as one integration step of fesd_simulate: cross complementarity
+// through all elements of the horizon (a stage starts where the previous one ends), step
+// equilibration between neighbouring elements of a stage, and sum h over a stage = T / N. The
+// element lengths are fractions of the horizon (the physical length is T h), so a time-optimal
+// problem only adds T as an unknown (time scaling) and T to the objective. The Lagrange cost is
+// integrated by the collocation quadrature of each element; x bounds hold at every element
+// boundary, path constraints at every element boundary with the control acting there (x0 with
+// u_0, the start of every other element with its stage's control, and x(T) with u_{N-1}).
+//
+// Solution. Scholtes' relaxation (every aggregated complementarity product <= sigma) or the l1
+// penalty (rho = 1 / sigma times the products' sum added to the objective), sigma from
+// sigma_initial down to sigma_final, each NLP warm-started from the previous one, with exact
+// sparse first derivatives from Jets element by element and exact sparse Hessians by nested
+// forward AD (or IPOPT's limited-memory approximation). The result is "solved" only when IPOPT
+// solved the last NLP and the complementarity residual is at most complementarity_tolerance.
+#ifndef BFLOW_OCP_OCP_H_
+#define BFLOW_OCP_OCP_H_
+
+#include <functional>
+#include <limits>
+#include <memory>
+#include <string>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "bflow/core/errors.h"
+#include "bflow/core/filippov.h"
+#include "bflow/integrators/butcher.h"
+#include "bflow/integrators/fesd.h"
+#include "bflow/integrators/segment.h"
+
+namespace bflow {
+
+/** A controlled step inclusion with the costs and constraints of an OCP, seen through virtual
+    calls (double, Jet chunks and HessianScalar), so the transcription compiles once. The
+    optional parts report their presence (has_lagrange(), path_constraints() = 0, ...). */
+class OcpModel {
+ public:
+  virtual ~OcpModel() = default;
+  virtual int states() const = 0;
+  virtual int controls() const = 0;
+  virtual int switches() const = 0;
+  virtual int path_constraints() const { return 0; }
+  virtual int terminal_constraints() const { return 0; }
+  virtual bool has_lagrange() const { return false; }
+  virtual bool has_mayer() const { return false; }
+  /** The sign matrix of a piecewise-smooth model (lifting), or nullptr. */
+  virtual const SignMatrix* sign_matrix() const { return nullptr; }
+
+#define BFLOW_OCP_MODEL_CALLS(T)                                             \
+  virtual void switching(const T* x, T* c) const = 0;                        \
+  virtual void field(const T* x, const T* u, const T* a, T* xdot) const = 0; \
+  virtual T lagrange(const T* x, const T* u) const = 0;                      \
+  virtual T mayer(const T* x) const = 0;                                     \
+  virtual void path(const T* x, const T* u, T* g) const = 0;                 \
+  virtual void terminal(const T* x, T* g) const = 0;
+  BFLOW_OCP_MODEL_CALLS(double)
+  BFLOW_OCP_MODEL_CALLS(JetChunk)
+  BFLOW_OCP_MODEL_CALLS(HessianScalar)
+#undef BFLOW_OCP_MODEL_CALLS
+};
+
+namespace detail {
+template <typename M, typename = void>
+struct HasLagrange : std::false_type {};
+template <typename M>
+struct HasLagrange<M, std::void_t<decltype(std::declval<const M&>().lagrange(
+                          std::declval<const double*>(), std::declval<const double*>()))>>
+    : std::true_type {};
+template <typename M, typename = void>
+struct HasMayer : std::false_type {};
+template <typename M>
+struct HasMayer<
+    M, std::void_t<decltype(std::declval<const M&>().mayer(std::declval<const double*>()))>>
+    : std::true_type {};
+template <typename M, typename = void>
+struct PathCount : std::integral_constant<int, 0> {};
+template <typename M>
+struct PathCount<M, std::void_t<decltype(M::kPath)>> : std::integral_constant<int, M::kPath> {};
+template <typename M, typename = void>
+struct TerminalCount : std::integral_constant<int, 0> {};
+template <typename M>
+struct TerminalCount<M, std::void_t<decltype(M::kTerminal)>>
+    : std::integral_constant<int, M::kTerminal> {};
+}  // namespace detail
+
+/** Wraps a model written as templates (see the top of this file) as an OcpModel. */
+template <typename Model>
+class OcpModelAdapter final : public OcpModel {
+ public:
+  static_assert(Model::kStates >= 1 && Model::kControls >= 1 && Model::kSwitches >= 1,
+                "an OCP model needs kStates, kControls and kSwitches >= 1");
+  explicit OcpModelAdapter(Model model) : model_(std::move(model)) {}
+  int states() const override { return Model::kStates; }
+  int controls() const override { return Model::kControls; }
+  int switches() const override { return Model::kSwitches; }
+  int path_constraints() const override { return detail::PathCount<Model>::value; }
+  int terminal_constraints() const override { return detail::TerminalCount<Model>::value; }
+  bool has_lagrange() const override { return detail::HasLagrange<Model>::value; }
+  bool has_mayer() const override { return detail::HasMayer<Model>::value; }
+  const SignMatrix* sign_matrix() const override {
+    if constexpr (bflow::detail::HasSignMatrix<Model>::value) {
+      return &model_.sign_matrix();
+    } else {
+      return nullptr;
+    }
+  }
+  const Model& model() const { return model_; }
+
+#define BFLOW_OCP_ADAPTER_CALLS(T)                                                \
+  void switching(const T* x, T* c) const override { model_.switching(x, c); }     \
+  void field(const T* x, const T* u, const T* a, T* xdot) const override {        \
+    model_.field(x, u, a, xdot);                                                  \
+  }                                                                               \
+  T lagrange(const T* x, const T* u) const override { return lagrange_of(x, u); } \
+  T mayer(const T* x) const override { return mayer_of(x); }                      \
+  void path(const T* x, const T* u, T* g) const override { path_of(x, u, g); }    \
+  void terminal(const T* x, T* g) const override { terminal_of(x, g); }
+  BFLOW_OCP_ADAPTER_CALLS(double)
+  BFLOW_OCP_ADAPTER_CALLS(JetChunk)
+  BFLOW_OCP_ADAPTER_CALLS(HessianScalar)
+#undef BFLOW_OCP_ADAPTER_CALLS
+
+ private:
+  template <typename T>
+  T lagrange_of(const T* x, const T* u) const {
+    if constexpr (detail::HasLagrange<Model>::value) {
+      return model_.lagrange(x, u);
+    } else {
+      return T(0.0);
+    }
+  }
+  template <typename T>
+  T mayer_of(const T* x) const {
+    if constexpr (detail::HasMayer<Model>::value) {
+      return model_.mayer(x);
+    } else {
+      return T(0.0);
+    }
+  }
+  template <typename T>
+  void path_of(const T* x, const T* u, T* g) const {
+    if constexpr (detail::PathCount<Model>::value > 0) model_.path(x, u, g);
+  }
+  template <typename T>
+  void terminal_of(const T* x, T* g) const {
+    if constexpr (detail::TerminalCount<Model>::value > 0) model_.terminal(x, g);
+  }
+  Model model_;
+};
+
+template <typename Model>
+OcpModelAdapter<Model> adapt_ocp(Model model) {
+  return OcpModelAdapter<Model>(std::move(model));
+}
+
+/** A piecewise-smooth model with controls as a step inclusion with controls: the model provides
+    kStates, kControls, kSwitches, kModes, `switching<T>(x, c)` and `modes<T>(x, u, F)` writing
+    F[i * d + k] = f_i(x, u)_k, plus any optional cost and constraint members, which are
+    forwarded. f(x, u, a) = sum_i theta_i(a) f_i(x, u) with theta from the sign matrix. */
+template <typename Pss>
+class ControlledPiecewiseSmoothAsStep {
+ public:
+  static constexpr int kStates = Pss::kStates;
+  static constexpr int kControls = Pss::kControls;
+  static constexpr int kSwitches = Pss::kSwitches;
+  static constexpr int kModes = Pss::kModes;
+  static constexpr int kPath = detail::PathCount<Pss>::value;
+  static constexpr int kTerminal = detail::TerminalCount<Pss>::value;
+
+  /** @throws InvalidArgument if S has other than kSwitches columns or kModes modes. */
+  ControlledPiecewiseSmoothAsStep(Pss pss, SignMatrix s) : pss_(std::move(pss)), s_(std::move(s)) {
+    if (s_.switches() != kSwitches || s_.modes() != kModes) {
+      throw InvalidArgument("ControlledPiecewiseSmoothAsStep: S has " +
+                            std::to_string(s_.switches()) + " columns and " +
+                            std::to_string(s_.modes()) + " modes, the model " +
+                            std::to_string(kSwitches) + " switching functions and " +
+                            std::to_string(kModes) + " modes");
+    }
+  }
+  template <typename T>
+  void switching(const T* x, T* c) const {
+    pss_.switching(x, c);
+  }
+  template <typename T>
+  void field(const T* x, const T* u, const T* a, T* xdot) const {
+    T theta[kModes];
+    T f[kModes * kStates];
+    s_.multipliers(a, theta);
+    pss_.modes(x, u, f);
+    for (int k = 0; k < kStates; ++k) {
+      xdot[k] = T(0.0);
+      for (int i = 0; i < kModes; ++i) xdot[k] += theta[i] * f[i * kStates + k];
+    }
+  }
+  template <typename T, typename P = Pss,
+            typename = std::enable_if_t<detail::HasLagrange<P>::value, T>>
+  T lagrange(const T* x, const T* u) const {
+    return pss_.lagrange(x, u);
+  }
+  template <typename T, typename P = Pss,
+            typename = std::enable_if_t<detail::HasMayer<P>::value, T>>
+  T mayer(const T* x) const {
+    return pss_.mayer(x);
+  }
+  template <typename T>
+  void path(const T* x, const T* u, T* g) const {
+    if constexpr (kPath > 0) pss_.path(x, u, g);
+  }
+  template <typename T>
+  void terminal(const T* x, T* g) const {
+    if constexpr (kTerminal > 0) pss_.terminal(x, g);
+  }
+  const SignMatrix& sign_matrix() const { return s_; }
+  const Pss& pss() const { return pss_; }
+
+ private:
+  Pss pss_;
+  SignMatrix s_;
+};
+
+/** Where the initial guess of the NLP comes from. */
+enum class OcpGuess {
+  kConstant,    ///< x = guess_x (x0 if empty) everywhere, u = guess_u on every stage
+  kReference,   ///< x from guess_trajectory(t), u = guess_u
+  kSimulation,  ///< guess_u simulated by FESD stage by stage (simulate_controls)
+};
+
+/** The data of an OCP (the functions are the model's). Vectors left empty mean "none" or
+    "unbounded"; bounds are checked for size and order by ocp_solve. */
+struct OcpProblem {
+  Eigen::VectorXd x0;  ///< x(0), required
+  /** The horizon; with time_optimal the initial guess of T. */
+  double horizon = 1.0;
+  /** T free and minimised (T is added to the objective), between T_min and T_max. */
+  bool time_optimal = false;
+  double T_min = 0.0;  ///< > 0 is enforced as max(T_min, 1e-9 horizon)
+  double T_max = std::numeric_limits<double>::infinity();
+  Eigen::VectorXd x_lower, x_upper;        ///< at every element boundary (d each)
+  Eigen::VectorXd u_lower, u_upper;        ///< on every stage (nu each)
+  Eigen::VectorXd path_lower, path_upper;  ///< g(x, u) (kPath each; empty: g <= 0)
+  /** g_T(x(T)) (kTerminal each; empty: g_T = 0, equalities). */
+  Eigen::VectorXd terminal_lower, terminal_upper;
+  /** Least-squares tracking added to the Lagrange cost:
+        (x - x_ref(t_k))' diag(Q) (x - x_ref(t_k)) + (u - u_ref)' diag(R) (u - u_ref),
+      x_ref evaluated at the middle t_k of each stage (fixed horizon only), and
+      (x(T) - x_ref(T))' diag(Q_terminal) (x(T) - x_ref(T)) added to the Mayer cost. */
+  Eigen::VectorXd track_Q, track_R, track_Q_terminal;
+  std::function<Eigen::VectorXd(double)> x_ref;
+  Eigen::VectorXd u_ref;
+  /** The initial guess. guess_u: one column per stage (nu x N) or a single column used on every
+      stage; empty means 0 clamped into the u bounds. */
+  OcpGuess guess = OcpGuess::kConstant;
+  Eigen::VectorXd guess_x;
+  Eigen::MatrixXd guess_u;
+  std::function<Eigen::VectorXd(double)> guess_trajectory;
+};
+
+enum class OcpRelaxation {
+  kScholtes,   ///< products <= sigma
+  kL1Penalty,  ///< (1 / sigma) sum of products added to the objective (elastic)
+};
+
+struct OcpHomotopyStep;
+
+struct OcpOptions {
+  int stages = 10;   ///< N control stages, >= 1
+  int elements = 3;  ///< N_FE per stage, >= 1
+  CollocationScheme scheme = CollocationScheme::kRadauIIA;
+  int collocation_stages = 2;  ///< n_s, 1..9
+  DcsFormulation formulation = DcsFormulation::kStep;
+  int lifting_depth = 0;  ///< as FesdOptions::lifting_depth
+  /** Standard time-stepping: equal fixed element lengths and complementarity point by point
+      ([F] (34)); no switch detection (offered for comparison). */
+  bool standard = false;
+  OcpRelaxation relaxation = OcpRelaxation::kScholtes;
+  double sigma_initial = 100.0;
+  double sigma_final = 1e-10;
+  double sigma_factor = 0.1;  ///< linear update sigma <- factor sigma
+  bool superlinear = false;   ///< sigma <- min(factor sigma, sigma^1.5)
+  /** The largest aggregated complementarity product a "solved" result may have. */
+  double complementarity_tolerance = 1e-9;
+  double nlp_tolerance = 1e-10;  ///< IPOPT's tol for the last NLP
+  /** Weight of the step equilibration (39) in the objective of the homotopy's NLPs, times
+      min(1, sigma): it regularises the element lengths early and fades, so that it does not
+      bias the optimum; the polish imposes the exact equilibration instead. */
+  double equilibration_weight = 0.0;
+  bool exact_hessian = true;  ///< else IPOPT's limited-memory approximation
+  /** After the homotopy, solve once more with the last NLP's active set fixed (the zero member
+      of every complementarity pair at its bound, equal lengths of neighbouring elements of a
+      stage with the same sides, no relaxation and no equilibration penalty): an exact FESD
+      solution. It is kept only when IPOPT solves it and its cost is not worse (by 1e-6
+      relative); OcpResult::polished and notes say what happened. */
+  bool polish = true;
+  int max_nlp_iterations = 3000;  ///< per NLP of the homotopy
+  int print_level = 0;            ///< IPOPT's print_level
+  /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
+  std::function<void(const OcpHomotopyStep&)> progress;
+  std::vector<std::pair<std::string, std::string>> ipopt_string_options;
+  std::vector<std::pair<std::string, double>> ipopt_numeric_options;
+  std::vector<std::pair<std::string, int>> ipopt_integer_options;
+};
+
+enum class OcpStatus {
+  kSolved,                     ///< last NLP solved, complementarity residual <= tolerance
+  kComplementarityNotReached,  ///< last NLP solved, residual above the tolerance
+  kAcceptableOnly,             ///< last NLP solved only to IPOPT's acceptable level
+  kNlpFailed,                  ///< IPOPT failed on some NLP of the homotopy (result: last good)
+  kInfeasible,                 ///< IPOPT found the NLP locally infeasible
+};
+const char* to_string(OcpStatus status);  ///< "solved", "complementarity_not_reached", ...
+
+/** One NLP of the homotopy. */
+struct OcpHomotopyStep {
+  int index = 0;
+  double sigma = 0.0;
+  double objective = 0.0;        ///< the OCP's cost at the NLP's solution (no penalty terms)
+  double complementarity = 0.0;  ///< largest aggregated complementarity product
+  int iterations = 0;            ///< IPOPT iterations of this NLP
+  double cpu_seconds = 0.0;
+  std::string ipopt_status;  ///< e.g. "Solve_Succeeded"
+  bool polish = false;       ///< the final solve with the active set fixed (sigma 0)
+};
+
+struct OcpResult {
+  OcpStatus status = OcpStatus::kNlpFailed;
+  std::string message;  ///< why the status is not kSolved ("" when it is)
+  /** Decisions taken for the caller, e.g. "the simulated guess failed: ...; the constant guess
+      was used". */
+  std::vector<std::string> notes;
+  double objective = 0.0;  ///< the OCP's cost (T for a time-optimal problem, plus L and R)
+  double T = 0.0;
+  std::vector<double> stage_times;  ///< N + 1 stage boundaries, 0 .. T
+  Eigen::MatrixXd x_stages;         ///< d x (N + 1), x at the stage boundaries
+  Eigen::MatrixXd u;                ///< nu x N
+  std::vector<double> grid;         ///< all N N_FE + 1 element boundaries, 0 .. T
+  Eigen::MatrixXd x_grid;           ///< d x grid.size()
+  std::vector<double> step_sizes;   ///< physical element lengths T h
+  /** Element boundaries where some switching function's active set changes. */
+  std::vector<double> switch_times;
+  /** Per element and switching function: +1, -1 or 0 (sliding), as FesdResult::active_sets. */
+  std::vector<std::vector<int>> active_sets;
+  double max_complementarity = 0.0;
+  /** The result is the polished solution (active set fixed, every product zero). */
+  bool polished = false;
+  std::vector<OcpHomotopyStep> homotopy;
+  int ipopt_iterations = 0;  ///< summed over the homotopy
+  double cpu_seconds = 0.0;
+  double cpu_per_iteration = 0.0;
+  int unknowns = 0, constraints = 0, jacobian_nonzeros = 0, hessian_nonzeros = 0;
+  bool ok() const { return status == OcpStatus::kSolved; }
+};
+
+/** Solves the OCP. Progress goes to options.progress; IPOPT prints only at print_level > 0.
+    @throws InvalidArgument for inconsistent data (sizes of x0, bounds, guesses, references;
+    lower > upper; non-finite x0; tracking with a free horizon; options out of range), quoting
+    the values. An NLP that IPOPT cannot solve is a status, not an exception. */
+OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem,
+                    const OcpOptions& options = {});
+
+/** Simulates piecewise-constant controls (nu x N, stage k on [k T / N, (k + 1) T / N]) by FESD,
+    stage by stage: options.steps integration steps of options.elements elements per stage (a
+    stage starts a new integration step, as the control changes there). The result's grid,
+    states, step sizes, switch times, active sets and counters cover the whole horizon;
+    sensitivity is left empty. Stops at the first stage that fails (status and message say
+    which). @throws InvalidArgument as fesd_simulate, or for u of the wrong height. */
+FesdResult simulate_controls(const OcpModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
+                             double horizon, const Eigen::Ref<const Eigen::MatrixXd>& u,
+                             FesdOptions options = {});
+
+/** The model with its controls held at u, as a StepModel for fesd_simulate. */
+class HeldControlModel final : public StepModel {
+ public:
+  HeldControlModel(const OcpModel& model, Eigen::VectorXd u);
+  int states() const override { return model_.states(); }
+  int switches() const override { return model_.switches(); }
+  void switching(const double* x, double* c) const override { model_.switching(x, c); }
+  void switching(const JetChunk* x, JetChunk* c) const override { model_.switching(x, c); }
+  void switching(const HessianScalar* x, HessianScalar* c) const override {
+    model_.switching(x, c);
+  }
+  void field(const double* x, const double* a, double* xdot) const override;
+  void field(const JetChunk* x, const JetChunk* a, JetChunk* xdot) const override;
+  void field(const HessianScalar* x, const HessianScalar* a, HessianScalar* xdot) const override;
+  const SignMatrix* sign_matrix() const override { return model_.sign_matrix(); }
+
+ private:
+  const OcpModel& model_;
+  Eigen::VectorXd u_;
+};
+
+}  // namespace bflow
+
+#endif  // BFLOW_OCP_OCP_H_
