@@ -1327,10 +1327,15 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     result.x_grid.col(e + 1) = w.segment(l.x_end(e, 0), d);
     if (stage_end) result.x_stages.col((e + 1) / l.per_stage) = w.segment(l.x_end(e, 0), d);
     std::vector<int> sides = sides_of(w, e);
-    if (!previous.empty() && sides != previous) {
-      result.switch_times.push_back(result.grid[result.grid.size() - 2]);
+    // An element of (numerically) zero length, which FESD allows at a switch, has no active
+    // set of its own: the switch is counted once, from the neighbours' sides.
+    const bool empty = h <= 1e-9 * result.T / l.elements;
+    if (!empty) {
+      if (!previous.empty() && sides != previous) {
+        result.switch_times.push_back(result.grid[result.grid.size() - 2]);
+      }
+      previous = sides;
     }
-    previous = sides;
     result.active_sets.push_back(std::move(sides));
   }
   result.cpu_seconds = cpu_now() - cpu_start;
