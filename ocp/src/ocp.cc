@@ -1217,6 +1217,8 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     if (final_nlp) break;
     double next = options.sigma_factor * sigma;
     if (options.superlinear) next = std::min(next, std::pow(sigma, 1.5));
+    // Round-off must not leave one more NLP just above sigma_final.
+    if (next < options.sigma_final * (1.0 + 1e-9)) next = options.sigma_final;
     sigma = std::max(next, options.sigma_final);
   }
 
