@@ -20,11 +20,13 @@ namespace {
 constexpr const char* kMainFooter = R"(Exit codes:
   0  success
   1  the computation or its output failed (a non-finite result or an overflow, a
-     simulation that stops early, a failed self-check of the demo, a file or the standard
-     output that cannot be written, gnuplot missing or failing)
+     simulation that stops early, an optimal control problem not solved, a failed
+     self-check of the demo, a file or the standard output that cannot be written, gnuplot
+     missing or failing)
   2  bad input or usage: the one line on stderr, "error: <field>: <problem>", names it
 
-Run 'bflow jump --help', 'bflow flow --help' and 'bflow fesd --help' for the formats. Documentation: docs/cli.md.)";
+Run 'bflow jump --help', 'bflow flow --help', 'bflow fesd --help' and 'bflow ocp --help' for
+the formats. Documentation: docs/cli.md.)";
 
 constexpr const char* kJumpFooter =
     R"(Input, one JSON object (n surfaces meet at a point rho in d dimensions):
@@ -114,6 +116,24 @@ the triangulation and one-sided differences of the exact flow; DIR/demo_circle.{
 DIR is created if missing and must be writable: otherwise the demo stops with code 1 before
 computing anything. Exits with code 1 if a check fails, a file or the standard output cannot be
 written, or gnuplot is missing or fails; the last line printed is the path of the PNG.)";
+
+constexpr const char* kOcpFooter =
+    R"(Examples (bflow/examples/ocp_examples.h), each with its exact optimum:
+  turbo-car      q' = v, v' = u for v < 10 and 3 u for v > 10, |u| <= 5, |v| <= 20, from
+                 (0, 0) to q = 200, v = 0 in least time: T* = 40/3, v = 10 at t = 2, 34/3
+  braking-block  p' = v, v' in u - sign(v), from (0, 2), T = 3, minimising the integral of
+                 v^2 + u^2: J* = 2 sqrt5 + asinh 2 - 4, at rest from t = asinh 2 (sliding)
+
+Output, one JSON object: "example", "N", "nfe", "status", "message", "notes", "objective",
+"T", "t" (stage boundaries), "x" (state at each), "u" (control per stage), "switch_times",
+"max_complementarity", "polished", "homotopy" [{"sigma", "objective", "complementarity",
+"iterations", "cpu_seconds", "status", "polish"}], "ipopt_iterations", "cpu_seconds",
+"cpu_per_iteration", "exact" (the optimum and this run's errors against it); with
+--trajectory also "grid", "x_grid", "step_sizes", "active_sets".
+
+While the homotopy runs, one progress line per NLP goes to stderr (not with --quiet).
+Exit code 1 when the status is not "solved": the JSON is still printed, and stderr ends with
+one line "error: ocp: <status>: <message>".)";
 
 }  // namespace
 
@@ -252,15 +272,61 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->type_name("ND");
     fesd->add_flag("--compact", fesd_options.compact, "Print the result on one line");
 
+    OcpCommandOptions ocp_options;
+    CLI::App* ocp = app.add_subcommand(
+        "ocp",
+        "Solve an optimal control problem of a nonsmooth example through FESD (IPOPT) and "
+        "print the optimum, the switch times and the errors against the exact optimum (JSON)");
+    ocp->add_option("--example", ocp_options.example, "turbo-car or braking-block (required)")
+        ->type_name("NAME");
+    ocp->add_option("--N", ocp_options.n, "Control stages N, >= 1")
+        ->type_name("N")
+        ->capture_default_str();
+    ocp->add_option("--nfe", ocp_options.nfe, "Finite elements per control stage, >= 1")
+        ->type_name("N_FE")
+        ->capture_default_str();
+    ocp->add_option("--stages", ocp_options.stages, "Runge-Kutta stages n_s, 1..9")
+        ->type_name("S")
+        ->capture_default_str();
+    ocp->add_option("--scheme", ocp_options.scheme, "radau (Radau IIA) or gauss (Gauss-Legendre)")
+        ->type_name("NAME")
+        ->capture_default_str();
+    ocp->add_option("--formulation", ocp_options.formulation, "step or stewart")
+        ->type_name("NAME")
+        ->capture_default_str();
+    ocp->add_flag("--standard", ocp_options.standard,
+                  "Standard time-stepping: equal fixed elements, no switch detection");
+    ocp->add_option("--relaxation", ocp_options.relaxation,
+                    "scholtes (products <= sigma) or l1 (penalty 1/sigma times the products)")
+        ->type_name("NAME")
+        ->capture_default_str();
+    ocp->add_option("--sigma0", ocp_options.sigma0, "Initial relaxation sigma, > 0 (default 100)")
+        ->type_name("X");
+    ocp->add_option("--sigma-final", ocp_options.sigma_final,
+                    "Final relaxation sigma, > 0 and <= --sigma0 (default 1e-10)")
+        ->type_name("X");
+    ocp->add_option("--tol", ocp_options.tol, "IPOPT's tolerance for the last NLP (default 1e-10)")
+        ->type_name("X");
+    ocp->add_flag("--trajectory", ocp_options.trajectory,
+                  "Add every element boundary, the states there, the step sizes and active sets");
+    ocp->add_option("--plot", ocp_options.plot,
+                    "Draw DIR/ocp_states.png, ocp_controls.png and ocp_switching.png (gnuplot)")
+        ->type_name("DIR");
+    ocp->add_flag("--compact", ocp_options.compact, "Print the result on one line");
+    ocp->add_flag("--quiet", ocp_options.quiet, "No progress lines on stderr");
+    ocp->footer(kOcpFooter);
+
     if (argc <= 1) {
-      report_error(err, "a command is required: jump, flow, demo or fesd (see 'bflow --help')");
+      report_error(err,
+                   "a command is required: jump, flow, demo, fesd or ocp (see 'bflow --help')");
       return kExitBadInput;
     }
     const std::string command = argv[1];
     if (command[0] != '-' && command != "jump" && command != "flow" && command != "demo" &&
-        command != "fesd") {
-      report_error(err, "unknown command " + quote(command) +
-                            "; the commands are jump, flow, demo and fesd (see 'bflow --help')");
+        command != "fesd" && command != "ocp") {
+      report_error(err,
+                   "unknown command " + quote(command) +
+                       "; the commands are jump, flow, demo, fesd and ocp (see 'bflow --help')");
       return kExitBadInput;
     }
     std::vector<std::string> args;
@@ -274,7 +340,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
       std::string message = e.what();
       if (message.empty()) message = e.get_name();
       std::string name;
-      for (const CLI::App* sub : {jump, flow, demo, fesd}) {
+      for (const CLI::App* sub : {jump, flow, demo, fesd, ocp}) {
         if (sub->parsed()) name = sub->get_name();
       }
       const std::string where = name.empty() ? "" : name + ": ";
@@ -288,6 +354,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     }
     if (flow->parsed()) return finish_output(out, err, run_flow(flow_options, out, err));
     if (fesd->parsed()) return finish_output(out, err, run_fesd(fesd_options, out, err));
+    if (ocp->parsed()) return finish_output(out, err, run_ocp(ocp_options, out, err));
     return finish_output(out, err, run_demo(demo_options, out, err));
   } catch (const std::exception& e) {
     report_error(err, std::string("internal: ") + e.what());

@@ -3,8 +3,8 @@
 // Every entry point writes results to `out`, diagnostics to `err`, and returns the exit code:
 //   0  success;
 //   1  the computation or its output failed (a non-finite result, a simulation that stops
-//      early, a failed self-check of the demo, a file that cannot be written, gnuplot missing
-//      or failing, an unexpected internal error);
+//      early, an optimal control problem not solved, a failed self-check of the demo, a file
+//      that cannot be written, gnuplot missing or failing, an unexpected internal error);
 //   2  bad input or usage (malformed JSON, a field with the wrong shape or type, an unknown key,
 //      input the library rejects such as non-transversal limits or sliding, a malformed option
 //      value, an unknown option or scene, an unreadable input file).
@@ -155,6 +155,38 @@ struct FesdCommandOptions {
     step does not converge (the JSON then holds what was reached, and `err` one "error: fesd:"
     line). Never throws. */
 int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream& err);
+
+/** `bflow ocp`: the options as given on the command line. run_ocp() checks every range and
+    names the option in its message. */
+struct OcpCommandOptions {
+  /** turbo-car or braking-block (bflow/examples/ocp_examples.h); required. */
+  std::string example;
+  int n = 10;                           ///< --N: control stages, >= 1
+  int nfe = 3;                          ///< finite elements per control stage, >= 1
+  int stages = 2;                       ///< n_s, 1..9
+  std::string scheme = "radau";         ///< radau or gauss
+  std::string formulation = "step";     ///< step or stewart
+  bool standard = false;                ///< standard time-stepping, no switch detection
+  std::string relaxation = "scholtes";  ///< scholtes or l1
+  /** Relaxation parameters and IPOPT's tolerance of the last NLP, finite and > 0 with
+      sigma_final <= sigma0; not given: the defaults of bflow::OcpOptions. */
+  std::optional<double> sigma0, sigma_final, tol;
+  bool trajectory = false;  ///< add every element boundary, the states there, h, active sets
+  /** Directory (created if missing) for ocp_states.png, ocp_controls.png, ocp_switching.png
+      and their data and gnuplot scripts; not given: no plots. */
+  std::optional<std::string> plot;
+  bool compact = false;
+  bool quiet = false;  ///< no progress lines on `err`
+};
+
+/** `bflow ocp`: solves the example's optimal control problem (bflow::ocp_solve) and prints the
+    status, the optimal cost, T, the states and controls on the stages, the switch times, the
+    homotopy, the counters and the errors against the example's exact optimum as JSON (see
+    docs/cli.md). Unless `quiet`, one progress line per NLP of the homotopy goes to `err` while
+    it runs. Exit code 2 for a bad option, 1 when the status is not "solved" (the JSON is still
+    printed, and `err` gets one "error: ocp: <status>: <message>" line), when the plot
+    directory cannot be written or gnuplot fails. Never throws. */
+int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& err);
 
 /** The whole command line (argv[0] is ignored): parses it and dispatches. Never throws. */
 int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& out,

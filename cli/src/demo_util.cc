@@ -51,36 +51,37 @@ bool print_checks(std::ostream& out, const std::vector<Check>& checks) {
   return all_passed;
 }
 
-void prepare_output_directory(const fs::path& dir) {
+void prepare_output_directory(const fs::path& dir, const std::string& command) {
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec || !fs::is_directory(dir)) {
-    throw DemoError("demo: cannot create directory " + quote(dir.string(), 200) + ": " +
+    throw DemoError(command + ": cannot create directory " + quote(dir.string(), 200) + ": " +
                     (ec ? ec.message() : std::string("a file of that name exists")));
   }
   // A directory can exist and still refuse files (permissions, a read-only or virtual file
   // system such as /proc); creating one is the only test that holds for every cause.
-  const fs::path probe = dir / (".bflow-demo-probe-" + std::to_string(::getpid()));
+  const fs::path probe = dir / (".bflow-" + command + "-probe-" + std::to_string(::getpid()));
   const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
   if (fd < 0) {
-    throw DemoError("demo: cannot write in directory " + quote(dir.string(), 200) + ": " +
+    throw DemoError(command + ": cannot write in directory " + quote(dir.string(), 200) + ": " +
                     std::strerror(errno));
   }
   ::close(fd);
   ::unlink(probe.c_str());
 }
 
-void write_file(const fs::path& path, const std::string& contents) {
+void write_file(const fs::path& path, const std::string& contents, const std::string& command) {
   std::ofstream file(path, std::ios::binary);
   if (file) file << contents;
   if (file) file.close();
   if (!file) {
-    throw DemoError("demo: cannot write " + quote(path.string(), 200) + ": " +
+    throw DemoError(command + ": cannot write " + quote(path.string(), 200) + ": " +
                     std::strerror(errno));
   }
 }
 
-void run_gnuplot(const fs::path& dir, const std::string& script, const std::string& png) {
+void run_gnuplot(const fs::path& dir, const std::string& script, const std::string& png,
+                 const std::string& command_name, const std::string& without_plot) {
   const std::string command =
       "gnuplot " + script + " (in directory " + quote(dir.string(), 200) + ")";
   std::error_code ec;
@@ -95,26 +96,27 @@ void run_gnuplot(const fs::path& dir, const std::string& script, const std::stri
   const int spawn_error = posix_spawnp(&pid, program.c_str(), &actions, nullptr, argv, environ);
   posix_spawn_file_actions_destroy(&actions);
   if (spawn_error != 0) {
-    throw DemoError("demo: cannot run " + command + ": " + std::strerror(spawn_error) +
-                    "; install gnuplot (Debian: gnuplot-nox) or pass --no-plot");
+    throw DemoError(command_name + ": cannot run " + command + ": " + std::strerror(spawn_error) +
+                    "; install gnuplot (Debian: gnuplot-nox) or " + without_plot);
   }
   int status = 0;
   while (waitpid(pid, &status, 0) < 0) {
     if (errno != EINTR) {
-      throw DemoError("demo: waiting for " + command + " failed: " + std::strerror(errno));
+      throw DemoError(command_name + ": waiting for " + command +
+                      " failed: " + std::strerror(errno));
     }
   }
   if (WIFSIGNALED(status)) {
-    throw DemoError("demo: " + command + " was killed by signal " +
+    throw DemoError(command_name + ": " + command + " was killed by signal " +
                     std::to_string(WTERMSIG(status)));
   }
   if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
-    throw DemoError("demo: " + command + " failed with exit status " +
+    throw DemoError(command_name + ": " + command + " failed with exit status " +
                     std::to_string(WEXITSTATUS(status)) + " (gnuplot's message is above)");
   }
   const auto size = fs::file_size(dir / png, ec);
   if (ec || size == 0) {
-    throw DemoError("demo: " + command + " exited normally but did not write " + png);
+    throw DemoError(command_name + ": " + command + " exited normally but did not write " + png);
   }
 }
 

@@ -1,4 +1,5 @@
-// Helpers shared by the scenes of `bflow demo`: formatted text, files, checks and gnuplot.
+// Helpers shared by the scenes of `bflow demo` (and the plots of `bflow ocp`): formatted text,
+// files, checks and gnuplot.
 #ifndef BFLOW_CLI_DEMO_UTIL_H_
 #define BFLOW_CLI_DEMO_UTIL_H_
 
@@ -15,7 +16,8 @@
 
 namespace bflow::cli {
 
-/** A failure of the demo (a file, gnuplot); run_demo() prints it and returns 1. */
+/** A failure of the demo or of a plot (a file, gnuplot); run_demo() and run_ocp() print it and
+    return 1. */
 class DemoError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
@@ -48,17 +50,23 @@ struct Check {
 bool print_checks(std::ostream& out, const std::vector<Check>& checks);
 
 /** Creates `dir` (and its parents) and checks that a file can be created in it, so that the
-    demo is refused before it computes anything. @throws DemoError naming the directory and the
-    reason (errno's text). */
-void prepare_output_directory(const std::filesystem::path& dir);
+    command is refused before it computes anything. @throws DemoError "<command>: ..." naming
+    the directory and the reason (errno's text). */
+void prepare_output_directory(const std::filesystem::path& dir,
+                              const std::string& command = "demo");
 
-/** Writes `contents` to `path`. @throws DemoError naming the file and the reason. */
-void write_file(const std::filesystem::path& path, const std::string& contents);
+/** Writes `contents` to `path`. @throws DemoError "<command>: ..." naming the file and the
+    reason. */
+void write_file(const std::filesystem::path& path, const std::string& contents,
+                const std::string& command = "demo");
 
 /** Runs `gnuplot SCRIPT` in `dir` and checks that it wrote a non-empty `png` there (a stale
-    one is removed first). @throws DemoError naming the command on failure. */
+    one is removed first). @throws DemoError "<command>: ..." naming the gnuplot command on
+    failure; when gnuplot cannot be started, the message ends with "install gnuplot (Debian:
+    gnuplot-nox) or <without_plot>". */
 void run_gnuplot(const std::filesystem::path& dir, const std::string& script,
-                 const std::string& png);
+                 const std::string& png, const std::string& command = "demo",
+                 const std::string& without_plot = "pass --no-plot");
 
 /** The two demo scenes (run_demo() prepares the output directory, dispatches and catches). */
 int demo_pwconst(const DemoOptions& options, std::ostream& out, std::ostream& err);

@@ -1,0 +1,421 @@
+// `bflow ocp`: optimal control of a built-in nonsmooth example through FESD (format in
+// docs/cli.md), with the errors of the run against the example's exact optimum.
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <exception>
+#include <filesystem>
+#include <iterator>
+#include <limits>
+#include <new>
+#include <optional>
+#include <ostream>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "bflow/core/errors.h"
+#include "bflow/core/filippov.h"
+#include "bflow/examples/ocp_examples.h"
+#include "bflow/integrators/butcher.h"
+#include "bflow/integrators/fesd.h"
+#include "bflow/ocp/ocp.h"
+#include "cli_commands.h"
+#include "cli_json.h"
+#include "cli_util.h"
+#include "demo_util.h"
+
+namespace bflow::cli {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr const char* kExamples[] = {"turbo-car", "braking-block"};
+
+// Bad input; the message starts with the option. Exit code 2.
+class OptionError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+[[noreturn]] void fail(const std::string& option, const std::string& problem) {
+  throw OptionError(option + ": " + problem);
+}
+
+// Calls f(model, problem) with the example's model and data.
+template <typename F>
+auto with_example(const std::string& name, F&& f) {
+  if (name == "turbo-car") {
+    return f(adapt_ocp(examples::TurboCar{}), examples::TurboCar::problem());
+  }
+  return f(adapt_ocp(examples::BrakingBlock{}), examples::BrakingBlock::problem());
+}
+
+OcpRelaxation parse_relaxation(const std::string& text) {
+  if (text == "scholtes") return OcpRelaxation::kScholtes;
+  if (text == "l1") return OcpRelaxation::kL1Penalty;
+  fail("--relaxation", "unknown relaxation " + quote(text) + "; use scholtes or l1");
+}
+
+void check_positive(const std::optional<double>& value, const std::string& option,
+                    const std::string& what) {
+  if (value && !(*value > 0.0 && std::isfinite(*value))) {
+    fail(option, what + " must be finite and > 0, got " + format_number(*value));
+  }
+}
+
+// Every range the library would check, checked here first so that the message names the option
+// the user typed.
+void check_ranges(const OcpCommandOptions& options, const OcpOptions& defaults) {
+  if (options.n < 1) {
+    fail("--N", "the number of control stages must be >= 1, got " + std::to_string(options.n));
+  }
+  if (options.nfe < 1) {
+    fail("--nfe", "the number of finite elements per control stage must be >= 1, got " +
+                      std::to_string(options.nfe));
+  }
+  if (options.stages < 1 || options.stages > kMaxCollocationStages) {
+    fail("--stages", "the number of Runge-Kutta stages must be in [1, " +
+                         std::to_string(kMaxCollocationStages) + "], got " +
+                         std::to_string(options.stages));
+  }
+  check_positive(options.sigma0, "--sigma0", "the initial relaxation parameter");
+  check_positive(options.sigma_final, "--sigma-final", "the final relaxation parameter");
+  check_positive(options.tol, "--tol", "the NLP tolerance");
+  const double sigma0 = options.sigma0.value_or(defaults.sigma_initial);
+  const double sigma_final = options.sigma_final.value_or(defaults.sigma_final);
+  if (sigma_final > sigma0) {
+    if (!options.sigma_final) {
+      fail("--sigma0", format_number(sigma0) + " is below the final " + format_number(sigma_final) +
+                           " (the default of --sigma-final)");
+    }
+    const std::string sigma0_text =
+        format_number(sigma0) + (options.sigma0 ? "" : " (the default of --sigma0)");
+    fail("--sigma-final", format_number(sigma_final) + " is above the initial " + sigma0_text);
+  }
+  if (options.plot && options.plot->empty()) fail("--plot", "the directory name is empty");
+}
+
+// The whole horizon has the unknowns and constraints of one FESD integration step of N N_FE
+// elements (plus N controls and T), so fesd_problem_size bounds it: IPOPT's int indices, and the
+// sparse NLP's memory without the dense Newton matrices of a simulation.
+void check_size(const OcpModel& model, const OcpCommandOptions& options, const OcpOptions& o) {
+  const std::int64_t elements = std::int64_t{options.n} * options.nfe;
+  const std::string given = std::to_string(options.n) + " control stages of " +
+                            std::to_string(options.nfe) + " finite elements";
+  if (elements > std::numeric_limits<int>::max()) {
+    fail("--N", given + " give " + std::to_string(elements) +
+                    " finite elements, above IPOPT's limit of " +
+                    std::to_string(std::numeric_limits<int>::max()));
+  }
+  FesdOptions f;
+  f.scheme = o.scheme;
+  f.stages = o.collocation_stages;
+  f.elements = static_cast<int>(elements);
+  f.standard = o.standard;
+  f.formulation = o.formulation;
+  f.exact_hessian = o.exact_hessian;
+  f.newton = false;
+  f.sensitivities = false;
+  const HeldControlModel held(model, Eigen::VectorXd::Zero(model.controls()));
+  const FesdProblemSize size = fesd_problem_size(held, f);
+  const std::int64_t unknowns = size.unknowns + std::int64_t{options.n} * model.controls() + 1;
+  const std::pair<const char*, std::int64_t> counts[] = {
+      {"NLP unknowns", unknowns},
+      {"constraints", size.constraints},
+      {"Jacobian nonzeros", size.jacobian_nonzeros},
+      {"Hessian nonzeros", size.hessian_nonzeros}};
+  for (const auto& [what, count] : counts) {
+    if (count > kFesdMaxIndex) {
+      fail("--N", given + " give " + std::to_string(count) + " " + what +
+                      ", above IPOPT's limit of " + std::to_string(kFesdMaxIndex));
+    }
+  }
+  if (size.step_bytes > kFesdMaxMemoryBytes) {
+    fail("--N", given + " give " + std::to_string(unknowns) + " NLP unknowns, needing about " +
+                    formatted("%.2g", size.step_bytes) + " bytes, above the limit of 4 GiB = " +
+                    std::to_string(static_cast<std::int64_t>(kFesdMaxMemoryBytes)) + " bytes");
+  }
+}
+
+// The JSON and its newline in one write (a failed write is detected where the command ends).
+void write_result(std::ostream& out, const OrderedJson& j, bool compact) {
+  std::ostringstream buffer;
+  write_json(buffer, j, compact);
+  buffer << '\n';
+  out << buffer.str() << std::flush;
+}
+
+// |a - b|, or null when the run has no value to compare.
+OrderedJson error_json(const std::optional<double>& value, double exact) {
+  if (!value) return nullptr;
+  return std::abs(*value - exact);
+}
+
+// The example's known optimum and this run's distance to it.
+OrderedJson exact_json(const std::string& example, const OcpResult& r) {
+  OrderedJson j;
+  const std::optional<double> first_switch =
+      r.switch_times.empty() ? std::nullopt : std::optional<double>(r.switch_times.front());
+  if (example == "turbo-car") {
+    using examples::TurboCar;
+    const std::vector<double> switches(std::begin(TurboCar::kSwitchTimes),
+                                       std::end(TurboCar::kSwitchTimes));
+    j["T"] = TurboCar::kOptimalTime;
+    j["switch_times"] = switches;
+    j["T_error"] = std::abs(r.T - TurboCar::kOptimalTime);
+    j["objective_error"] = std::abs(r.objective - TurboCar::kOptimalTime);
+    // Only a run that found as many switches as the optimum has is compared, in order.
+    if (r.switch_times.size() == switches.size()) {
+      double worst = 0.0;
+      for (std::size_t k = 0; k < switches.size(); ++k) {
+        worst = std::max(worst, std::abs(r.switch_times[k] - switches[k]));
+      }
+      j["switch_times_error"] = worst;
+    } else {
+      j["switch_times_error"] = nullptr;
+    }
+  } else {
+    using examples::BrakingBlock;
+    j["objective"] = BrakingBlock::optimal_cost();
+    j["stop_time"] = BrakingBlock::stop_time();
+    j["final_position"] = BrakingBlock::final_position();
+    j["objective_error"] = std::abs(r.objective - BrakingBlock::optimal_cost());
+    // The block comes to rest where v = c reaches 0: the run's first switch.
+    j["stop_time_error"] = error_json(first_switch, BrakingBlock::stop_time());
+    const std::optional<double> final_position =
+        r.x_stages.cols() > 0 ? std::optional<double>(r.x_stages(0, r.x_stages.cols() - 1))
+                              : std::nullopt;
+    j["final_position_error"] = error_json(final_position, BrakingBlock::final_position());
+  }
+  return j;
+}
+
+OrderedJson homotopy_json(const std::vector<OcpHomotopyStep>& steps) {
+  OrderedJson list = OrderedJson::array();
+  for (const OcpHomotopyStep& s : steps) {
+    OrderedJson j;
+    j["sigma"] = s.sigma;
+    j["objective"] = s.objective;
+    j["complementarity"] = s.complementarity;
+    j["iterations"] = s.iterations;
+    j["cpu_seconds"] = s.cpu_seconds;
+    j["status"] = s.ipopt_status;
+    j["polish"] = s.polish;
+    list.push_back(j);
+  }
+  return list;
+}
+
+// One line per NLP of the homotopy on `err`, while the solve runs.
+std::string progress_line(const OcpHomotopyStep& s) {
+  std::string line = s.polish ? "ocp: polish       " : formatted("ocp: sigma %.1e", s.sigma);
+  line += formatted("  objective %.6g  complementarity %.1e  iterations %d  %.2f s", s.objective,
+                    s.complementarity, s.iterations, s.cpu_seconds);
+  if (s.ipopt_status != "Solve_Succeeded") line += "  " + s.ipopt_status;
+  return line;
+}
+
+// Data and scripts of the three plots, then gnuplot on each. @throws DemoError.
+void write_plots(const fs::path& dir, const OcpModel& model, const OcpResult& r) {
+  const int d = model.states(), nu = model.controls(), nc = model.switches();
+  std::ostringstream grid;
+  grid << "# t x_0 .. x_" << d - 1 << " c_0 .. c_" << nc - 1
+       << " at every element boundary (bflow ocp)\n";
+  std::vector<double> c(static_cast<std::size_t>(nc));
+  for (std::size_t k = 0; k < r.grid.size(); ++k) {
+    const Eigen::VectorXd x = r.x_grid.col(static_cast<Eigen::Index>(k));
+    model.switching(x.data(), c.data());
+    grid << format_number(r.grid[k]);
+    for (int i = 0; i < d; ++i) grid << ' ' << format_number(x[i]);
+    for (int i = 0; i < nc; ++i) grid << ' ' << format_number(c[static_cast<std::size_t>(i)]);
+    grid << '\n';
+  }
+  write_file(dir / "ocp_grid.dat", grid.str(), "ocp");
+
+  // Each stage's control twice, at its start and its end: steps when drawn with lines.
+  std::ostringstream controls;
+  controls << "# t u_0 .. u_" << nu - 1 << " (piecewise constant, each stage at both ends)\n";
+  for (Eigen::Index k = 0; k < r.u.cols(); ++k) {
+    for (double t : {r.stage_times[static_cast<std::size_t>(k)],
+                     r.stage_times[static_cast<std::size_t>(k) + 1]}) {
+      controls << format_number(t);
+      for (int i = 0; i < nu; ++i) controls << ' ' << format_number(r.u(i, k));
+      controls << '\n';
+    }
+  }
+  write_file(dir / "ocp_controls.dat", controls.str(), "ocp");
+
+  std::ostringstream switches;
+  switches << "# switch times\n";
+  for (double t : r.switch_times) switches << format_number(t) << '\n';
+  write_file(dir / "ocp_switch_times.dat", switches.str(), "ocp");
+
+  const auto script = [&](const std::string& name, const std::string& title,
+                          const std::string& ylabel, const std::string& plot) {
+    std::ostringstream gp;
+    gp << "# Written by `bflow ocp`; run in this directory: gnuplot " << name << ".gp\n"
+       << "set encoding utf8\n"
+          "set terminal pngcairo size 900,600 enhanced font 'Sans,12'\n"
+       << "set output '" << name << ".png'\n"
+       << "set title \"" << title << "\"\n"
+       << "set xlabel 't'\nset ylabel '" << ylabel << "'\n"
+       << "set grid lc rgb '#dddddd'\nset key outside right top\n"
+       << "set offsets 0, 0, graph 0.05, graph 0.05\n"
+       << plot;
+    write_file(dir / (name + ".gp"), gp.str(), "ocp");
+    run_gnuplot(dir, name + ".gp", name + ".png", "ocp", "leave out --plot");
+  };
+  std::string states = "plot ";
+  for (int i = 0; i < d; ++i) {
+    states += formatted("'ocp_grid.dat' using 1:%d with linespoints pt 7 ps 0.5 title 'x_%d'%s",
+                        i + 2, i, i + 1 < d ? ", \\\n  " : "\n");
+  }
+  script("ocp_states", "States at the element boundaries", "x", states);
+  std::string inputs = "plot ";
+  for (int i = 0; i < nu; ++i) {
+    inputs += formatted("'ocp_controls.dat' using 1:%d with lines lw 2 title 'u_%d'%s", i + 2, i,
+                        i + 1 < nu ? ", \\\n  " : "\n");
+  }
+  script("ocp_controls", "Controls, constant on each stage", "u", inputs);
+  // The switch times as vertical lines through the plotted range of c.
+  std::string switching = "set xzeroaxis lt 1 lc rgb '#888888'\n";
+  for (double t : r.switch_times) {
+    switching += "set arrow from " + format_number(t) + ", graph 0 to " + format_number(t) +
+                 ", graph 1 nohead dt 2 lc rgb '#B22222'\n";
+  }
+  switching += "plot ";
+  for (int i = 0; i < nc; ++i) {
+    switching +=
+        formatted("'ocp_grid.dat' using 1:%d with linespoints pt 7 ps 0.5 title 'c_%d(x)', \\\n  ",
+                  d + 2 + i, i);
+  }
+  switching += "NaN with lines dt 2 lc rgb '#B22222' title 'switch times'\n";
+  script("ocp_switching", "Switching functions; dashed: the switch times", "c(x)", switching);
+}
+
+}  // namespace
+
+int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& err) {
+  try {
+    bool known = false;
+    std::string names;
+    for (const char* e : kExamples) {
+      known = known || options.example == e;
+      names += (names.empty() ? "" : ", ") + std::string(e);
+    }
+    if (options.example.empty()) {
+      report_error(err, "--example: is required; use " + names);
+      return kExitBadInput;
+    }
+    if (!known) {
+      report_error(err, "--example: unknown example " + quote(options.example) + "; use " + names);
+      return kExitBadInput;
+    }
+    OcpOptions o;
+    try {
+      o.formulation = parse_dcs_formulation(options.formulation);
+    } catch (const InvalidArgument& e) {
+      report_error(err, std::string("--formulation: ") + e.what());
+      return kExitBadInput;
+    }
+    try {
+      o.scheme = parse_collocation_scheme(options.scheme);
+    } catch (const InvalidArgument& e) {
+      report_error(err, std::string("--scheme: ") + e.what());
+      return kExitBadInput;
+    }
+    o.relaxation = parse_relaxation(options.relaxation);
+    check_ranges(options, o);
+    o.stages = options.n;
+    o.elements = options.nfe;
+    o.collocation_stages = options.stages;
+    o.standard = options.standard;
+    if (options.sigma0) o.sigma_initial = *options.sigma0;
+    if (options.sigma_final) o.sigma_final = *options.sigma_final;
+    if (options.tol) o.nlp_tolerance = *options.tol;
+    if (!options.quiet) {
+      o.progress = [&err](const OcpHomotopyStep& s) {
+        err << progress_line(s) << '\n' << std::flush;
+      };
+    }
+    with_example(options.example, [&](const OcpModel& model, const OcpProblem&) {
+      check_size(model, options, o);
+      return 0;
+    });
+    // A directory that cannot take the plots is refused before the solve.
+    if (options.plot) prepare_output_directory(*options.plot, "ocp");
+
+    return with_example(options.example, [&](const OcpModel& model, const OcpProblem& problem) {
+      const OcpResult r = ocp_solve(model, problem, o);
+      OrderedJson j;
+      j["example"] = options.example;
+      j["N"] = options.n;
+      j["nfe"] = options.nfe;
+      j["status"] = to_string(r.status);
+      j["message"] = r.message;
+      j["notes"] = r.notes;
+      j["objective"] = r.objective;
+      j["T"] = r.T;
+      j["t"] = r.stage_times;
+      j["x"] = columns_json(r.x_stages);
+      j["u"] = columns_json(r.u);
+      j["switch_times"] = r.switch_times;
+      j["max_complementarity"] = r.max_complementarity;
+      j["polished"] = r.polished;
+      j["homotopy"] = homotopy_json(r.homotopy);
+      j["ipopt_iterations"] = r.ipopt_iterations;
+      j["cpu_seconds"] = r.cpu_seconds;
+      j["cpu_per_iteration"] = r.cpu_per_iteration;
+      j["exact"] = exact_json(options.example, r);
+      if (options.trajectory) {
+        j["grid"] = r.grid;
+        j["x_grid"] = columns_json(r.x_grid);
+        j["step_sizes"] = r.step_sizes;
+        j["active_sets"] = r.active_sets;
+      }
+      write_result(out, j, options.compact);
+      // The plots are drawn for any result (a failed run is worth seeing); one error line in
+      // all cases, the solver's first.
+      std::string plot_error;
+      if (options.plot) {
+        try {
+          write_plots(*options.plot, model, r);
+        } catch (const DemoError& e) {
+          plot_error = e.what();
+        }
+      }
+      if (!r.ok()) {
+        report_error(err, "ocp: " + std::string(to_string(r.status)) + ": " + r.message);
+        return kExitFailure;
+      }
+      if (!plot_error.empty()) {
+        report_error(err, plot_error);
+        return kExitFailure;
+      }
+      return kExitOk;
+    });
+  } catch (const OptionError& e) {
+    report_error(err, e.what());
+    return kExitBadInput;
+  } catch (const DemoError& e) {
+    report_error(err, e.what());  // the --plot directory
+    return kExitFailure;
+  } catch (const InvalidArgument& e) {
+    // What the library rejects that no option decides (the messages start with "ocp:").
+    report_error(err, with_field("ocp", e.what()));
+    return kExitBadInput;
+  } catch (const std::bad_alloc&) {
+    report_error(err, "ocp: out of memory");
+    return kExitFailure;
+  } catch (const std::exception& e) {
+    report_error(err, std::string("ocp: internal: ") + e.what());
+    return kExitFailure;
+  }
+}
+
+}  // namespace bflow::cli

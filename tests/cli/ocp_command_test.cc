@@ -1,0 +1,308 @@
+// `bflow ocp` in-process: the JSON of a run against the examples' exact optima, the progress
+// lines, a failed solve, bad options and the plots.
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <optional>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "cli_commands.h"
+
+namespace bflow::cli {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::StartsWith;
+
+struct Outcome {
+  int code;
+  nlohmann::json json;
+  std::string err;
+};
+
+Outcome solve(const OcpCommandOptions& options) {
+  std::ostringstream out, err;
+  const int code = run_ocp(options, out, err);
+  nlohmann::json j;
+  if (!out.str().empty()) j = nlohmann::json::parse(out.str());
+  return {code, j, err.str()};
+}
+
+std::vector<std::string> lines(const std::string& text) {
+  std::vector<std::string> result;
+  std::istringstream in(text);
+  for (std::string line; std::getline(in, line);) result.push_back(line);
+  return result;
+}
+
+// Turbo car, N = 5 (the control switches at 8/3 and 32/3 are stage boundaries): the polished
+// FESD solution has the exact time and switch times. Measured: T error 1.2e-10, switch times
+// 9.4e-11; one progress line per NLP of the homotopy on stderr, the polish last.
+TEST(OcpCommandTest, TurboCarFindsTheExactTimeAndSwitches) {
+  OcpCommandOptions o;
+  o.example = "turbo-car";
+  o.n = 5;
+  const Outcome r = solve(o);
+  ASSERT_EQ(r.code, kExitOk) << r.err;
+  const auto& j = r.json;
+  EXPECT_EQ(j["example"], "turbo-car");
+  EXPECT_EQ(j["N"], 5);
+  EXPECT_EQ(j["nfe"], 3);
+  EXPECT_EQ(j["status"], "solved");
+  EXPECT_EQ(j["message"], "");
+  EXPECT_NEAR(j["T"].get<double>(), 40.0 / 3.0, 1e-6);
+  EXPECT_NEAR(j["objective"].get<double>(), 40.0 / 3.0, 1e-6);
+  EXPECT_LT(j["exact"]["T_error"].get<double>(), 1e-6);
+  EXPECT_DOUBLE_EQ(j["exact"]["T"].get<double>(), 40.0 / 3.0);
+  EXPECT_DOUBLE_EQ(j["exact"]["T_error"].get<double>(),
+                   std::abs(j["T"].get<double>() - 40.0 / 3.0));
+  ASSERT_EQ(j["switch_times"].size(), 2u);
+  EXPECT_NEAR(j["switch_times"][0].get<double>(), 2.0, 1e-6);
+  EXPECT_NEAR(j["switch_times"][1].get<double>(), 34.0 / 3.0, 1e-6);
+  EXPECT_LT(j["exact"]["switch_times_error"].get<double>(), 1e-6);
+  // Stage boundaries, the state there (from rest to q = 200 at rest) and u = 5, 0, 0, 0, -5.
+  ASSERT_EQ(j["t"].size(), 6u);
+  ASSERT_EQ(j["x"].size(), 6u);
+  ASSERT_EQ(j["u"].size(), 5u);
+  EXPECT_NEAR(j["x"][5][0].get<double>(), 200.0, 1e-6);
+  EXPECT_NEAR(j["x"][5][1].get<double>(), 0.0, 1e-6);
+  EXPECT_NEAR(j["u"][0][0].get<double>(), 5.0, 1e-6);
+  EXPECT_NEAR(j["u"][2][0].get<double>(), 0.0, 1e-6);
+  EXPECT_NEAR(j["u"][4][0].get<double>(), -5.0, 1e-6);
+  EXPECT_TRUE(j["polished"].get<bool>());
+  EXPECT_EQ(j["max_complementarity"].get<double>(), 0.0);
+  EXPECT_FALSE(j.contains("grid"));
+
+  // The homotopy: sigma from 100 down, the polish last; the iterations add up.
+  const auto& h = j["homotopy"];
+  ASSERT_GE(h.size(), 3u);
+  EXPECT_EQ(h[0]["sigma"].get<double>(), 100.0);
+  EXPECT_TRUE(h.back()["polish"].get<bool>());
+  EXPECT_EQ(h.back()["status"], "Solve_Succeeded");
+  int iterations = 0;
+  for (const auto& step : h) iterations += step["iterations"].get<int>();
+  EXPECT_EQ(j["ipopt_iterations"].get<int>(), iterations);
+  EXPECT_GT(j["cpu_seconds"].get<double>(), 0.0);
+
+  const std::vector<std::string> progress = lines(r.err);
+  ASSERT_EQ(progress.size(), h.size()) << r.err;
+  const std::regex sigma_line(
+      "ocp: sigma [0-9]\\.[0-9]e[-+][0-9]+  objective [-0-9.e+]+  complementarity "
+      "[0-9]\\.[0-9]e[-+][0-9]+  iterations [0-9]+  [0-9]+\\.[0-9][0-9] s");
+  EXPECT_TRUE(std::regex_match(progress.front(), sigma_line)) << progress.front();
+  EXPECT_THAT(progress.front(), StartsWith("ocp: sigma 1.0e+02  objective "));
+  EXPECT_THAT(progress.back(), StartsWith("ocp: polish         objective 13.3333  "));
+}
+
+// Standard time-stepping cannot put the switches on element boundaries: with N = 20 its best
+// time is 18.4615384616 (measured; 240/13 to 3e-11), far from 40/3.
+TEST(OcpCommandTest, StandardTimeSteppingMissesTheOptimum) {
+  OcpCommandOptions o;
+  o.example = "turbo-car";
+  o.n = 20;
+  o.standard = true;
+  o.quiet = true;
+  const Outcome r = solve(o);
+  ASSERT_EQ(r.code, kExitOk) << r.err;
+  EXPECT_EQ(r.err, "");
+  EXPECT_GT(r.json["exact"]["T_error"].get<double>(), 1.0);
+  EXPECT_NEAR(r.json["T"].get<double>(), 240.0 / 13.0, 1e-3);
+}
+
+// Braking block, N = 10: the optimum slides from t = asinh 2; piecewise-constant controls are
+// 1.1e-2 above J* (measured 1.13e-2; stop time 1.6e-3, final position 6.7e-3 off).
+TEST(OcpCommandTest, BrakingBlockIsCloseToTheExactOptimum) {
+  OcpCommandOptions o;
+  o.example = "braking-block";
+  o.quiet = true;
+  o.trajectory = true;
+  const Outcome r = solve(o);
+  ASSERT_EQ(r.code, kExitOk) << r.err;
+  const auto& j = r.json;
+  const auto& exact = j["exact"];
+  EXPECT_NEAR(exact["objective"].get<double>(), 2.0 * std::sqrt(5.0) + std::asinh(2.0) - 4.0,
+              1e-15);
+  EXPECT_LT(exact["objective_error"].get<double>(), 0.02);
+  EXPECT_GT(exact["objective_error"].get<double>(), 1e-3);  // controls constant on stages
+  EXPECT_LT(exact["stop_time_error"].get<double>(), 0.01);
+  EXPECT_LT(exact["final_position_error"].get<double>(), 0.02);
+  EXPECT_EQ(j["T"].get<double>(), 3.0);
+  // The trajectory: every element boundary of 10 stages of 3 elements.
+  ASSERT_EQ(j["grid"].size(), 31u);
+  ASSERT_EQ(j["x_grid"].size(), 31u);
+  ASSERT_EQ(j["step_sizes"].size(), 30u);
+  ASSERT_EQ(j["active_sets"].size(), 30u);
+  double sum = 0.0;
+  for (const auto& h : j["step_sizes"]) sum += h.get<double>();
+  EXPECT_NEAR(sum, 3.0, 1e-12);
+  EXPECT_EQ(j["active_sets"][0][0].get<int>(), 1);   // v > 0 at first
+  EXPECT_EQ(j["active_sets"][29][0].get<int>(), 0);  // at rest: sliding on v = 0
+}
+
+// One control stage cannot bring the car to rest at q = 200: IPOPT reports the NLP infeasible.
+// Exit code 1, the JSON all the same, the progress line and then one error line.
+TEST(OcpCommandTest, AnUnsolvedProblemExitsWithOne) {
+  OcpCommandOptions o;
+  o.example = "turbo-car";
+  o.n = 1;
+  o.nfe = 1;
+  const Outcome r = solve(o);
+  EXPECT_EQ(r.code, kExitFailure);
+  EXPECT_EQ(r.json["status"], "infeasible");
+  EXPECT_FALSE(r.json["exact"]["T_error"].is_null());
+  EXPECT_TRUE(r.json["exact"]["switch_times_error"].is_null());
+  const std::vector<std::string> err = lines(r.err);
+  ASSERT_EQ(err.size(), r.json["homotopy"].size() + 1) << r.err;
+  EXPECT_THAT(err[0], ::testing::EndsWith("Infeasible_Problem_Detected"));
+  EXPECT_EQ(err.back(), "error: ocp: infeasible: " + r.json["message"].get<std::string>());
+  EXPECT_THAT(err.back(),
+              StartsWith("error: ocp: infeasible: IPOPT returned Infeasible_Problem_Detected at "
+                         "sigma = 100 "));
+}
+
+TEST(OcpCommandTest, BadOptionsAreNamed) {
+  struct Case {
+    const char* what;
+    void (*set)(OcpCommandOptions&);
+    const char* line;
+  };
+  const Case cases[] = {
+      {"no example", [](OcpCommandOptions& o) { o.example = ""; },
+       "error: --example: is required; use turbo-car, braking-block"},
+      {"example", [](OcpCommandOptions& o) { o.example = "rocket"; },
+       "error: --example: unknown example \"rocket\"; use turbo-car, braking-block"},
+      {"N", [](OcpCommandOptions& o) { o.n = 0; },
+       "error: --N: the number of control stages must be >= 1, got 0"},
+      {"nfe", [](OcpCommandOptions& o) { o.nfe = -2; },
+       "error: --nfe: the number of finite elements per control stage must be >= 1, got -2"},
+      {"stages 0", [](OcpCommandOptions& o) { o.stages = 0; },
+       "error: --stages: the number of Runge-Kutta stages must be in [1, 9], got 0"},
+      {"stages 10", [](OcpCommandOptions& o) { o.stages = 10; },
+       "error: --stages: the number of Runge-Kutta stages must be in [1, 9], got 10"},
+      {"scheme", [](OcpCommandOptions& o) { o.scheme = "lobatto"; },
+       "error: --scheme: unknown collocation scheme \"lobatto\": use radau or gauss"},
+      {"formulation", [](OcpCommandOptions& o) { o.formulation = "heaviside"; },
+       "error: --formulation: unknown formulation \"heaviside\": use step or stewart"},
+      {"relaxation", [](OcpCommandOptions& o) { o.relaxation = "smooth"; },
+       "error: --relaxation: unknown relaxation \"smooth\"; use scholtes or l1"},
+      {"sigma0", [](OcpCommandOptions& o) { o.sigma0 = 0.0; },
+       "error: --sigma0: the initial relaxation parameter must be finite and > 0, got 0"},
+      {"sigma0 nan", [](OcpCommandOptions& o) { o.sigma0 = std::nan(""); },
+       "error: --sigma0: the initial relaxation parameter must be finite and > 0, got nan"},
+      {"sigma-final", [](OcpCommandOptions& o) { o.sigma_final = -1.0; },
+       "error: --sigma-final: the final relaxation parameter must be finite and > 0, got -1"},
+      {"sigma-final above default", [](OcpCommandOptions& o) { o.sigma_final = 1000.0; },
+       "error: --sigma-final: 1000 is above the initial 100 (the default of --sigma0)"},
+      {"sigma-final above given",
+       [](OcpCommandOptions& o) {
+         o.sigma0 = 0.5;
+         o.sigma_final = 2.0;
+       },
+       "error: --sigma-final: 2 is above the initial 0.5"},
+      {"sigma0 below the default final", [](OcpCommandOptions& o) { o.sigma0 = 1e-12; },
+       "error: --sigma0: 1e-12 is below the final 1e-10 (the default of --sigma-final)"},
+      {"tol", [](OcpCommandOptions& o) { o.tol = 0.0; },
+       "error: --tol: the NLP tolerance must be finite and > 0, got 0"},
+      {"plot", [](OcpCommandOptions& o) { o.plot = ""; },
+       "error: --plot: the directory name is empty"},
+      {"N above IPOPT's indices", [](OcpCommandOptions& o) { o.n = 1000000000; },
+       "error: --N: 1000000000 control stages of 3 finite elements give 3000000000 finite "
+       "elements, above IPOPT's limit of 2147483647"},
+      {"N above the memory limit", [](OcpCommandOptions& o) { o.n = 100000; },
+       "error: --N: 100000 control stages of 3 finite elements give 4000001 NLP unknowns, "
+       "needing about 9.5e+09 bytes, above the limit of 4 GiB = 4294967296 bytes"},
+  };
+  for (const Case& c : cases) {
+    OcpCommandOptions o;
+    o.example = "turbo-car";
+    c.set(o);
+    std::ostringstream out, err;
+    EXPECT_EQ(run_ocp(o, out, err), kExitBadInput) << c.what;
+    EXPECT_EQ(out.str(), "") << c.what;
+    EXPECT_EQ(err.str(), std::string(c.line) + "\n") << c.what;
+  }
+}
+
+bool gnuplot_on_path() {
+  const char* path = std::getenv("PATH");
+  std::istringstream dirs(path == nullptr ? "" : path);
+  for (std::string dir; std::getline(dirs, dir, ':');) {
+    if (!dir.empty() && fs::exists(fs::path(dir) / "gnuplot")) return true;
+  }
+  return false;
+}
+
+// The cheapest solved run (braking block, two stages of one element, 0.1 s) for the plots.
+OcpCommandOptions plot_options(const fs::path& dir) {
+  OcpCommandOptions o;
+  o.example = "braking-block";
+  o.n = 2;
+  o.nfe = 1;
+  o.quiet = true;
+  o.compact = true;
+  o.plot = dir.string();
+  return o;
+}
+
+TEST(OcpCommandTest, PlotWritesThreePngs) {
+  if (!gnuplot_on_path()) GTEST_SKIP() << "gnuplot is not installed";
+  const fs::path dir = fs::path(::testing::TempDir()) / "bflow_ocp_plot";
+  fs::remove_all(dir);
+  const Outcome r = solve(plot_options(dir / "nested"));
+  ASSERT_EQ(r.code, kExitOk) << r.err;
+  EXPECT_EQ(r.err, "");
+  for (const char* png : {"ocp_states.png", "ocp_controls.png", "ocp_switching.png"}) {
+    const fs::path file = dir / "nested" / png;
+    ASSERT_TRUE(fs::exists(file)) << file;
+    EXPECT_GT(fs::file_size(file), 1000u) << file;
+  }
+  // The switching function, c = v, at every element boundary: v(0) = 2.
+  std::ifstream data(dir / "nested" / "ocp_grid.dat");
+  std::string header;
+  std::getline(data, header);
+  double t = -1, q = -1, v = -1, c = -1;
+  data >> t >> q >> v >> c;
+  EXPECT_EQ(t, 0.0);
+  EXPECT_EQ(v, 2.0);
+  EXPECT_EQ(c, 2.0);
+  fs::remove_all(dir);
+}
+
+TEST(OcpCommandTest, MissingGnuplotIsOneErrorLine) {
+  const fs::path dir = fs::path(::testing::TempDir()) / "bflow_ocp_no_gnuplot";
+  fs::remove_all(dir);
+  const char* old = std::getenv("PATH");
+  const std::optional<std::string> saved = old ? std::optional<std::string>(old) : std::nullopt;
+  ::setenv("PATH", (dir / "no-such-bin").c_str(), 1);
+  const Outcome r = solve(plot_options(dir));
+  if (saved) {
+    ::setenv("PATH", saved->c_str(), 1);
+  } else {
+    ::unsetenv("PATH");
+  }
+  EXPECT_EQ(r.code, kExitFailure);
+  EXPECT_EQ(r.json["status"], "solved");  // the result is printed all the same
+  EXPECT_EQ(r.err, "error: ocp: cannot run gnuplot ocp_states.gp (in directory \"" + dir.string() +
+                       "\"): No such file or directory; install gnuplot (Debian: gnuplot-nox) "
+                       "or leave out --plot\n");
+  fs::remove_all(dir);
+}
+
+TEST(OcpCommandTest, AnUnwritableDirectoryIsRefusedBeforeTheSolve) {
+  OcpCommandOptions o = plot_options("/dev/null/x");
+  std::ostringstream out, err;
+  EXPECT_EQ(run_ocp(o, out, err), kExitFailure);
+  EXPECT_EQ(out.str(), "");
+  EXPECT_EQ(err.str(), "error: ocp: cannot create directory \"/dev/null/x\": Not a directory\n");
+}
+
+}  // namespace
+}  // namespace bflow::cli
