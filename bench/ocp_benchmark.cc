@@ -1,0 +1,106 @@
+// Optimal control through FESD (ocp.h, docs/ocp.md): one whole ocp_solve, homotopy and polish,
+// of the two problems with exact optima (ocp_examples.h) against the number N of control stages
+// (N_FE = 3 elements of Radau IIA, n_s = 2, per stage; the default options).
+//
+//   BM_OcpBrakingBlock/<formulation>/<N>  the braking block (fixed horizon, an optimum that
+//                                         slides), step and Stewart formulations
+//   BM_OcpTurboCar/step/<N>               the time-optimal turbo car
+//
+// No benchmark::DoNotOptimize: the solve cannot be optimised away (IPOPT's side effects), and
+// Google Benchmark 1.7.1's DoNotOptimize on a double lvalue made GCC 12 -O3 read that double back
+// as 0 afterwards (its "+m,r" asm constraint).
+//
+// Each solve runs once (a solve takes from about 1 s to several seconds). The reported time is the
+// CPU time per IPOPT iteration (manual time), so that the BigO line of each family is the linear
+// fit of the cost of an iteration in N; the CPU column is the CPU time of the whole solve, and
+// its BigO coefficient the fit of a solve. A solve whose status is not "solved" is reported as
+// an error with its message.
+//
+//   build-bench/bench/ocp_benchmark     (scripts/bench --ocp stores the JSON)
+#include <benchmark/benchmark.h>
+
+#include <cmath>
+#include <string>
+
+#include "bflow/examples/ocp_examples.h"
+#include "bflow/ocp/ocp.h"
+
+namespace {
+
+using bflow::OcpOptions;
+using bflow::OcpResult;
+
+// N = 10, 20, 40, 80 (up to `largest`), one solve each, timed per IPOPT iteration.
+void stages_up_to(benchmark::internal::Benchmark* b, int largest) {
+  for (int n = 10; n <= largest; n *= 2) b->Arg(n);
+  b->Iterations(1)
+      ->UseManualTime()
+      ->MeasureProcessCPUTime()
+      ->Complexity(benchmark::oN)
+      ->Unit(benchmark::kMillisecond);
+}
+void up_to_80(benchmark::internal::Benchmark* b) { stages_up_to(b, 80); }
+void up_to_40(benchmark::internal::Benchmark* b) { stages_up_to(b, 40); }
+
+// The counters every solve reports; false if the solve failed (the state is then skipped).
+bool report(benchmark::State& state, const OcpResult& r) {
+  if (!r.ok()) {
+    state.SkipWithError((std::string(bflow::to_string(r.status)) + ": " + r.message).c_str());
+    return false;
+  }
+  state.counters["ipopt_iterations"] = r.ipopt_iterations;
+  state.counters["cpu_per_iteration"] = r.cpu_per_iteration;
+  state.counters["unknowns"] = r.unknowns;
+  state.counters["jacobian_nonzeros"] = r.jacobian_nonzeros;
+  state.counters["hessian_nonzeros"] = r.hessian_nonzeros;
+  state.counters["polished"] = r.polished ? 1.0 : 0.0;
+  return true;
+}
+
+void BM_OcpBrakingBlock(benchmark::State& state, bflow::DcsFormulation formulation) {
+  const auto model = bflow::adapt_ocp(bflow::examples::BrakingBlock{});
+  const bflow::OcpProblem problem = bflow::examples::BrakingBlock::problem();
+  OcpOptions o;
+  o.stages = static_cast<int>(state.range(0));
+  o.formulation = formulation;
+  OcpResult r;
+  for (auto _ : state) {
+    r = bflow::ocp_solve(model, problem, o);
+    state.SetIterationTime(r.cpu_per_iteration);
+  }
+  state.SetComplexityN(state.range(0));
+  if (!report(state, r)) return;
+  state.counters["objective_error"] =
+      std::abs(r.objective - bflow::examples::BrakingBlock::optimal_cost());
+  // The stop time: the first element boundary from which the block sticks (sliding, side 0).
+  double stop = r.T;
+  for (std::size_t e = r.active_sets.size(); e-- > 0;) {
+    if (r.active_sets[e][0] != 0) break;
+    stop = r.grid[e];
+  }
+  state.counters["stop_time_error"] = std::abs(stop - bflow::examples::BrakingBlock::stop_time());
+}
+BENCHMARK_CAPTURE(BM_OcpBrakingBlock, step, bflow::DcsFormulation::kStep)->Apply(up_to_80);
+BENCHMARK_CAPTURE(BM_OcpBrakingBlock, stewart, bflow::DcsFormulation::kStewart)->Apply(up_to_80);
+
+void BM_OcpTurboCar(benchmark::State& state, bflow::DcsFormulation formulation) {
+  const auto model = bflow::adapt_ocp(bflow::examples::TurboCar{});
+  const bflow::OcpProblem problem = bflow::examples::TurboCar::problem();
+  OcpOptions o;
+  o.stages = static_cast<int>(state.range(0));
+  o.formulation = formulation;
+  OcpResult r;
+  for (auto _ : state) {
+    r = bflow::ocp_solve(model, problem, o);
+    state.SetIterationTime(r.cpu_per_iteration);
+  }
+  state.SetComplexityN(state.range(0));
+  if (!report(state, r)) return;
+  state.counters["T"] = r.T;
+  state.counters["T_error"] = std::abs(r.T - bflow::examples::TurboCar::kOptimalTime);
+}
+BENCHMARK_CAPTURE(BM_OcpTurboCar, step, bflow::DcsFormulation::kStep)->Apply(up_to_40);
+
+}  // namespace
+
+BENCHMARK_MAIN();
