@@ -332,3 +332,65 @@ TEST(OcpFeatures, PathConstraintEqualsTheSameControlBound) {
 
 }  // namespace
 }  // namespace bflow
+
+namespace bflow {
+namespace {
+
+// Least-squares tracking of x_ref = 0 and u_ref = 0 with Q = diag(0, 1), R = 1 is the braking
+// block's own Lagrange cost v^2 + u^2: the same NLP written another way.
+struct UntrackedBlock {
+  static constexpr int kStates = 2, kControls = 1, kSwitches = 1;
+  template <typename T>
+  void switching(const T* x, T* c) const {
+    BrakingBlock{}.switching(x, c);
+  }
+  template <typename T>
+  void field(const T* x, const T* u, const T* a, T* xdot) const {
+    BrakingBlock{}.field(x, u, a, xdot);
+  }
+};
+
+TEST(OcpFeatures, TrackingEqualsTheLagrangeCost) {
+  OcpOptions options;
+  options.stages = 10;
+  OcpProblem p = BrakingBlock::problem();
+  p.track_Q = Eigen::Vector2d(0.0, 1.0);
+  p.x_ref = [](double) { return Eigen::Vector2d(0.0, 0.0); };
+  p.track_R = Eigen::VectorXd::Constant(1, 1.0);
+  p.u_ref = Eigen::VectorXd::Constant(1, 0.0);
+  const OcpResult tracked = ocp_solve(adapt_ocp(UntrackedBlock{}), p, options);
+  const OcpResult own = solve_block(10);
+  ASSERT_TRUE(tracked.ok()) << tracked.message;
+  ASSERT_TRUE(own.ok()) << own.message;
+  EXPECT_NEAR(tracked.objective, own.objective, 1e-9);
+  EXPECT_LT((tracked.u - own.u).lpNorm<Eigen::Infinity>(), 1e-6);
+}
+
+// The other initial guesses reach the same optimum of the braking block: the exact trajectory
+// as a reference, and a constant braking force simulated by FESD.
+TEST(OcpFeatures, ReferenceAndSimulatedGuessesReachTheOptimum) {
+  const OcpResult own = solve_block(10);
+  ASSERT_TRUE(own.ok()) << own.message;
+  OcpOptions options;
+  options.stages = 10;
+  OcpProblem reference = BrakingBlock::problem();
+  reference.guess = OcpGuess::kReference;
+  reference.guess_trajectory = [](double t) {
+    const double ts = BrakingBlock::stop_time();
+    return Eigen::Vector2d(std::sqrt(5.0) - std::cosh(std::max(ts - t, 0.0)),
+                           BrakingBlock::speed(t));
+  };
+  OcpProblem simulated = BrakingBlock::problem();
+  simulated.guess = OcpGuess::kSimulation;
+  simulated.guess_u = Eigen::MatrixXd::Constant(1, 1, -0.5);
+  int which = 0;
+  for (const OcpProblem& p : {reference, simulated}) {
+    SCOPED_TRACE(which++ == 0 ? "reference" : "simulated");
+    const OcpResult r = ocp_solve(adapt_ocp(BrakingBlock{}), p, options);
+    ASSERT_TRUE(r.ok()) << r.message;
+    EXPECT_NEAR(r.objective, own.objective, 1e-8);
+  }
+}
+
+}  // namespace
+}  // namespace bflow
