@@ -57,9 +57,11 @@ bool report(benchmark::State& state, const OcpResult& r) {
   return true;
 }
 
-void BM_OcpBrakingBlock(benchmark::State& state, bflow::DcsFormulation formulation) {
-  const auto model = bflow::adapt_ocp(bflow::examples::BrakingBlock{});
-  const bflow::OcpProblem problem = bflow::examples::BrakingBlock::problem();
+// Solves the example with N = state.range(0); the manual time is the CPU per IPOPT iteration.
+template <typename Example>
+OcpResult solve(benchmark::State& state, bflow::DcsFormulation formulation) {
+  const auto model = bflow::adapt_ocp(Example{});
+  const bflow::OcpProblem problem = Example::problem();
   OcpOptions o;
   o.stages = static_cast<int>(state.range(0));
   o.formulation = formulation;
@@ -69,6 +71,11 @@ void BM_OcpBrakingBlock(benchmark::State& state, bflow::DcsFormulation formulati
     state.SetIterationTime(r.cpu_per_iteration);
   }
   state.SetComplexityN(state.range(0));
+  return r;
+}
+
+void BM_OcpBrakingBlock(benchmark::State& state, bflow::DcsFormulation formulation) {
+  const OcpResult r = solve<bflow::examples::BrakingBlock>(state, formulation);
   if (!report(state, r)) return;
   state.counters["objective_error"] =
       std::abs(r.objective - bflow::examples::BrakingBlock::optimal_cost());
@@ -84,17 +91,7 @@ BENCHMARK_CAPTURE(BM_OcpBrakingBlock, step, bflow::DcsFormulation::kStep)->Apply
 BENCHMARK_CAPTURE(BM_OcpBrakingBlock, stewart, bflow::DcsFormulation::kStewart)->Apply(up_to_80);
 
 void BM_OcpTurboCar(benchmark::State& state, bflow::DcsFormulation formulation) {
-  const auto model = bflow::adapt_ocp(bflow::examples::TurboCar{});
-  const bflow::OcpProblem problem = bflow::examples::TurboCar::problem();
-  OcpOptions o;
-  o.stages = static_cast<int>(state.range(0));
-  o.formulation = formulation;
-  OcpResult r;
-  for (auto _ : state) {
-    r = bflow::ocp_solve(model, problem, o);
-    state.SetIterationTime(r.cpu_per_iteration);
-  }
-  state.SetComplexityN(state.range(0));
+  const OcpResult r = solve<bflow::examples::TurboCar>(state, formulation);
   if (!report(state, r)) return;
   state.counters["T"] = r.T;
   state.counters["T_error"] = std::abs(r.T - bflow::examples::TurboCar::kOptimalTime);

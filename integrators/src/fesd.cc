@@ -163,23 +163,15 @@ class StepNlp final : public Ipopt::TNLP {
 
   // Dense Jacobian of element n's rows against its local inputs, by Jet chunks.
   Eigen::MatrixXd element_jacobian(const double* w, int n, Eigen::VectorXd* values) const {
-    const int rows = l_.rows_per_element();
-    Eigen::MatrixXd jac(rows, l_.local);
-    std::vector<JetChunk> in, out(static_cast<std::size_t>(rows));
-    local_inputs(w, n, in);
-    for (int first = 0; first < l_.local; first += kTangentChunk) {
-      for (int k = 0; k < l_.local; ++k) in[static_cast<std::size_t>(k)].v.setZero();
-      const int width = std::min(kTangentChunk, l_.local - first);
-      for (int c = 0; c < width; ++c) in[static_cast<std::size_t>(first + c)].v[c] = 1.0;
-      element_residual(tab_, l_, options_.standard, in.data(), out.data());
-      for (int r = 0; r < rows; ++r) {
-        for (int c = 0; c < width; ++c) jac(r, first + c) = out[static_cast<std::size_t>(r)].v[c];
-      }
-    }
-    if (values != nullptr) {
-      values->resize(rows);
-      for (int r = 0; r < rows; ++r) (*values)[r] = out[static_cast<std::size_t>(r)].a;
-    }
+    std::vector<double> base;
+    local_inputs(w, n, base);
+    Eigen::MatrixXd jac;
+    fesd_detail::dense_jacobian(
+        base, l_.rows_per_element(), jac,
+        [&](const JetChunk* in, JetChunk* out) {
+          element_residual(tab_, l_, options_.standard, in, out);
+        },
+        values);
     return jac;
   }
 
@@ -804,27 +796,6 @@ std::string memory_limit_text() {
          std::to_string(static_cast<std::int64_t>(kFesdMaxMemoryBytes)) + " bytes";
 }
 
-// The caller's IPOPT options, after bflow's.
-void apply_user_options(Ipopt::IpoptApplication& app, const FesdOptions& options) {
-  for (const auto& [name, value] : options.ipopt_string_options) {
-    if (!app.Options()->SetStringValue(name, value)) {
-      throw InvalidArgument("fesd: IPOPT does not take the string option " + name + " = " + value);
-    }
-  }
-  for (const auto& [name, value] : options.ipopt_numeric_options) {
-    if (!app.Options()->SetNumericValue(name, value)) {
-      throw InvalidArgument("fesd: IPOPT does not take the numeric option " + name + " = " +
-                            format_number(value));
-    }
-  }
-  for (const auto& [name, value] : options.ipopt_integer_options) {
-    if (!app.Options()->SetIntegerValue(name, value)) {
-      throw InvalidArgument("fesd: IPOPT does not take the integer option " + name + " = " +
-                            std::to_string(value));
-    }
-  }
-}
-
 }  // namespace
 
 static_assert(std::numeric_limits<Ipopt::Index>::max() == kFesdMaxIndex,
@@ -953,7 +924,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   app->Options()->SetIntegerValue("max_iter", options.max_nlp_iterations);
   app->Options()->SetStringValue("mu_strategy", "adaptive");
   app->Options()->SetNumericValue("bound_relax_factor", 0.0);
-  apply_user_options(*app, options);
+  fesd_detail::apply_ipopt_options(*app, options, "fesd");
   if (app->Initialize() != Ipopt::Solve_Succeeded) {
     throw InvalidArgument("fesd: IPOPT failed to initialise");
   }
@@ -1075,7 +1046,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       } else {
         app->Options()->SetNumericValue("mu_init", 0.1);
       }
-      apply_user_options(*app, options);
+      fesd_detail::apply_ipopt_options(*app, options, "fesd");
       const Ipopt::ApplicationReturnStatus status = app->OptimizeTNLP(nlp);
       if (Ipopt::IsValid(app->Statistics())) iterations += app->Statistics()->IterationCount();
       const bool solved =

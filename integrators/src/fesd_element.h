@@ -17,9 +17,13 @@
 #include <algorithm>
 #include <cstdint>
 #include <map>
+#include <string>
 #include <utility>
 #include <vector>
 
+#include <Eigen/Core>
+
+#include "bflow/core/errors.h"
 #include "bflow/integrators/butcher.h"
 #include "bflow/integrators/fesd.h"
 #include "fesd_dcs.h"
@@ -205,6 +209,56 @@ void add_gradient(const std::vector<int>& globals, const std::vector<double>& ba
     for (int c = 0; c < width; ++c) {
       const int g = globals[static_cast<std::size_t>(first + c)];
       if (g >= 0) grad[g] += weight * value.v[c];
+    }
+  }
+}
+
+// The dense Jacobian (rows x inputs) of the `rows` outputs of f at `base`, by Jet chunks of
+// kTangentChunk directions; `values`, when given, receives f(base).
+template <typename F>
+void dense_jacobian(const std::vector<double>& base, int rows, Eigen::MatrixXd& jac, F f,
+                    Eigen::VectorXd* values = nullptr) {
+  const int size = static_cast<int>(base.size());
+  jac.resize(rows, size);
+  thread_local std::vector<JetChunk> in, out;
+  in.resize(base.size());
+  out.resize(static_cast<std::size_t>(rows));
+  for (int first = 0; first < size; first += kTangentChunk) {
+    for (int k = 0; k < size; ++k)
+      in[static_cast<std::size_t>(k)] = JetChunk(base[static_cast<std::size_t>(k)]);
+    const int width = std::min(kTangentChunk, size - first);
+    for (int c = 0; c < width; ++c) in[static_cast<std::size_t>(first + c)].v[c] = 1.0;
+    f(in.data(), out.data());
+    for (int r = 0; r < rows; ++r) {
+      for (int c = 0; c < width; ++c) jac(r, first + c) = out[static_cast<std::size_t>(r)].v[c];
+    }
+  }
+  if (values != nullptr) {
+    values->resize(rows);
+    for (int r = 0; r < rows; ++r) (*values)[r] = out[static_cast<std::size_t>(r)].a;
+  }
+}
+
+// The caller's IPOPT options (set after bflow's, so they win).
+// @throws InvalidArgument "<who>: IPOPT does not take the <type> option <name> = <value>".
+template <typename App, typename Options>
+void apply_ipopt_options(App& app, const Options& options, const std::string& who) {
+  for (const auto& [name, value] : options.ipopt_string_options) {
+    if (!app.Options()->SetStringValue(name, value)) {
+      throw InvalidArgument(who + ": IPOPT does not take the string option " + name + " = " +
+                            value);
+    }
+  }
+  for (const auto& [name, value] : options.ipopt_numeric_options) {
+    if (!app.Options()->SetNumericValue(name, value)) {
+      throw InvalidArgument(who + ": IPOPT does not take the numeric option " + name + " = " +
+                            format_number(value));
+    }
+  }
+  for (const auto& [name, value] : options.ipopt_integer_options) {
+    if (!app.Options()->SetIntegerValue(name, value)) {
+      throw InvalidArgument(who + ": IPOPT does not take the integer option " + name + " = " +
+                            std::to_string(value));
     }
   }
 }

@@ -692,7 +692,7 @@ class OcpNlp final : public Ipopt::TNLP {
     Eigen::MatrixXd jac;
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, base);
-      jacobian(base, rpe, jac, [&](const JetChunk* in, JetChunk* out) {
+      fesd_detail::dense_jacobian(base, rpe, jac, [&](const JetChunk* in, JetChunk* out) {
         fesd_detail::element_residual(tab_, l_, o_.standard, in, out);
       });
       const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
@@ -705,8 +705,9 @@ class OcpNlp final : public Ipopt::TNLP {
     for (int s = 0; s < rows_sums_ * l_.per_stage; ++s) values[k++] = 1.0;
     for (int b = 0; b <= l_.elements && npath_ > 0; ++b) {
       path_inputs(x, b, base);
-      jacobian(base, npath_, jac,
-               [&](const JetChunk* in, JetChunk* out) { model_.path(in, in + l_.d, out); });
+      fesd_detail::dense_jacobian(base, npath_, jac, [&](const JetChunk* in, JetChunk* out) {
+        model_.path(in, in + l_.d, out);
+      });
       const std::vector<int> g = path_globals(b);
       for (int r = 0; r < npath_; ++r) {
         for (std::size_t c = 0; c < g.size(); ++c) {
@@ -716,8 +717,8 @@ class OcpNlp final : public Ipopt::TNLP {
     }
     if (nterm_ > 0) {
       terminal_inputs(x, base);
-      jacobian(base, nterm_, jac,
-               [&](const JetChunk* in, JetChunk* out) { model_.terminal(in, out); });
+      fesd_detail::dense_jacobian(
+          base, nterm_, jac, [&](const JetChunk* in, JetChunk* out) { model_.terminal(in, out); });
       for (int r = 0; r < nterm_; ++r) {
         for (int i = 0; i < l_.d; ++i) values[k++] = jac(r, i);
       }
@@ -831,26 +832,6 @@ class OcpNlp final : public Ipopt::TNLP {
       in[static_cast<std::size_t>(i)] = T(w[l_.x_end(l_.elements - 1, i)]);
   }
 
-  // Dense Jacobian of `rows` outputs of f against its inputs at `base`, by Jet chunks.
-  template <typename F>
-  void jacobian(const std::vector<double>& base, int rows, Eigen::MatrixXd& jac, F f) const {
-    const int size = static_cast<int>(base.size());
-    jac.resize(rows, size);
-    thread_local std::vector<JetChunk> in, out;
-    in.resize(base.size());
-    out.resize(static_cast<std::size_t>(rows));
-    for (int first = 0; first < size; first += kTangentChunk) {
-      for (int k = 0; k < size; ++k)
-        in[static_cast<std::size_t>(k)] = JetChunk(base[static_cast<std::size_t>(k)]);
-      const int width = std::min(kTangentChunk, size - first);
-      for (int c = 0; c < width; ++c) in[static_cast<std::size_t>(first + c)].v[c] = 1.0;
-      f(in.data(), out.data());
-      for (int r = 0; r < rows; ++r) {
-        for (int c = 0; c < width; ++c) jac(r, first + c) = out[static_cast<std::size_t>(r)].v[c];
-      }
-    }
-  }
-
   // The value of an objective term from its inputs.
   template <typename T>
   T term_value(const Term& t, const T* in) const {
@@ -956,25 +937,6 @@ const char* ipopt_status_name(Ipopt::ApplicationReturnStatus status) {
       return "Invalid_Number_Detected";
     default:
       return "IPOPT_error";
-  }
-}
-
-void apply_user_options(Ipopt::IpoptApplication& app, const OcpOptions& options) {
-  for (const auto& [name, value] : options.ipopt_string_options) {
-    if (!app.Options()->SetStringValue(name, value)) {
-      throw InvalidArgument("ocp: IPOPT does not take the option " + name + " = " + value);
-    }
-  }
-  for (const auto& [name, value] : options.ipopt_numeric_options) {
-    if (!app.Options()->SetNumericValue(name, value)) {
-      throw InvalidArgument("ocp: IPOPT does not take the option " + name + " = " + number(value));
-    }
-  }
-  for (const auto& [name, value] : options.ipopt_integer_options) {
-    if (!app.Options()->SetIntegerValue(name, value)) {
-      throw InvalidArgument("ocp: IPOPT does not take the option " + name + " = " +
-                            std::to_string(value));
-    }
   }
 }
 
@@ -1148,11 +1110,30 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   app->Options()->SetIntegerValue("max_iter", options.max_nlp_iterations);
   app->Options()->SetStringValue("mu_strategy", "adaptive");
   app->Options()->SetNumericValue("bound_relax_factor", 0.0);
-  apply_user_options(*app, options);
+  fesd_detail::apply_ipopt_options(*app, options, "ocp");
   if (app->Initialize() != Ipopt::Solve_Succeeded) {
     throw InvalidArgument("ocp: IPOPT failed to initialise");
   }
 
+  // One NLP at the options set on `app`: solved, recorded in result.homotopy and reported.
+  const auto run_nlp = [&](double at_sigma, bool polish,
+                           Ipopt::ApplicationReturnStatus& status) -> const OcpHomotopyStep& {
+    const double nlp_start = cpu_now();
+    status = app->OptimizeTNLP(nlp);
+    OcpHomotopyStep step;
+    step.index = static_cast<int>(result.homotopy.size());
+    step.sigma = at_sigma;
+    step.polish = polish;
+    step.iterations = Ipopt::IsValid(app->Statistics()) ? app->Statistics()->IterationCount() : 0;
+    step.cpu_seconds = cpu_now() - nlp_start;
+    step.ipopt_status = ipopt_status_name(status);
+    step.objective = nlp->cost(nlp->solution().data());
+    step.complementarity = nlp->complementarity(nlp->solution().data());
+    result.ipopt_iterations += step.iterations;
+    result.homotopy.push_back(std::move(step));
+    if (options.progress) options.progress(result.homotopy.back());
+    return result.homotopy.back();
+  };
   double sigma = options.sigma_initial, last_sigma = sigma;
   bool first = true, any_solved = false;
   int retries = 0;
@@ -1174,20 +1155,9 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     } else {
       app->Options()->SetNumericValue("mu_init", 0.1);
     }
-    apply_user_options(*app, options);
-    const double nlp_start = cpu_now();
-    const Ipopt::ApplicationReturnStatus status = app->OptimizeTNLP(nlp);
-    OcpHomotopyStep step;
-    step.index = static_cast<int>(result.homotopy.size());
-    step.sigma = sigma;
-    step.iterations = Ipopt::IsValid(app->Statistics()) ? app->Statistics()->IterationCount() : 0;
-    step.cpu_seconds = cpu_now() - nlp_start;
-    step.ipopt_status = ipopt_status_name(status);
-    step.objective = nlp->cost(nlp->solution().data());
-    step.complementarity = nlp->complementarity(nlp->solution().data());
-    result.ipopt_iterations += step.iterations;
-    result.homotopy.push_back(step);
-    if (options.progress) options.progress(step);
+    fesd_detail::apply_ipopt_options(*app, options, "ocp");
+    Ipopt::ApplicationReturnStatus status;
+    const OcpHomotopyStep step = run_nlp(sigma, false, status);
     const bool solved =
         status == Ipopt::Solve_Succeeded || status == Ipopt::Solved_To_Acceptable_Level;
     if (!solved && any_solved && retries < 6) {
@@ -1248,21 +1218,9 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     app->Options()->SetNumericValue("mu_init", 1e-9);
     app->Options()->SetNumericValue("bound_push", 1e-12);
     app->Options()->SetNumericValue("bound_frac", 1e-12);
-    apply_user_options(*app, options);
-    const double nlp_start = cpu_now();
-    const Ipopt::ApplicationReturnStatus status = app->OptimizeTNLP(nlp);
-    OcpHomotopyStep step;
-    step.index = static_cast<int>(result.homotopy.size());
-    step.sigma = 0.0;
-    step.polish = true;
-    step.iterations = Ipopt::IsValid(app->Statistics()) ? app->Statistics()->IterationCount() : 0;
-    step.cpu_seconds = cpu_now() - nlp_start;
-    step.ipopt_status = ipopt_status_name(status);
-    step.objective = nlp->cost(nlp->solution().data());
-    step.complementarity = nlp->complementarity(nlp->solution().data());
-    result.ipopt_iterations += step.iterations;
-    result.homotopy.push_back(step);
-    if (options.progress) options.progress(step);
+    fesd_detail::apply_ipopt_options(*app, options, "ocp");
+    Ipopt::ApplicationReturnStatus status;
+    const OcpHomotopyStep step = run_nlp(0.0, true, status);
     const double slack = 1e-6 * (1.0 + std::abs(before));
     if (status == Ipopt::Solve_Succeeded &&
         step.complementarity <= options.complementarity_tolerance &&
