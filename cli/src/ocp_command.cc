@@ -2,11 +2,9 @@
 // docs/cli.md), with the errors of the run against the example's exact optimum.
 #include <algorithm>
 #include <cmath>
-#include <cstdint>
 #include <exception>
 #include <filesystem>
 #include <iterator>
-#include <limits>
 #include <new>
 #include <optional>
 #include <ostream>
@@ -100,45 +98,12 @@ void check_ranges(const OcpCommandOptions& options, const OcpOptions& defaults) 
   if (options.plot && options.plot->empty()) fail("--plot", "the directory name is empty");
 }
 
-// The whole horizon has the unknowns and constraints of one FESD integration step of N N_FE
-// elements (plus N controls and T), so fesd_problem_size bounds it: IPOPT's int indices, and the
-// sparse NLP's memory without the dense Newton matrices of a simulation.
+// The library's size of the NLP against IPOPT's indices and the memory limit, refused as --N
+// before anything is built.
 void check_size(const OcpModel& model, const OcpCommandOptions& options, const OcpOptions& o) {
-  const std::int64_t elements = std::int64_t{options.n} * options.nfe;
-  const std::string given = std::to_string(options.n) + " control stages of " +
-                            std::to_string(options.nfe) + " finite elements";
-  if (elements > std::numeric_limits<int>::max()) {
-    fail("--N", given + " give " + std::to_string(elements) +
-                    " finite elements, above IPOPT's limit of " +
-                    std::to_string(std::numeric_limits<int>::max()));
-  }
-  FesdOptions f;
-  f.scheme = o.scheme;
-  f.stages = o.collocation_stages;
-  f.elements = static_cast<int>(elements);
-  f.standard = o.standard;
-  f.formulation = o.formulation;
-  f.exact_hessian = o.exact_hessian;
-  f.newton = false;
-  f.sensitivities = false;
-  const HeldControlModel held(model, Eigen::VectorXd::Zero(model.controls()));
-  const FesdProblemSize size = fesd_problem_size(held, f);
-  const std::int64_t unknowns = size.unknowns + std::int64_t{options.n} * model.controls() + 1;
-  const std::pair<const char*, std::int64_t> counts[] = {
-      {"NLP unknowns", unknowns},
-      {"constraints", size.constraints},
-      {"Jacobian nonzeros", size.jacobian_nonzeros},
-      {"Hessian nonzeros", size.hessian_nonzeros}};
-  for (const auto& [what, count] : counts) {
-    if (count > kFesdMaxIndex) {
-      fail("--N", given + " give " + std::to_string(count) + " " + what +
-                      ", above IPOPT's limit of " + std::to_string(kFesdMaxIndex));
-    }
-  }
-  if (size.step_bytes > kFesdMaxMemoryBytes) {
-    fail("--N", given + " give " + std::to_string(unknowns) + " NLP unknowns, needing about " +
-                    formatted("%.2g", size.step_bytes) + " bytes, above the limit of 4 GiB = " +
-                    std::to_string(static_cast<std::int64_t>(kFesdMaxMemoryBytes)) + " bytes");
+  if (const std::string excess = ocp_problem_size(model, o).excess(); !excess.empty()) {
+    fail("--N", std::to_string(options.n) + " control stages of " + std::to_string(options.nfe) +
+                    " finite elements give " + excess);
   }
 }
 

@@ -6,6 +6,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <string>
 #include <utility>
 #include <vector>
@@ -1032,11 +1033,63 @@ FesdResult simulate_controls(const OcpModel& model, const Eigen::Ref<const Eigen
   return all;
 }
 
+std::string OcpProblemSize::excess() const {
+  if (elements > kFesdMaxIndex) {
+    return std::to_string(elements) + " finite elements, above IPOPT's limit of " +
+           std::to_string(kFesdMaxIndex);
+  }
+  const std::pair<const char*, std::int64_t> counts[] = {{"NLP unknowns", unknowns},
+                                                         {"constraints", constraints},
+                                                         {"Jacobian nonzeros", jacobian_nonzeros},
+                                                         {"Hessian nonzeros", hessian_nonzeros}};
+  for (const auto& [what, count] : counts) {
+    if (count > kFesdMaxIndex) {
+      return std::to_string(count) + " " + what + ", above IPOPT's limit of " +
+             std::to_string(kFesdMaxIndex);
+    }
+  }
+  if (bytes > kFesdMaxMemoryBytes) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%.2g", bytes);
+    return std::to_string(unknowns) + " NLP unknowns, needing about " + text +
+           " bytes, above the limit of 4 GiB = " +
+           std::to_string(static_cast<std::int64_t>(kFesdMaxMemoryBytes)) + " bytes";
+  }
+  return "";
+}
+
+OcpProblemSize ocp_problem_size(const OcpModel& model, const OcpOptions& options) {
+  OcpProblemSize size;
+  size.elements = std::int64_t{options.stages} * options.elements;
+  if (size.elements > kFesdMaxIndex || size.elements < 1) return size;
+  FesdOptions f;
+  f.scheme = options.scheme;
+  f.stages = options.collocation_stages;
+  f.elements = static_cast<int>(size.elements);
+  f.standard = options.standard;
+  f.formulation = options.formulation;
+  f.lifting_depth = options.lifting_depth;
+  f.exact_hessian = options.exact_hessian;
+  f.newton = false;
+  f.sensitivities = false;
+  const HeldControlModel held(model, Eigen::VectorXd::Zero(model.controls()));
+  const FesdProblemSize elements = fesd_problem_size(held, f);
+  size.unknowns = elements.unknowns + std::int64_t{options.stages} * model.controls() + 1;
+  size.constraints = elements.constraints;
+  size.jacobian_nonzeros = elements.jacobian_nonzeros;
+  size.hessian_nonzeros = elements.hessian_nonzeros;
+  size.bytes = elements.step_bytes;
+  return size;
+}
+
 OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpOptions& options) {
   check_input(model, problem, options);
   const int d = model.states(), nu = model.controls();
+  if (const std::string excess = ocp_problem_size(model, options).excess(); !excess.empty()) {
+    throw InvalidArgument("ocp: N = " + std::to_string(options.stages) + " stages of N_FE = " +
+                          std::to_string(options.elements) + " elements give " + excess);
+  }
   const ControlsAsStates step_model(model);
-  // The shape checks of simulation (stages, lifting, Stewart's limit) and the per-element sizes.
   FesdOptions shape;
   shape.scheme = options.scheme;
   shape.stages = options.collocation_stages;
@@ -1045,21 +1098,6 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   shape.lifting_depth = options.lifting_depth;
   shape.newton = false;
   shape.sensitivities = false;
-  const FesdProblemSize element_size = fesd_problem_size(step_model, shape);
-  // The whole NLP, in 64 bits, against IPOPT's Index.
-  const std::int64_t per_element = element_size.unknowns / options.elements;
-  const std::int64_t unknowns =
-      1 + static_cast<std::int64_t>(options.stages) *
-              (nu + static_cast<std::int64_t>(options.elements) * per_element);
-  const std::int64_t jacobian_estimate =
-      static_cast<std::int64_t>(options.stages) * element_size.jacobian_nonzeros * 2;
-  if (unknowns > kFesdMaxIndex || jacobian_estimate > kFesdMaxIndex) {
-    throw InvalidArgument(
-        "ocp: N = " + std::to_string(options.stages) +
-        " stages of N_FE = " + std::to_string(options.elements) + " elements give " +
-        std::to_string(unknowns) + " NLP unknowns and about " + std::to_string(jacobian_estimate) +
-        " Jacobian nonzeros, above IPOPT's limit of " + std::to_string(kFesdMaxIndex));
-  }
 
   const double cpu_start = cpu_now();
   const ButcherTableau tab = collocation_tableau(options.scheme, options.collocation_stages);

@@ -46,6 +46,7 @@
 #ifndef BFLOW_OCP_OCP_H_
 #define BFLOW_OCP_OCP_H_
 
+#include <cstdint>
 #include <functional>
 #include <limits>
 #include <memory>
@@ -384,10 +385,28 @@ struct OcpResult {
   bool ok() const { return status == OcpStatus::kSolved; }
 };
 
+/** The size of the NLP ocp_solve builds, in 64 bits, from the model's dimensions and the
+    options alone: N N_FE finite elements sized as one FESD integration step of that many
+    elements (fesd_problem_size, without the dense Newton matrices), plus N nu controls and T. */
+struct OcpProblemSize {
+  std::int64_t elements = 0;  ///< N N_FE
+  std::int64_t unknowns = 0, constraints = 0, jacobian_nonzeros = 0, hessian_nonzeros = 0;
+  double bytes = 0.0;  ///< FesdProblemSize::step_bytes of the elements
+  /** "" when every count is within kFesdMaxIndex and bytes within kFesdMaxMemoryBytes, else the
+      first excess with its numbers, e.g. "3000000000 finite elements, above IPOPT's limit of
+      2147483647" or "4000001 NLP unknowns, needing about 9.5e+09 bytes, above the limit of
+      4 GiB = 4294967296 bytes". */
+  std::string excess() const;
+};
+
+/** @throws InvalidArgument for options that have no size (as fesd_problem_size). */
+OcpProblemSize ocp_problem_size(const OcpModel& model, const OcpOptions& options);
+
 /** Solves the OCP. Progress goes to options.progress; IPOPT prints only at print_level > 0.
     @throws InvalidArgument for inconsistent data (sizes of x0, bounds, guesses, references;
-    lower > upper; non-finite x0; tracking with a free horizon; options out of range), quoting
-    the values. An NLP that IPOPT cannot solve is a status, not an exception. */
+    lower > upper; non-finite x0; tracking with a free horizon; options out of range; a problem
+    whose ocp_problem_size() has an excess), quoting the values. An NLP that IPOPT cannot solve is a
+   status, not an exception. */
 OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem,
                     const OcpOptions& options = {});
 
