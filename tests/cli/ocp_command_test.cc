@@ -155,6 +155,29 @@ TEST(OcpCommandTest, StandardTimeSteppingMissesTheOptimum) {
   EXPECT_NEAR(r.json["T"].get<double>(), 240.0 / 13.0, 1e-3);
 }
 
+// With --sigma0 1 the homotopy at N = 5 ends at another stationary point of the MPCC (measured
+// T = 50/3, the switch of v on a stage boundary): the NLP is solved, so the exit code is 0, but
+// N = 5 represents the optimum 40/3 exactly, so the run is not silent about missing it. The
+// default sigma0 at N = 5 (the first test) prints no such line; neither does standard
+// time-stepping (above), which cannot represent the optimum.
+TEST(OcpCommandTest, AnotherStationaryPointIsNoticed) {
+  OcpCommandOptions o;
+  o.example = "turbo-car";
+  o.n = 5;
+  o.sigma0 = 1.0;
+  o.quiet = true;
+  const Outcome r = solve(o);
+  ASSERT_EQ(r.code, kExitOk) << r.err;
+  EXPECT_EQ(r.json["status"], "solved");
+  EXPECT_NEAR(r.json["T"].get<double>(), 50.0 / 3.0, 1e-6);
+  const std::vector<std::string> err = lines(r.err);
+  ASSERT_EQ(err.size(), 1u) << r.err;
+  EXPECT_THAT(err[0], StartsWith("warning: ocp: T = 16.666"));
+  EXPECT_THAT(err[0], ::testing::HasSubstr(" above the optimum 40/3, which N = 5 stages "
+                                           "represent exactly"));
+  EXPECT_THAT(err[0], ::testing::HasSubstr("--sigma0"));
+}
+
 // Braking block, N = 10: the optimum slides from t = asinh 2; piecewise-constant controls are
 // 1.1e-2 above J* (measured 1.13e-2; stop time 1.6e-3, final position 6.7e-3 off).
 TEST(OcpCommandTest, BrakingBlockIsCloseToTheExactOptimum) {
