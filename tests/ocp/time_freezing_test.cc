@@ -1,0 +1,270 @@
+// Time-freezing (time_freezing.h): the regions and fields of the PSS, and the falling ball
+// simulated by FESD against its closed-form motion with an inelastic frictional impact
+// (contact_examples.h): the impact time, the velocity after the impact (inside and at the edge
+// of the friction cone), the sliding and sticking after it, with and without drag.
+#include "bflow/ocp/time_freezing.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <Eigen/Dense>
+
+#include "bflow/examples/contact_examples.h"
+#include "bflow/integrators/fesd.h"
+
+namespace bflow {
+namespace {
+
+using examples::FallingBall;
+using Ball = TimeFreezing<FallingBall>;
+using BallBaseSets = TimeFreezing<FallingBall, TimeFreezingRegions::kBaseSets>;
+
+// theta of each region at a = the step of c: R1 where the ball is above the ground or leaves
+// it, R2 / R3 where it is below and approaching, by the sign of the tangential velocity.
+TEST(TimeFreezing, RegionsAreThoseOfSection72) {
+  const SignMatrix s = Ball::sign_matrix();
+  const auto theta = [&](double a1, double a2, double a3) {
+    const double a[3] = {a1, a2, a3};
+    double t[3];
+    s.multipliers(a, t);
+    return std::vector<double>(t, t + 3);
+  };
+  for (double a2 : {0.0, 1.0}) {
+    for (double a3 : {0.0, 1.0}) EXPECT_EQ(theta(1.0, a2, a3), (std::vector<double>{1, 0, 0}));
+  }
+  EXPECT_EQ(theta(0.0, 1.0, 0.0), (std::vector<double>{1, 0, 0}));
+  EXPECT_EQ(theta(0.0, 0.0, 1.0), (std::vector<double>{0, 1, 0}));
+  EXPECT_EQ(theta(0.0, 0.0, 0.0), (std::vector<double>{0, 0, 1}));
+  // The base sets: six rows with f_1, then R2 and R3, as Stewart needs.
+  const SignMatrix dense = BallBaseSets::sign_matrix();
+  EXPECT_TRUE(dense.is_dense());
+  EXPECT_EQ(dense.rows(), 8);
+  EXPECT_EQ(dense.matrix().row(6), Eigen::RowVector3i(-1, -1, 1));
+  EXPECT_EQ(dense.matrix().row(7), Eigen::RowVector3i(-1, -1, -1));
+}
+
+// The fields of a ball of mass 2 with drag: f_1 = (v, -(k vx, g + k vz), 1),
+// f_2 = (0, (-mu, 1) a_n / m, 0), f_3 = (0, (mu, 1) a_n / m, 0); the same in the base sets.
+TEST(TimeFreezing, FieldsAreFreeFlightAndTheAuxiliaryImpactDynamics) {
+  FallingBall ball;
+  ball.m = 2.0;
+  ball.k = 0.5;
+  const Ball tf(ball, {0.8, 200.0});
+  const double x[5] = {0.3, -0.01, 1.5, -2.0, 0.7};
+  double c[3];
+  tf.switching(x, c);
+  EXPECT_EQ(c[0], -0.01);
+  EXPECT_EQ(c[1], -2.0);
+  EXPECT_EQ(c[2], 1.5);
+  double f[15];
+  tf.modes(x, f);
+  const double f1[5] = {1.5, -2.0, -0.75, -9.81 + 1.0, 1.0};
+  const double f2[5] = {0.0, 0.0, -0.8 * 100.0, 100.0, 0.0};
+  const double f3[5] = {0.0, 0.0, 0.8 * 100.0, 100.0, 0.0};
+  for (int k = 0; k < 5; ++k) {
+    EXPECT_NEAR(f[k], f1[k], 1e-14) << k;
+    EXPECT_NEAR(f[5 + k], f2[k], 1e-13) << k;
+    EXPECT_NEAR(f[10 + k], f3[k], 1e-13) << k;
+  }
+  const BallBaseSets base(ball, {0.8, 200.0});
+  double g[40];
+  base.modes(x, g);
+  for (int r = 0; r < 6; ++r) {
+    for (int k = 0; k < 5; ++k) EXPECT_EQ(g[r * 5 + k], f[k]);
+  }
+  for (int k = 0; k < 10; ++k) EXPECT_EQ(g[30 + k], f[5 + k]);
+}
+
+// M^-1 b on the scalar type against Eigen for a full symmetric positive definite 3 x 3.
+TEST(TimeFreezing, CholeskySolveMatchesEigen) {
+  Eigen::Matrix3d a;
+  a << 4, 1, 0.5, 1, 3, 0.2, 0.5, 0.2, 2;
+  const Eigen::Vector3d b(1.0, -2.0, 0.5);
+  double m[9], x[3] = {b[0], b[1], b[2]};
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) m[i * 3 + j] = a(i, j);
+  }
+  detail::cholesky_factor<double, 3>(m);
+  detail::cholesky_solve<double, 3>(m, x);
+  const Eigen::Vector3d expected = a.ldlt().solve(b);
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(x[i], expected[i], 1e-15);
+}
+
+// J_n given for the ground z = 0 with the gap of the slope z = x / 2: a wrong Jacobian.
+struct TiltedBall : FallingBall {
+  template <typename T>
+  T gap(const T* q) const {
+    return q[1] - T(0.5) * q[0];
+  }
+};
+
+TEST(TimeFreezing, ContactJacobiansAreCheckedByJets) {
+  const ContactJacobianCheck ok = check_contact_jacobians(FallingBall{}, Eigen::Vector2d(0.3, 0.2));
+  EXPECT_EQ(ok.normal_error, 0.0);
+  EXPECT_EQ(ok.tangent_error, 0.0);
+  const ContactJacobianCheck wrong =
+      check_contact_jacobians(TiltedBall{}, Eigen::Vector2d(0.3, 0.2));
+  EXPECT_EQ(wrong.normal_error, 0.5);
+  EXPECT_THROW(check_contact_jacobians(FallingBall{}, Eigen::Vector3d(0, 0, 0)), InvalidArgument);
+}
+
+TEST(TimeFreezing, BadContactParametersAreRefused) {
+  try {
+    Ball tf(FallingBall{}, {-0.1, 100.0});
+    FAIL();
+  } catch (const InvalidArgument& e) {
+    EXPECT_STREQ(e.what(),
+                 "TimeFreezing: the friction coefficient mu must be finite and >= 0, "
+                 "got -0.1");
+  }
+  EXPECT_THROW(Ball(FallingBall{}, {0.5, 0.0}), InvalidArgument);
+  EXPECT_THROW(Ball(FallingBall{}, {0.5, std::nan("")}), InvalidArgument);
+}
+
+struct BallRun {
+  FesdResult result;
+  FallingBall::Motion motion;
+};
+
+// The ball from (0, 1) at (vx0, 0) with friction mu and a_n = 100, over tau in [0, tau_end].
+template <typename Model>
+BallRun simulate_ball(double vx0, double mu, double k, int steps, double tau_end = 1.2) {
+  FallingBall ball;
+  ball.k = k;
+  const Model tf(ball, {mu, 100.0});
+  const PiecewiseSmoothAsStep<Model> pss(tf, Model::sign_matrix());
+  FesdOptions o;
+  o.steps = steps;
+  o.sensitivities = false;
+  if constexpr (Model::kBaseSets) o.formulation = DcsFormulation::kStewart;
+  Eigen::VectorXd x0(5);
+  x0 << 0.0, 1.0, vx0, 0.0, 0.0;
+  return {fesd_simulate(adapt_step(pss), x0, tau_end, o), ball.motion(0.0, 1.0, vx0, 0.0, mu)};
+}
+
+struct BallErrors {
+  double impact_time = 0.0;   // |clock at the first grid point on the ground - t_i|
+  double after_impact = 0.0;  // |v at the end of the auxiliary phase - (vx+, 0)|
+  double trajectory = 0.0;    // largest |(q, v)(tau) - closed form at clock(tau)| where it runs
+  double frozen = 0.0;        // largest |clock - t_i| and |q - q(t_i)| in the auxiliary phase
+  double clock_end = 0.0;     // the physical time reached
+};
+
+BallErrors errors_of(const BallRun& run) {
+  const FesdResult& r = run.result;
+  const FallingBall::Motion& m = run.motion;
+  const double ti = m.impact_time();
+  const Eigen::Vector4d landing = m.at(ti);
+  BallErrors e;
+  bool landed = false, released = false;
+  for (Eigen::Index j = 0; j < r.states.cols(); ++j) {
+    const Eigen::VectorXd x = r.states.col(j);
+    const double clock = x[4];
+    if (!landed && x[1] <= 1e-9) {
+      landed = true;
+      e.impact_time = std::abs(clock - ti);
+    }
+    const bool auxiliary = landed && x[3] < -1e-7;
+    if (auxiliary) {
+      e.frozen =
+          std::max({e.frozen, std::abs(clock - ti), std::abs(x[0] - landing[0]), std::abs(x[1])});
+      continue;
+    }
+    if (landed && !released) {
+      released = true;
+      e.after_impact = std::max(std::abs(x[2] - m.tangential_velocity_after()), std::abs(x[3]));
+    }
+    const Eigen::Vector4d expected = m.at(clock);
+    e.trajectory = std::max(e.trajectory, (x.head(4) - expected).cwiseAbs().maxCoeff());
+  }
+  e.clock_end = r.x_end[4];
+  return e;
+}
+
+// Inside the friction cone (vx0 = 3, mu = 0.5), step formulation, tau in [0, 0.65] (before the
+// ball sticks): it lands at t_i = sqrt(2 / g), its normal velocity goes to 0 and its tangential
+// one to 3 - 0.5 sqrt(2 g) = 0.785 while the clock stands still, and it slides. Without drag
+// every phase is polynomial of degree <= 2 in tau, which Radau IIA 2 integrates exactly once the
+// switches are element boundaries, so only round-off is left. Measured: impact time 1.1e-16,
+// after impact 9e-33, trajectory 8.9e-16, frozen 4.4e-16.
+TEST(TimeFreezingBall, InelasticFrictionalImpactAndSlidingMatchTheClosedForm) {
+  const BallRun run = simulate_ball<Ball>(3.0, 0.5, 0.0, 26, 0.65);
+  ASSERT_TRUE(run.result.ok()) << run.result.message;
+  const BallErrors e = errors_of(run);
+  std::printf("impact %.2e after %.2e trajectory %.2e frozen %.2e clock %.6f\n", e.impact_time,
+              e.after_impact, e.trajectory, e.frozen, e.clock_end);
+  EXPECT_NEAR(run.motion.tangential_velocity_after(), 3.0 - 0.5 * std::sqrt(2.0 * 9.81), 1e-15);
+  EXPECT_LT(e.impact_time, 1e-12);
+  EXPECT_LT(e.after_impact, 1e-12);
+  EXPECT_LT(e.trajectory, 1e-12);
+  EXPECT_LT(e.frozen, 1e-12);
+  // The physical time reached at tau = 0.65: the clock stands still for |vz-| / a_n during the
+  // impact and runs at a_n / (a_n + g) while the ball slides (theta_1 of the sliding mode on
+  // J_n^T v = 0: theta_1 (-g) + theta_2 a_n = 0). Measured 4e-17 off.
+  const double ti = run.motion.impact_time();
+  const double frozen = -run.motion.normal_velocity_before() / 100.0;
+  EXPECT_NEAR(e.clock_end, ti + 100.0 / (100.0 + 9.81) * (0.65 - ti - frozen), 1e-9);
+}
+
+// At the edge of the friction cone (vx0 = 1 < mu |vz-| = 2.2): the tangential velocity reaches
+// 0 during the impact and stays there (sliding between R2 and R3); the ball sticks on landing.
+// Stewart's formulation on the base sets (the step formulation's homotopy does not converge
+// where all three switching functions vanish, the ball at rest on the ground). Measured: impact
+// 5.2e-15, after impact 5.4e-15, trajectory 1.1e-7 and frozen 9.4e-8 (the stuck phase is
+// resolved to the homotopy's tolerances, not to round-off).
+TEST(TimeFreezingBall, TangentialVelocityStopsInsideTheImpact) {
+  const BallRun run = simulate_ball<BallBaseSets>(1.0, 0.5, 0.0, 40);
+  ASSERT_TRUE(run.result.ok()) << run.result.message;
+  const BallErrors e = errors_of(run);
+  std::printf("impact %.2e after %.2e trajectory %.2e frozen %.2e clock %.6f\n", e.impact_time,
+              e.after_impact, e.trajectory, e.frozen, e.clock_end);
+  EXPECT_EQ(run.motion.tangential_velocity_after(), 0.0);
+  EXPECT_LT(e.impact_time, 1e-12);
+  EXPECT_LT(e.after_impact, 1e-12);
+  EXPECT_LT(e.trajectory, 1e-6);
+  EXPECT_LT(e.frozen, 1e-6);
+}
+
+// Stewart's formulation on the eight base sets, tau in [0, 1.2]: the impact, the sliding and
+// the ball sticking at t_i + 0.160. Measured: impact 0, after impact 3.3e-16, trajectory
+// 1.7e-12, frozen 3.7e-16.
+TEST(TimeFreezingBall, BaseSetsWithStewartAgree) {
+  const BallRun run = simulate_ball<BallBaseSets>(3.0, 0.5, 0.0, 40);
+  ASSERT_TRUE(run.result.ok()) << run.result.message;
+  const BallErrors e = errors_of(run);
+  std::printf("impact %.2e after %.2e trajectory %.2e frozen %.2e clock %.6f\n", e.impact_time,
+              e.after_impact, e.trajectory, e.frozen, e.clock_end);
+  EXPECT_LT(e.impact_time, 1e-12);
+  EXPECT_LT(e.after_impact, 1e-12);
+  EXPECT_LT(e.trajectory, 1e-10);
+  EXPECT_LT(e.frozen, 1e-12);
+  EXPECT_GT(e.clock_end, run.motion.stop_time());  // it reached the sticking
+}
+
+// With drag (k = 0.5, vx0 = 5, tau in [0, 0.75], before the ball sticks) the motion is
+// exponential, and FESD converges to the closed form as the grid is refined at the order of
+// Radau IIA 2 (3). Measured largest errors (impact time, velocity after the impact, trajectory)
+// 1.8e-6, 2.4e-7, 2.6e-8 at N_sim = 6, 12, 24: orders 2.89 and 3.22.
+TEST(TimeFreezingBall, WithDragConvergesWithTheGrid) {
+  std::vector<double> errors;
+  for (int steps : {6, 12, 24}) {
+    const BallRun run = simulate_ball<Ball>(5.0, 0.5, 0.5, steps, 0.75);
+    ASSERT_TRUE(run.result.ok()) << steps << ": " << run.result.message;
+    const BallErrors e = errors_of(run);
+    std::printf("N_sim %d: impact %.2e after %.2e trajectory %.2e\n", steps, e.impact_time,
+                e.after_impact, e.trajectory);
+    errors.push_back(std::max({e.impact_time, e.after_impact, e.trajectory}));
+  }
+  for (std::size_t i = 1; i < errors.size(); ++i) {
+    const double order = std::log2(errors[i - 1] / errors[i]);
+    std::printf("order %.2f\n", order);
+    EXPECT_GT(order, 2.5);
+  }
+  EXPECT_LT(errors.back(), 5e-8);
+}
+
+}  // namespace
+}  // namespace bflow
