@@ -120,6 +120,14 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
                           " is no interval of positive times");
   }
   check_bounds(p.x_lower, p.x_upper, d, "x_lower", "x_upper");
+  if (p.clock_state < -1 || p.clock_state >= d) {
+    throw InvalidArgument("ocp: clock_state = " + std::to_string(p.clock_state) +
+                          " is no state index (0.." + std::to_string(d - 1) + ") and not -1");
+  }
+  if (p.clock_state >= 0 && p.time_optimal) {
+    throw InvalidArgument("ocp: the stage-wise clock constraint (clock_state = " +
+                          std::to_string(p.clock_state) + ") needs a fixed horizon");
+  }
   check_bounds(p.u_lower, p.u_upper, nu, "u_lower", "u_upper");
   check_bounds(p.path_lower, p.path_upper, model.path_constraints(), "path_lower", "path_upper");
   check_bounds(p.terminal_lower, p.terminal_upper, model.terminal_constraints(), "terminal_lower",
@@ -543,6 +551,10 @@ class OcpNlp final : public Ipopt::TNLP {
       for (int i = 0; i < l_.d; ++i) {
         x_l[l_.x_end(e, i)] = bound(p_.x_lower, i, -kInfinity);
         x_u[l_.x_end(e, i)] = bound(p_.x_upper, i, kInfinity);
+      }
+      if (p_.clock_state >= 0 && (e + 1) % l_.per_stage == 0) {
+        const double clock = (e + 1) / l_.per_stage * p_.horizon / l_.stages;
+        x_l[l_.x_end(e, p_.clock_state)] = x_u[l_.x_end(e, p_.clock_state)] = clock;
       }
       for (int m = 0; m < l_.points; ++m) {
         for (int k = 0; k < l_.nz; ++k) {
@@ -1196,8 +1208,9 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     fesd_detail::apply_ipopt_options(*app, options, "ocp");
     Ipopt::ApplicationReturnStatus status;
     const OcpHomotopyStep step = run_nlp(sigma, false, status);
-    const bool solved =
-        status == Ipopt::Solve_Succeeded || status == Ipopt::Solved_To_Acceptable_Level;
+    const bool solved = status == Ipopt::Solve_Succeeded ||
+                        status == Ipopt::Solved_To_Acceptable_Level ||
+                        status == Ipopt::Feasible_Point_Found;
     if (!solved && any_solved && retries < 6) {
       // Too large a step in sigma: back to the last solution, half the step (in log sigma).
       ++retries;
@@ -1260,7 +1273,9 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     Ipopt::ApplicationReturnStatus status;
     const OcpHomotopyStep step = run_nlp(0.0, true, status);
     const double slack = 1e-6 * (1.0 + std::abs(before));
-    if (status == Ipopt::Solve_Succeeded &&
+    // A polish with as many equations as free unknowns (every control pinned, e.g. by a clock
+    // constraint) is a square system, which IPOPT reports as Feasible_Point_Found.
+    if ((status == Ipopt::Solve_Succeeded || status == Ipopt::Feasible_Point_Found) &&
         step.complementarity <= options.complementarity_tolerance &&
         step.objective <= before + slack) {
       polished = true;

@@ -12,6 +12,7 @@
 #include <gtest/gtest.h>
 #include <Eigen/Dense>
 
+#include "bflow/examples/monoped_ocp.h"
 #include "bflow/ocp/time_freezing.h"
 
 namespace bflow::examples {
@@ -134,6 +135,39 @@ TEST(Monoped, ContactJacobiansAreTheFootsGradients) {
   double foot[2];
   robot.foot(q0, foot);
   EXPECT_NEAR(foot[0], 0.4, 1e-15);
+}
+
+// The OCP of Section 7.2: the reference passes through the published knots (two hops), ends at
+// the target at rest, and the NLP has the step formulation's three switching functions against
+// the eight base sets of Stewart's: 9 states, 3 controls (u_hip, u_knee, s).
+TEST(MonopedOcp, ProblemAndSizes) {
+  const double knots[5][2] = {{0.0, 0.4}, {0.75, 0.6}, {1.5, 0.4}, {2.25, 0.6}, {3.0, 0.4}};
+  for (int k = 0; k < 5; ++k) {
+    const Eigen::VectorXd x = MonopedTask::reference(0.75 * k);
+    EXPECT_NEAR(x[0], knots[k][0], 1e-15);
+    EXPECT_NEAR(x[1], knots[k][1], 1e-15);
+    EXPECT_EQ(x[8], 0.75 * k);
+  }
+  const OcpProblem p = MonopedTask{}.problem();
+  EXPECT_EQ(p.x0.size(), 9);
+  EXPECT_EQ(p.clock_state, 8);
+  EXPECT_EQ(p.x_ref(3.0).head(8), (Eigen::VectorXd(8) << 3, 0.4, 0, 0, 0, 0, 0, 0).finished());
+  OcpOptions o;
+  o.stages = 30;
+  const auto step = adapt_ocp(monoped_model<TimeFreezingRegions::kUnions>());
+  o.formulation = DcsFormulation::kStewart;
+  const auto stewart = adapt_ocp(monoped_model<TimeFreezingRegions::kBaseSets>());
+  EXPECT_EQ(step.states(), 9);
+  EXPECT_EQ(step.controls(), 3);
+  EXPECT_EQ(step.switches(), 3);
+  EXPECT_EQ(stewart.sign_matrix()->modes(), 8);
+  const OcpProblemSize s_stewart = ocp_problem_size(stewart, o);
+  o.formulation = DcsFormulation::kStep;
+  const OcpProblemSize s_step = ocp_problem_size(step, o);
+  EXPECT_EQ(s_step.elements, 90);
+  EXPECT_LT(s_step.unknowns, s_stewart.unknowns);
+  std::printf("N = 30: step %lld unknowns, Stewart %lld\n", static_cast<long long>(s_step.unknowns),
+              static_cast<long long>(s_stewart.unknowns));
 }
 
 }  // namespace

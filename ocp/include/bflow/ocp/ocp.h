@@ -275,6 +275,11 @@ struct OcpProblem {
   Eigen::VectorXd path_lower, path_upper;  ///< g(x, u) (kPath each; empty: g <= 0)
   /** g_T(x(T)) (kTerminal each; empty: g_T = 0, equalities). */
   Eigen::VectorXd terminal_lower, terminal_upper;
+  /** The stage-wise clock constraint of time-freezing ([F] Section 7.2, time_freezing.h): with
+      a state index i >= 0, x_i at the end of stage k is fixed to (k + 1) horizon / N, so the
+      clock (which stands still during impacts) keeps up with the stages. Fixed horizon only;
+      -1: none. */
+  int clock_state = -1;
   /** Least-squares tracking added to the Lagrange cost:
         (x - x_ref(t_k))' diag(Q) (x - x_ref(t_k)) + (u - u_ref)' diag(R) (u - u_ref),
       x_ref evaluated at the middle t_k of each stage (fixed horizon only), and

@@ -234,6 +234,29 @@ class TimeFreezing {
   ContactParameters contact_;
 };
 
+/** The physical trajectory of a time-freezing run: the columns of `states` (one time-freezing
+    state per grid point, the clock in row `clock`) where the clock runs. A point is kept when the
+    clock moved (by more than `tolerance`) from the point before or to the point after, and the
+    first and last points always: so the start and the end of every frozen phase stay (the state
+    before and after the jump, at the same physical time) and the points inside it are dropped.
+    @throws InvalidArgument if `clock` is no row of `states` or `tolerance` < 0. */
+inline std::vector<int> clock_running_points(const Eigen::Ref<const Eigen::MatrixXd>& states,
+                                             int clock, double tolerance = 1e-9) {
+  if (clock < 0 || clock >= states.rows() || !(tolerance >= 0.0)) {
+    throw InvalidArgument("clock_running_points: clock row " + std::to_string(clock) + " of " +
+                          std::to_string(states.rows()) + " rows, tolerance " +
+                          format_number(tolerance));
+  }
+  std::vector<int> kept;
+  const Eigen::Index n = states.cols();
+  for (Eigen::Index j = 0; j < n; ++j) {
+    const bool moved_in = j == 0 || states(clock, j) > states(clock, j - 1) + tolerance;
+    const bool moves_on = j + 1 == n || states(clock, j + 1) > states(clock, j) + tolerance;
+    if (moved_in || moves_on) kept.push_back(static_cast<int>(j));
+  }
+  return kept;
+}
+
 namespace detail {
 template <typename S, typename = void>
 struct HasTangentialPosition : std::false_type {};
