@@ -311,12 +311,8 @@ class StepNlp final : public Ipopt::TNLP {
     for (int n = 0; n < l_.elements; ++n) {
       local_inputs(x, n, base);
       for (int k = 0; k < l_.local; ++k) globals[static_cast<std::size_t>(k)] = l_.global(n, k);
-      hessian_.add(
-          globals, base, l_.rows_per_element(), lambda + n * l_.rows_per_element(),
-          [&](const HessianScalar* in, HessianScalar* out) {
-            element_residual(tab_, l_, options_.standard, in, out);
-          },
-          values);
+      add_element_hessian(tab_, l_, options_.standard, pieces_, globals, base,
+                          lambda + n * l_.rows_per_element(), hessian_, values);
     }
     if (!options_.standard) {
       const double h_ref = step_ / l_.elements;
@@ -371,13 +367,16 @@ class StepNlp final : public Ipopt::TNLP {
     }
   }
 
-  // Lower-triangle positions of the Lagrangian's Hessian: every pair of an element's unknowns
-  // and of an equilibration term's unknowns.
+  // Lower-triangle positions of the Lagrangian's Hessian: every pair of unknowns of a piece of
+  // an element (element_hessian_pieces) and of an equilibration term.
   void build_hessian_structure() {
+    pieces_ = element_hessian_pieces(l_);
     for (int n = 0; n < l_.elements; ++n) {
-      std::vector<int> globals;
-      for (int k = 0; k < l_.local; ++k) globals.push_back(l_.global(n, k));
-      hessian_.add_block(globals);
+      for (const std::vector<int>& piece : pieces_) {
+        std::vector<int> globals;
+        for (int k : piece) globals.push_back(l_.global(n, k));
+        hessian_.add_block(globals);
+      }
     }
     for (const std::vector<int>& idx : equilibration_index_) hessian_.add_block(idx);
     hess_rows_.assign(hessian_.rows().begin(), hessian_.rows().end());
@@ -396,6 +395,7 @@ class StepNlp final : public Ipopt::TNLP {
   std::vector<std::vector<double>> equilibration_constants_;
   std::vector<Ipopt::Index> hess_rows_, hess_cols_;
   fesd_detail::HessianBlocks hessian_;
+  std::vector<std::vector<int>> pieces_;  // an element's Hessian pieces (local indices)
   std::vector<Ipopt::Index> jac_rows_, jac_cols_;
   Ipopt::SolverReturn status_ = Ipopt::SUCCESS;
 };

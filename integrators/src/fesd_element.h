@@ -138,6 +138,120 @@ void element_residual(const ButcherTableau& tab, const ElementShape& l, bool sta
   }
 }
 
+// The element's Lagrangian sum_r lambda_r residual_r is linear in everything but a few small
+// pieces, and its second derivatives are theirs:
+//   field piece k (stage point k < s):  -h sum_i w_ki f_i([X_k; u], z_k),
+//        w_ki = sum_m lambda_(m,i) A_mk + lambda_(end,i) b_k   (the collocation and end rows),
+//        over [h, T (time-scaled), X_k, u, z_k];
+//   algebraic piece m (point m < P):     lambda_alg(m) . algebraic([X_m or x_{n+1}; u], z_m),
+//        over [X_m or x_{n+1}, u, z_m];
+//   complementarity piece:               lambda_comp . comp(v0, z), over [v0, z_1..z_P].
+// Each piece's unknowns are listed as local indices (element_hessian_pieces); the nested forward
+// AD then costs a few chunks of a piece instead of every pair of chunks of the whole element.
+inline std::vector<std::vector<int>> element_hessian_pieces(const ElementShape& l) {
+  std::vector<std::vector<int>> pieces;
+  const int own = l.own(), u0 = l.d + l.npairs;
+  const auto range = [](std::vector<int>& v, int first, int count) {
+    for (int k = 0; k < count; ++k) v.push_back(first + k);
+  };
+  for (int k = 0; k < l.s; ++k) {
+    std::vector<int> v{own};  // h
+    if (l.scaled) v.push_back(u0 + l.nu);
+    range(v, own + 1 + k * l.d, l.d);
+    range(v, u0, l.nu);
+    range(v, own + l.off_z + k * l.nz, l.nz);
+    pieces.push_back(std::move(v));
+  }
+  for (int m = 0; m < l.points; ++m) {
+    std::vector<int> v;
+    range(v, m < l.s ? own + 1 + m * l.d : own + l.off_x, l.d);
+    range(v, u0, l.nu);
+    range(v, own + l.off_z + m * l.nz, l.nz);
+    pieces.push_back(std::move(v));
+  }
+  std::vector<int> comp;
+  range(comp, l.d, l.npairs);
+  range(comp, own + l.off_z, l.points * l.nz);
+  pieces.push_back(std::move(comp));
+  return pieces;
+}
+
+// Adds the Hessian of the element's Lagrangian sum_r lambda[r] residual_r at its local values
+// `local` (globals: the unknown of each local entry, -1 for a constant) to `values`.
+template <typename Blocks>
+void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool standard,
+                         const std::vector<std::vector<int>>& pieces,
+                         const std::vector<int>& globals, const std::vector<double>& local,
+                         const double* lambda, Blocks& hessian, double* values) {
+  const PointDcs& dcs = *l.dcs;
+  const int d = l.d, nu = l.nu, nz = l.nz;
+  std::vector<int> piece_globals;
+  std::vector<double> piece_base;
+  const auto gather = [&](const std::vector<int>& piece) {
+    piece_globals.resize(piece.size());
+    piece_base.resize(piece.size());
+    for (std::size_t k = 0; k < piece.size(); ++k) {
+      piece_globals[k] = globals[static_cast<std::size_t>(piece[k])];
+      piece_base[k] = local[static_cast<std::size_t>(piece[k])];
+    }
+  };
+  std::vector<double> w(static_cast<std::size_t>(d));
+  const double one = 1.0;
+  for (int k = 0; k < l.s; ++k) {
+    for (int i = 0; i < d; ++i) {
+      double sum = tab.b(k) * lambda[l.s * d + i];
+      for (int m = 0; m < l.s; ++m) sum += lambda[m * d + i] * tab.a(m, k);
+      w[static_cast<std::size_t>(i)] = sum;
+    }
+    gather(pieces[static_cast<std::size_t>(k)]);
+    hessian.add(
+        piece_globals, piece_base, 1, &one,
+        [&](const HessianScalar* in, HessianScalar* out) {
+          const HessianScalar h = l.scaled ? in[0] * in[1] : in[0];
+          const HessianScalar* x = in + (l.scaled ? 2 : 1);
+          thread_local std::vector<HessianScalar> rate;
+          rate.resize(static_cast<std::size_t>(d + nu));
+          // The model sees [X_k; u] (contiguous here) and the point's z.
+          dcs.field(x, x + d + nu, rate.data());
+          HessianScalar sum(0.0);
+          for (int i = 0; i < d; ++i) sum += w[static_cast<std::size_t>(i)] * rate[i];
+          out[0] = -h * sum;
+        },
+        values);
+  }
+  const double* alg = lambda + l.s * d + d;
+  for (int m = 0; m < l.points; ++m) {
+    gather(pieces[static_cast<std::size_t>(l.s + m)]);
+    hessian.add(
+        piece_globals, piece_base, l.neq, alg + m * l.neq,
+        [&](const HessianScalar* in, HessianScalar* out) { dcs.algebraic(in, in + d + nu, out); },
+        values);
+  }
+  gather(pieces.back());
+  hessian.add(
+      piece_globals, piece_base, l.npairs, lambda + l.equalities,
+      [&](const HessianScalar* in, HessianScalar* out) {
+        const HessianScalar* v0 = in;
+        const HessianScalar* z = in + l.npairs;
+        for (int k = 0; k < l.npairs; ++k) {
+          const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+          HessianScalar sum_u(0.0), sum_v = standard ? HessianScalar(0.0) : v0[k];
+          if (standard) {
+            for (int m = 0; m < l.points; ++m)
+              sum_u += PointDcs::member_u(pair, z + m * nz) * z[m * nz + pair.v];
+            out[k] = sum_u;
+            continue;
+          }
+          for (int m = 0; m < l.points; ++m) {
+            sum_u += PointDcs::member_u(pair, z + m * nz);
+            sum_v += z[m * nz + pair.v];
+          }
+          out[k] = sum_u * sum_v;
+        }
+      },
+      values);
+}
+
 // Step equilibration between elements n - 1 and n ((39) with the indicator of Section 4.4):
 // inputs [h_{n-1}, h_n, v of every pair at the start of n - 1 (npairs), z of n - 1 (P nz),
 // z of n (P nz)].

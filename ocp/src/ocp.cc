@@ -338,7 +338,14 @@ class OcpNlp final : public Ipopt::TNLP {
       }
     }
     if (o_.exact_hessian) {
-      for (const std::vector<int>& g : element_globals_) hessian_.add_block(g);
+      pieces_ = fesd_detail::element_hessian_pieces(l_);
+      for (const std::vector<int>& g : element_globals_) {
+        for (const std::vector<int>& piece : pieces_) {
+          std::vector<int> globals;
+          for (int k : piece) globals.push_back(g[static_cast<std::size_t>(k)]);
+          hessian_.add_block(globals);
+        }
+      }
       for (const Term& t : terms_) hessian_.add_block(t.globals);
       for (int b = 0; b <= l_.elements && npath_ > 0; ++b) hessian_.add_block(path_globals(b));
       if (nterm_ > 0) hessian_.add_block(terminal_globals());
@@ -764,13 +771,9 @@ class OcpNlp final : public Ipopt::TNLP {
         for (int r = l_.equalities; r < l_.rows_per_element(); ++r)
           weights[static_cast<std::size_t>(r)] += obj_factor / sigma_;
       }
-      hessian_.add(
-          element_globals_[static_cast<std::size_t>(e)], base, l_.rows_per_element(),
-          weights.data(),
-          [&](const HessianScalar* in, HessianScalar* out) {
-            fesd_detail::element_residual(tab_, l_, o_.standard, in, out);
-          },
-          values);
+      fesd_detail::add_element_hessian(tab_, l_, o_.standard, pieces_,
+                                       element_globals_[static_cast<std::size_t>(e)], base,
+                                       weights.data(), hessian_, values);
     }
     for (const Term& t : terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
@@ -907,6 +910,7 @@ class OcpNlp final : public Ipopt::TNLP {
   int constraints_ = 0;
   std::vector<Ipopt::Index> jac_rows_, jac_cols_;
   fesd_detail::HessianBlocks hessian_;
+  std::vector<std::vector<int>> pieces_;  // an element's Hessian pieces (local indices)
   bool polish_ = false;
   std::vector<std::pair<int, double>> fixed_;
   std::vector<int> equal_;
