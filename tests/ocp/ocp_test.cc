@@ -252,6 +252,31 @@ TEST(OcpStatus, ResidualAboveTheToleranceIsReported) {
   EXPECT_THAT(r.message, testing::HasSubstr("above the tolerance 1e-09"));
 }
 
+// The exact Hessian (by pieces of each element, nested forward AD) passes IPOPT's own
+// second-order derivative checker at the starting point of one NLP: the time-optimal car (time
+// scaling, terminal constraints) and the braking block (Lagrange cost), on two stages.
+TEST(OcpHessian, IpoptsCheckerFindsNoError) {
+  OcpOptions o;
+  o.stages = 2;
+  o.sigma_initial = o.sigma_final = 0.1;
+  o.polish = false;
+  o.print_level = 5;  // the checker reports on IPOPT's console output
+  o.ipopt_string_options = {{"derivative_test", "second-order"}};
+  o.ipopt_integer_options = {{"max_iter", 0}};
+  for (const bool car : {true, false}) {
+    ::testing::internal::CaptureStdout();
+    if (car) {
+      ocp_solve(adapt_ocp(TurboCar{}), TurboCar::problem(), o);
+    } else {
+      ocp_solve(adapt_ocp(BrakingBlock{}), BrakingBlock::problem(), o);
+    }
+    const std::string text = ::testing::internal::GetCapturedStdout();
+    EXPECT_THAT(text, testing::HasSubstr("Starting derivative checker for second derivatives"))
+        << car;
+    EXPECT_THAT(text, testing::HasSubstr("No errors detected by derivative checker")) << car;
+  }
+}
+
 TEST(OcpInput, BadDataIsRefusedWithTheValues) {
   const auto model = adapt_ocp(TurboCar{});
   const auto message = [&](OcpProblem p, OcpOptions o = {}) -> std::string {
