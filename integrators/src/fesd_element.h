@@ -63,6 +63,34 @@ struct ElementShape {
   int own() const { return d + npairs + params; }
 };
 
+// The aggregated complementarity products of one element (npairs values) from the v of every
+// pair at its start and the z of its points.
+template <typename T>
+void complementarity_rows(const ElementShape& l, bool standard, const T* v0, const T* z, T* comp) {
+  const PointDcs& dcs = *l.dcs;
+  const int nz = l.nz;
+  for (int k = 0; k < l.npairs; ++k) {
+    const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+    if (standard) {
+      // (34): each point's own pair only.
+      T sum(0.0);
+      for (int m = 0; m < l.points; ++m) {
+        sum += PointDcs::member_u(pair, z + m * nz) * z[m * nz + pair.v];
+      }
+      comp[k] = sum;
+    } else {
+      // (35) and (37) summed over all pairs of points of the element, the start included:
+      // sum_m sum_m' u_m v_m' = (sum_m u_m)(sum_m' v_m').
+      T sum_u(0.0), sum_v = v0[k];
+      for (int m = 0; m < l.points; ++m) {
+        sum_u += PointDcs::member_u(pair, z + m * nz);
+        sum_v += z[m * nz + pair.v];
+      }
+      comp[k] = sum_u * sum_v;
+    }
+  }
+}
+
 // Equalities and aggregated complementarity products of one element from its local vector.
 template <typename T>
 void element_residual(const ButcherTableau& tab, const ElementShape& l, bool standard, const T* in,
@@ -115,27 +143,7 @@ void element_residual(const ButcherTableau& tab, const ElementShape& l, bool sta
   for (int m = 0; m < l.points; ++m) {
     dcs.algebraic(at(m < s ? stage + m * d : xnext), z + m * nz, alg + m * l.neq);
   }
-  T* comp = eq + l.equalities;
-  for (int k = 0; k < l.npairs; ++k) {
-    const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
-    if (standard) {
-      // (34): each point's own pair only.
-      T sum(0.0);
-      for (int m = 0; m < l.points; ++m) {
-        sum += PointDcs::member_u(pair, z + m * nz) * z[m * nz + pair.v];
-      }
-      comp[k] = sum;
-    } else {
-      // (35) and (37) summed over all pairs of points of the element, the start included:
-      // sum_m sum_m' u_m v_m' = (sum_m u_m)(sum_m' v_m').
-      T sum_u(0.0), sum_v = v0[k];
-      for (int m = 0; m < l.points; ++m) {
-        sum_u += PointDcs::member_u(pair, z + m * nz);
-        sum_v += z[m * nz + pair.v];
-      }
-      comp[k] = sum_u * sum_v;
-    }
-  }
+  complementarity_rows(l, standard, v0, z, eq + l.equalities);
 }
 
 // The element's Lagrangian sum_r lambda_r residual_r is linear in everything but a few small
@@ -184,7 +192,7 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
                          const std::vector<int>& globals, const std::vector<double>& local,
                          const double* lambda, Blocks& hessian, double* values) {
   const PointDcs& dcs = *l.dcs;
-  const int d = l.d, nu = l.nu, nz = l.nz;
+  const int d = l.d, nu = l.nu;
   std::vector<int> piece_globals;
   std::vector<double> piece_base;
   const auto gather = [&](const std::vector<int>& piece) {
@@ -231,23 +239,7 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
   hessian.add(
       piece_globals, piece_base, l.npairs, lambda + l.equalities,
       [&](const HessianScalar* in, HessianScalar* out) {
-        const HessianScalar* v0 = in;
-        const HessianScalar* z = in + l.npairs;
-        for (int k = 0; k < l.npairs; ++k) {
-          const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
-          HessianScalar sum_u(0.0), sum_v = standard ? HessianScalar(0.0) : v0[k];
-          if (standard) {
-            for (int m = 0; m < l.points; ++m)
-              sum_u += PointDcs::member_u(pair, z + m * nz) * z[m * nz + pair.v];
-            out[k] = sum_u;
-            continue;
-          }
-          for (int m = 0; m < l.points; ++m) {
-            sum_u += PointDcs::member_u(pair, z + m * nz);
-            sum_v += z[m * nz + pair.v];
-          }
-          out[k] = sum_u * sum_v;
-        }
+        complementarity_rows(l, standard, in, in + l.npairs, out);
       },
       values);
 }
