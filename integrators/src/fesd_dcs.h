@@ -88,6 +88,17 @@ class PointDcs {
         vertices_[static_cast<std::size_t>(signs_.mode_of_row()[static_cast<std::size_t>(r)])] =
             signs_.vertex(r);
       }
+      // A piecewise-smooth model gives all its modes in one call: the field at vertex i is
+      // sum_j theta_j(vertex_i) f_j, with these weights.
+      const SignMatrix* own = model.sign_matrix();
+      if (model.modes() > 0 && own != nullptr && own->modes() == model.modes()) {
+        model_modes_ = model.modes();
+        mix_.assign(static_cast<std::size_t>(nf_ * model_modes_), 0.0);
+        for (int i = 0; i < nf_; ++i) {
+          own->multipliers(vertices_[static_cast<std::size_t>(i)].data(),
+                           mix_.data() + static_cast<std::size_t>(i * model_modes_));
+        }
+      }
     }
   }
 
@@ -107,6 +118,11 @@ class PointDcs {
   // The value z[pair.u] takes when u = 0.
   static double u_zero(const Pair& pair) { return pair.flipped ? 1.0 : 0.0; }
 
+  // The entries of z that field() reads: [field_first(), field_first() + field_count()) (alpha
+  // for the step formulation, theta for Stewart's and the lifted one).
+  int field_first() const { return kind_ == Kind::kLifted ? 3 * nc_ : 0; }
+  int field_count() const { return kind_ == Kind::kStep ? nc_ : nf_; }
+
   // x' at a point.
   template <typename T>
   void field(const T* x, const T* z, T* xdot) const {
@@ -115,6 +131,26 @@ class PointDcs {
       return;
     }
     const T* theta = z + (kind_ == Kind::kStewart ? 0 : 3 * nc_);
+    if (model_modes_ > 0) {
+      thread_local std::vector<T> modes;
+      modes.resize(static_cast<std::size_t>(model_modes_ * d_));
+      model_.mode_fields(x, modes.data());
+      for (int k = 0; k < d_; ++k) xdot[k] = T(0.0);
+      for (int j = 0; j < model_modes_; ++j) {
+        T weight(0.0);
+        bool used = false;
+        for (int i = 0; i < nf_; ++i) {
+          const double m = mix_[static_cast<std::size_t>(i * model_modes_ + j)];
+          if (m == 0.0) continue;
+          weight += m == 1.0 ? theta[i] : T(m) * theta[i];
+          used = true;
+        }
+        if (!used) continue;
+        const T* fj = modes.data() + static_cast<std::size_t>(j * d_);
+        for (int k = 0; k < d_; ++k) xdot[k] += weight * fj[k];
+      }
+      return;
+    }
     thread_local std::vector<T> vertex, f;
     vertex.resize(static_cast<std::size_t>(nc_));
     f.resize(static_cast<std::size_t>(d_));
@@ -285,6 +321,8 @@ class PointDcs {
   std::vector<double> lower_, upper_;
   std::vector<Pair> pairs_;
   std::vector<std::vector<double>> vertices_;
+  int model_modes_ = 0;      // > 0: the model's modes in one call (mode_fields), mixed by mix_
+  std::vector<double> mix_;  // nf x model_modes_: theta of the model's modes at each vertex
 };
 
 }  // namespace fesd_detail

@@ -146,11 +146,48 @@ void element_residual(const ButcherTableau& tab, const ElementShape& l, bool sta
   complementarity_rows(l, standard, v0, z, eq + l.equalities);
 }
 
+// The local inputs each row of element_residual reads, by construction (whatever the model):
+//   collocation and end rows: x_n, the parameters (u, T), h, the stage values X, x_{n+1} and
+//     the entries of z the field reads at the stage points;
+//   algebraic rows of point m: X_m (x_{n+1} at Gauss-Legendre's end point), u and z_m;
+//   complementarity rows: the v of every pair at the start, and z of every point.
+// Everything else in a row's Jacobian is exactly zero, so a sparse Jacobian lists only these.
+inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape& l) {
+  const int d = l.d, own = l.own(), u0 = d + l.npairs;
+  const auto range = [](std::vector<int>& v, int first, int count) {
+    for (int k = 0; k < count; ++k) v.push_back(first + k);
+  };
+  std::vector<int> dynamics;
+  range(dynamics, 0, d);
+  range(dynamics, u0, l.params);
+  range(dynamics, own, l.off_z);  // h, X, x_{n+1}
+  for (int m = 0; m < l.s; ++m) {
+    range(dynamics, own + l.off_z + m * l.nz + l.dcs->field_first(), l.dcs->field_count());
+  }
+  std::vector<std::vector<int>> rows(static_cast<std::size_t>(l.rows_per_element()));
+  for (int r = 0; r < l.s * d + d; ++r) rows[static_cast<std::size_t>(r)] = dynamics;
+  for (int m = 0; m < l.points; ++m) {
+    std::vector<int> alg;
+    range(alg, m < l.s ? own + 1 + m * d : own + l.off_x, d);
+    range(alg, u0, l.nu);
+    range(alg, own + l.off_z + m * l.nz, l.nz);
+    for (int r = 0; r < l.neq; ++r) {
+      rows[static_cast<std::size_t>(l.s * d + d + m * l.neq + r)] = alg;
+    }
+  }
+  std::vector<int> comp;
+  range(comp, d, l.npairs);
+  range(comp, own + l.off_z, l.points * l.nz);
+  for (int r = l.equalities; r < l.rows_per_element(); ++r)
+    rows[static_cast<std::size_t>(r)] = comp;
+  return rows;
+}
+
 // The element's Lagrangian sum_r lambda_r residual_r is linear in everything but a few small
 // pieces, and its second derivatives are theirs:
 //   field piece k (stage point k < s):  -h sum_i w_ki f_i([X_k; u], z_k),
 //        w_ki = sum_m lambda_(m,i) A_mk + lambda_(end,i) b_k   (the collocation and end rows),
-//        over [h, T (time-scaled), X_k, u, z_k];
+//        over [h, T (time-scaled), X_k, u, the entries of z_k the field reads];
 //   algebraic piece m (point m < P):     lambda_alg(m) . algebraic([X_m or x_{n+1}; u], z_m),
 //        over [X_m or x_{n+1}, u, z_m];
 //   complementarity piece:               lambda_comp . comp(v0, z), over [v0, z_1..z_P].
@@ -167,7 +204,7 @@ inline std::vector<std::vector<int>> element_hessian_pieces(const ElementShape& 
     if (l.scaled) v.push_back(u0 + l.nu);
     range(v, own + 1 + k * l.d, l.d);
     range(v, u0, l.nu);
-    range(v, own + l.off_z + k * l.nz, l.nz);
+    range(v, own + l.off_z + k * l.nz + l.dcs->field_first(), l.dcs->field_count());
     pieces.push_back(std::move(v));
   }
   for (int m = 0; m < l.points; ++m) {
@@ -217,10 +254,13 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
         [&](const HessianScalar* in, HessianScalar* out) {
           const HessianScalar h = l.scaled ? in[0] * in[1] : in[0];
           const HessianScalar* x = in + (l.scaled ? 2 : 1);
-          thread_local std::vector<HessianScalar> rate;
+          thread_local std::vector<HessianScalar> rate, z;
           rate.resize(static_cast<std::size_t>(d + nu));
-          // The model sees [X_k; u] (contiguous here) and the point's z.
-          dcs.field(x, x + d + nu, rate.data());
+          // The model sees [X_k; u] (contiguous here) and the entries of the point's z that the
+          // field reads (the others are not read).
+          z.assign(static_cast<std::size_t>(l.nz), HessianScalar(0.0));
+          std::copy(x + d + nu, x + d + nu + dcs.field_count(), z.begin() + dcs.field_first());
+          dcs.field(x, z.data(), rate.data());
           HessianScalar sum(0.0);
           for (int i = 0; i < d; ++i) sum += w[static_cast<std::size_t>(i)] * rate[i];
           out[0] = -h * sum;

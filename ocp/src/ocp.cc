@@ -69,6 +69,10 @@ class ControlsAsStates final : public StepModel {
     eval(y, a, ydot);
   }
   const SignMatrix* sign_matrix() const override { return model_.sign_matrix(); }
+  int modes() const override { return model_.modes(); }
+  void mode_fields(const double* y, double* f) const override { modes_of(y, f); }
+  void mode_fields(const JetChunk* y, JetChunk* f) const override { modes_of(y, f); }
+  void mode_fields(const HessianScalar* y, HessianScalar* f) const override { modes_of(y, f); }
 
  private:
   template <typename T>
@@ -76,6 +80,18 @@ class ControlsAsStates final : public StepModel {
     const int d = model_.states();
     model_.field(y, y + d, a, ydot);
     for (int k = 0; k < model_.controls(); ++k) ydot[d + k] = T(0.0);
+  }
+  // Each mode's rates of [x; u] (those of u are 0).
+  template <typename T>
+  void modes_of(const T* y, T* f) const {
+    const int d = model_.states(), nu = model_.controls(), nf = model_.modes();
+    thread_local std::vector<T> fx;
+    fx.resize(static_cast<std::size_t>(nf * d));
+    model_.mode_fields(y, y + d, fx.data());
+    for (int i = 0; i < nf; ++i) {
+      for (int k = 0; k < d; ++k) f[i * (d + nu) + k] = fx[static_cast<std::size_t>(i * d + k)];
+      for (int k = 0; k < nu; ++k) f[i * (d + nu) + d + k] = T(0.0);
+    }
   }
   const OcpModel& model_;
 };
@@ -305,10 +321,13 @@ class OcpNlp final : public Ipopt::TNLP {
     nterm_ = model_.terminal_constraints();
     rows_path_ = (l_.elements + 1) * npath_;
     constraints_ = rows_elements_ + rows_sums_ + rows_path_ + nterm_;
-    // Jacobian structure.
+    // Jacobian structure: each element row lists the inputs it reads (element_jacobian_pattern).
+    jac_pattern_ = fesd_detail::element_jacobian_pattern(l_);
     for (int e = 0; e < l_.elements; ++e) {
+      const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
       for (int r = 0; r < l_.rows_per_element(); ++r) {
-        for (int col : element_globals_[static_cast<std::size_t>(e)]) {
+        for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
+          const int col = g[static_cast<std::size_t>(c)];
           if (col < 0) continue;
           jac_rows_.push_back(e * l_.rows_per_element() + r);
           jac_cols_.push_back(col);
@@ -717,7 +736,7 @@ class OcpNlp final : public Ipopt::TNLP {
       });
       const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
       for (int r = 0; r < rpe; ++r) {
-        for (int c = 0; c < l_.local; ++c) {
+        for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
           if (g[static_cast<std::size_t>(c)] >= 0) values[k++] = jac(r, c);
         }
       }
@@ -910,7 +929,8 @@ class OcpNlp final : public Ipopt::TNLP {
   int constraints_ = 0;
   std::vector<Ipopt::Index> jac_rows_, jac_cols_;
   fesd_detail::HessianBlocks hessian_;
-  std::vector<std::vector<int>> pieces_;  // an element's Hessian pieces (local indices)
+  std::vector<std::vector<int>> pieces_;       // an element's Hessian pieces (local indices)
+  std::vector<std::vector<int>> jac_pattern_;  // per element row: the local inputs it reads
   bool polish_ = false;
   std::vector<std::pair<int, double>> fixed_;
   std::vector<int> equal_;
@@ -986,6 +1006,24 @@ void HeldControlModel::field(const JetChunk* x, const JetChunk* a, JetChunk* xdo
 void HeldControlModel::field(const HessianScalar* x, const HessianScalar* a,
                              HessianScalar* xdot) const {
   held_field(model_, u_, x, a, xdot);
+}
+namespace {
+template <typename T>
+void held_modes(const OcpModel& model, const Eigen::VectorXd& u, const T* x, T* f) {
+  thread_local std::vector<T> uu;
+  uu.resize(static_cast<std::size_t>(u.size()));
+  for (Eigen::Index k = 0; k < u.size(); ++k) uu[static_cast<std::size_t>(k)] = T(u[k]);
+  model.mode_fields(x, uu.data(), f);
+}
+}  // namespace
+void HeldControlModel::mode_fields(const double* x, double* f) const {
+  held_modes(model_, u_, x, f);
+}
+void HeldControlModel::mode_fields(const JetChunk* x, JetChunk* f) const {
+  held_modes(model_, u_, x, f);
+}
+void HeldControlModel::mode_fields(const HessianScalar* x, HessianScalar* f) const {
+  held_modes(model_, u_, x, f);
 }
 
 FesdResult simulate_controls(const OcpModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,

@@ -234,6 +234,52 @@ TEST(TimeFreezingBall, InelasticFrictionalImpactAndSlidingMatchTheClosedForm) {
   EXPECT_NEAR(e.clock_end, ti + 100.0 / (100.0 + 9.81) * (0.65 - ti - frozen), 1e-9);
 }
 
+// The model seen only through field(x, a): no modes() or mode_fields(), so Stewart's formulation
+// evaluates the field once per base set at its vertex.
+template <typename Pss>
+struct FieldOnly {
+  static constexpr int kStates = Pss::kStates;
+  static constexpr int kSwitches = Pss::kSwitches;
+  Pss pss;
+  template <typename T>
+  void switching(const T* x, T* c) const {
+    pss.switching(x, c);
+  }
+  template <typename T>
+  void field(const T* x, const T* a, T* xdot) const {
+    pss.field(x, a, xdot);
+  }
+  const SignMatrix& sign_matrix() const { return pss.sign_matrix(); }
+};
+
+// Stewart's formulation takes a piecewise-smooth model's modes in one call (mode_fields, mixed
+// at each base set's vertex by the model's own sign matrix, here the three regions with the
+// union) instead of one field evaluation per base set: the same numbers, as the homotopy runs
+// the same iterations. Measured: the states differ by 2.2e-16 at most.
+TEST(TimeFreezingBall, StewartTakesTheModesInOneCall) {
+  const Ball tf(FallingBall{}, {0.5, 100.0});
+  const PiecewiseSmoothAsStep<Ball> pss(tf, Ball::sign_matrix());
+  FesdOptions o;
+  o.steps = 26;
+  o.sensitivities = false;
+  o.formulation = DcsFormulation::kStewart;
+  Eigen::VectorXd x0(5);
+  x0 << 0.0, 1.0, 3.0, 0.0, 0.0;
+  const auto once = adapt_step(pss);
+  const auto per_vertex = adapt_step(FieldOnly<PiecewiseSmoothAsStep<Ball>>{pss});
+  EXPECT_EQ(once.modes(), 3);
+  EXPECT_EQ(per_vertex.modes(), 0);
+  const FesdResult a = fesd_simulate(once, x0, 0.65, o);
+  const FesdResult b = fesd_simulate(per_vertex, x0, 0.65, o);
+  ASSERT_TRUE(a.ok()) << a.message;
+  ASSERT_TRUE(b.ok()) << b.message;
+  ASSERT_EQ(a.states.cols(), b.states.cols());
+  const double difference = (a.states - b.states).cwiseAbs().maxCoeff();
+  std::printf("largest state difference %.2e\n", difference);
+  EXPECT_LE(difference, 1e-12);
+  EXPECT_EQ(a.nlp_iterations, b.nlp_iterations);
+}
+
 // At the edge of the friction cone (vx0 = 1 < mu |vz-| = 2.2): the tangential velocity reaches
 // 0 during the impact and stays there (sliding between R2 and R3); the ball sticks on landing.
 // Stewart's formulation on the base sets (the step formulation's homotopy does not converge
@@ -302,6 +348,9 @@ TEST(TimeFreezingBall, WithDragConvergesWithTheGrid) {
 // of the auxiliary element (a Radau point on two switching surfaces), the selection there is
 // free, and the clock advances 0.012 during the impact, which lowers the cost. The state at
 // t = 0.55 is off by 3.75e-4 in position for that (the velocity after the impact is right).
+// The homotopy is slower than the default (sigma from 10, halved each time): from sigma_0 = 100
+// with factor 0.1 the same problem ends, on some runs, in a locally infeasible NLP near
+// sigma = 0.013 (the outcome changes with the rounding of the linear algebra; docs/ocp.md).
 TEST(TimeFreezingOcp, ClockConstraintKeepsTheStagesOnPhysicalTime) {
   using Controlled = TimeFreezing<FallingBall, TimeFreezingRegions::kUnions, true>;
   static_assert(Controlled::kControls == 1);
@@ -319,6 +368,8 @@ TEST(TimeFreezingOcp, ClockConstraintKeepsTheStagesOnPhysicalTime) {
   p.guess_u = Eigen::MatrixXd::Constant(1, 1, 1.0);
   OcpOptions o;
   o.stages = 5;
+  o.sigma_initial = 10.0;
+  o.sigma_factor = 0.5;
   const OcpResult r = ocp_solve(adapt_ocp(model), p, o);
   ASSERT_TRUE(r.ok()) << to_string(r.status) << ": " << r.message;
   const FallingBall::Motion motion = FallingBall{}.motion(0.0, 1.0, 3.0, 0.0, 0.5);

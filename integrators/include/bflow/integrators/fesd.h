@@ -90,6 +90,13 @@ class StepModel {
   /** The sign matrix of a piecewise-smooth model (its modes and unions, used by the lifted
       step formulation), or nullptr for a general step inclusion (then the dense S). */
   virtual const SignMatrix* sign_matrix() const { return nullptr; }
+  /** A piecewise-smooth model's number of modes n_f, or 0. With n_f > 0 (and a sign matrix),
+      mode_fields gives every f_i(x) in one call (F[i * d + k] = f_i(x)_k), so that Stewart's
+      formulation evaluates the model once per point instead of once per base set. */
+  virtual int modes() const { return 0; }
+  virtual void mode_fields(const double*, double*) const {}
+  virtual void mode_fields(const JetChunk*, JetChunk*) const {}
+  virtual void mode_fields(const HessianScalar*, HessianScalar*) const {}
 };
 
 namespace detail {
@@ -97,6 +104,14 @@ template <typename Model, typename = void>
 struct HasSignMatrix : std::false_type {};
 template <typename Model>
 struct HasSignMatrix<Model, std::void_t<decltype(std::declval<const Model&>().sign_matrix())>>
+    : std::true_type {};
+template <typename Model, typename = void>
+struct HasModeFields : std::false_type {};
+template <typename Model>
+struct HasModeFields<Model,
+                     std::void_t<decltype(Model::kModes),
+                                 decltype(std::declval<const Model&>().mode_fields(
+                                     std::declval<const double*>(), std::declval<double*>()))>>
     : std::true_type {};
 }  // namespace detail
 
@@ -127,9 +142,23 @@ class StepModelAdapter final : public StepModel {
       return nullptr;
     }
   }
+  int modes() const override {
+    if constexpr (detail::HasModeFields<Model>::value) {
+      return Model::kModes;
+    } else {
+      return 0;
+    }
+  }
+  void mode_fields(const double* x, double* f) const override { modes_of(x, f); }
+  void mode_fields(const JetChunk* x, JetChunk* f) const override { modes_of(x, f); }
+  void mode_fields(const HessianScalar* x, HessianScalar* f) const override { modes_of(x, f); }
   const Model& model() const { return model_; }
 
  private:
+  template <typename T>
+  void modes_of(const T* x, T* f) const {
+    if constexpr (detail::HasModeFields<Model>::value) model_.mode_fields(x, f);
+  }
   Model model_;
 };
 
@@ -172,6 +201,11 @@ class PiecewiseSmoothAsStep {
       xdot[k] = T(0.0);
       for (int i = 0; i < kModes; ++i) xdot[k] += theta[i] * f[i * kStates + k];
     }
+  }
+  /** Every mode at x, F[i * d + k] = f_i(x)_k. */
+  template <typename T>
+  void mode_fields(const T* x, T* f) const {
+    pss_.modes(x, f);
   }
   const SignMatrix& sign_matrix() const { return s_; }
 

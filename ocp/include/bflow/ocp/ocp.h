@@ -80,10 +80,14 @@ class OcpModel {
   virtual bool has_mayer() const { return false; }
   /** The sign matrix of a piecewise-smooth model (lifting), or nullptr. */
   virtual const SignMatrix* sign_matrix() const { return nullptr; }
+  /** A piecewise-smooth model's number of modes, or 0; then mode_fields gives every f_i(x, u)
+      in one call (F[i * d + k]), as StepModel::mode_fields. */
+  virtual int modes() const { return 0; }
 
 #define BFLOW_OCP_MODEL_CALLS(T)                                             \
   virtual void switching(const T* x, T* c) const = 0;                        \
   virtual void field(const T* x, const T* u, const T* a, T* xdot) const = 0; \
+  virtual void mode_fields(const T*, const T*, T*) const {}                  \
   virtual T lagrange(const T* x, const T* u) const = 0;                      \
   virtual T mayer(const T* x) const = 0;                                     \
   virtual void path(const T* x, const T* u, T* g) const = 0;                 \
@@ -106,6 +110,15 @@ struct HasMayer : std::false_type {};
 template <typename M>
 struct HasMayer<
     M, std::void_t<decltype(std::declval<const M&>().mayer(std::declval<const double*>()))>>
+    : std::true_type {};
+template <typename M, typename = void>
+struct HasControlledModeFields : std::false_type {};
+template <typename M>
+struct HasControlledModeFields<
+    M,
+    std::void_t<decltype(M::kModes), decltype(std::declval<const M&>().mode_fields(
+                                         std::declval<const double*>(),
+                                         std::declval<const double*>(), std::declval<double*>()))>>
     : std::true_type {};
 template <typename M, typename = void>
 struct PathCount : std::integral_constant<int, 0> {};
@@ -139,12 +152,24 @@ class OcpModelAdapter final : public OcpModel {
       return nullptr;
     }
   }
+  int modes() const override {
+    if constexpr (detail::HasControlledModeFields<Model>::value) {
+      return Model::kModes;
+    } else {
+      return 0;
+    }
+  }
   const Model& model() const { return model_; }
 
 #define BFLOW_OCP_ADAPTER_CALLS(T)                                                \
   void switching(const T* x, T* c) const override { model_.switching(x, c); }     \
   void field(const T* x, const T* u, const T* a, T* xdot) const override {        \
     model_.field(x, u, a, xdot);                                                  \
+  }                                                                               \
+  void mode_fields(const T* x, const T* u, T* f) const override {                 \
+    if constexpr (detail::HasControlledModeFields<Model>::value) {                \
+      model_.mode_fields(x, u, f);                                                \
+    }                                                                             \
   }                                                                               \
   T lagrange(const T* x, const T* u) const override { return lagrange_of(x, u); } \
   T mayer(const T* x) const override { return mayer_of(x); }                      \
@@ -226,6 +251,11 @@ class ControlledPiecewiseSmoothAsStep {
       xdot[k] = T(0.0);
       for (int i = 0; i < kModes; ++i) xdot[k] += theta[i] * f[i * kStates + k];
     }
+  }
+  /** Every mode at (x, u), F[i * d + k] = f_i(x, u)_k. */
+  template <typename T>
+  void mode_fields(const T* x, const T* u, T* f) const {
+    pss_.modes(x, u, f);
   }
   template <typename T, typename P = Pss,
             typename = std::enable_if_t<detail::HasLagrange<P>::value, T>>
@@ -440,6 +470,10 @@ class HeldControlModel final : public StepModel {
   void field(const JetChunk* x, const JetChunk* a, JetChunk* xdot) const override;
   void field(const HessianScalar* x, const HessianScalar* a, HessianScalar* xdot) const override;
   const SignMatrix* sign_matrix() const override { return model_.sign_matrix(); }
+  int modes() const override { return model_.modes(); }
+  void mode_fields(const double* x, double* f) const override;
+  void mode_fields(const JetChunk* x, JetChunk* f) const override;
+  void mode_fields(const HessianScalar* x, HessianScalar* f) const override;
 
  private:
   const OcpModel& model_;
