@@ -1237,6 +1237,12 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
         final_nlp ? options.nlp_tolerance : std::max(options.nlp_tolerance, 1e-2 * sigma);
     app->Options()->SetNumericValue("tol", tol);
     app->Options()->SetNumericValue("acceptable_tol", std::max(1e-6, 1e3 * tol));
+    // An acceptable point may violate the constraints by acceptable_constr_viol_tol (IPOPT's
+    // default 1e-2): at small sigma that lets products far above sigma pass, and the homotopy
+    // stalls (measured on the monoped: sigma = 1e-3 "solved" in 2 iterations with products of
+    // 1e-2). The violation allowed follows sigma.
+    app->Options()->SetNumericValue("acceptable_constr_viol_tol",
+                                    std::min(1e-2, std::max(tol, 0.1 * sigma)));
     app->Options()->SetIntegerValue("acceptable_iter", 15);
     app->Options()->SetStringValue("warm_start_init_point", first ? "no" : "yes");
     if (!first) {
