@@ -4,8 +4,10 @@
 // wrong Coriolis term would not conserve it), and the contact Jacobians.
 #include "bflow/examples/monoped.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <iterator>
 #include <random>
 
 #include <ceres/jet.h>
@@ -90,8 +92,8 @@ TEST(Monoped, GravityIsMinusTheGradientOfThePotential) {
 }
 
 // Free flight with no torques conserves energy: classical Runge-Kutta, h = 1e-4 over 0.5 s from
-// a spinning leg (the energy error of RK4 is O(h^4)). Measured: largest drift 7e-13 of
-// E = 126.9 J; with the centripetal terms doubled the drift is 8.6 J.
+// a spinning leg (the energy error of RK4 is O(h^4)). Measured: largest drift 2.3e-13 of
+// E = 128.1 J.
 TEST(Monoped, FreeFlightConservesEnergy) {
   const Monoped robot;
   using State = Eigen::Matrix<double, 8, 1>;
@@ -121,7 +123,7 @@ TEST(Monoped, FreeFlightConservesEnergy) {
 }
 
 // The foot's gap and Jacobians: J_n and J_t are the gradients of F_z and F_x (Jets), and the
-// stretched leg at q = (0, 0.4, 0, 0) is 0.4 - 0.043 - 0.028 above the ground.
+// straight leg at q = (0, 0.4, 0, 0) stands on the ground, under the base.
 TEST(Monoped, ContactJacobiansAreTheFootsGradients) {
   const Monoped robot;
   std::mt19937 rng(5);
@@ -131,10 +133,15 @@ TEST(Monoped, ContactJacobiansAreTheFootsGradients) {
     EXPECT_LT(c.tangent_error, 1e-15);
   }
   const double q0[4] = {0.0, 0.4, 0.0, 0.0};
-  EXPECT_NEAR(robot.gap(q0), 0.4 - 0.043 - 0.028, 1e-15);
+  EXPECT_NEAR(robot.gap(q0), 0.0, 1e-15);
   double foot[2];
   robot.foot(q0, foot);
+  EXPECT_NEAR(foot[0], 0.0, 1e-15);
+  // Hip forward by a quarter turn: the leg points forward, level with the base.
+  const double forward[4] = {0.0, 0.4, 1.5707963267948966, 0.0};
+  robot.foot(forward, foot);
   EXPECT_NEAR(foot[0], 0.4, 1e-15);
+  EXPECT_NEAR(robot.gap(forward), 0.4, 1e-15);
 }
 
 // The OCP of Section 7.2: the reference passes through the published knots (two hops), ends at
@@ -168,6 +175,28 @@ TEST(MonopedOcp, ProblemAndSizes) {
   EXPECT_LT(s_step.unknowns, s_stewart.unknowns);
   std::printf("N = 30: step %lld unknowns, Stewart %lld\n", static_cast<long long>(s_step.unknowns),
               static_cast<long long>(s_stewart.unknowns));
+}
+
+// Hops are flight phases that start from the ground. With both angles 0 the leg hangs straight,
+// so the foot's gap is q_z - 0.4: a run of gaps 0.3 (in the air before any contact: no hop), 0
+// (ground), 0.05 (hop 1), 0.02, 1e-5 (ground again, within 1e-4), 0.005 (below the 1 cm lift:
+// no hop), 0, 0.1 (hop 2), 0.2 (the same flight) gives two hops.
+TEST(MonopedOcp, HopsCountFlightPhasesFromTheGround) {
+  const double gaps[] = {0.3, 0.0, 0.05, 0.02, 1e-5, 0.005, 0.0, 0.1, 0.2};
+  const int n = static_cast<int>(std::size(gaps));
+  Eigen::MatrixXd x = Eigen::MatrixXd::Zero(9, n);
+  for (int j = 0; j < n; ++j) x(1, j) = gaps[j] + 0.4;
+  for (int j = 0; j < n; ++j) {
+    const Eigen::Vector4d q = x.col(j).head(4);
+    ASSERT_NEAR(Monoped{}.gap(q.data()), gaps[j], 1e-15);
+  }
+  EXPECT_EQ(MonopedTask::hops(x), 2);
+  EXPECT_EQ(MonopedTask::hops(x.leftCols(3)), 1);
+  EXPECT_EQ(MonopedTask::hops(x.leftCols(1)), 0);
+  // A lower lift counts the 5 mm rise as a hop too.
+  EXPECT_EQ(MonopedTask::hops(x, 1e-4, 1e-3), 3);
+  EXPECT_THROW(MonopedTask::hops(x.topRows(8)), InvalidArgument);
+  EXPECT_THROW(MonopedTask::hops(x, 1e-2, 1e-3), InvalidArgument);
 }
 
 }  // namespace

@@ -2,23 +2,26 @@
 // with one frictional contact for time-freezing (bflow/ocp/time_freezing.h).
 //
 // Configuration q = (q_x, q_z, phi_hip, phi_knee): the base point B = (q_x, q_z) of the main
-// body, which translates only; the hip joint H = B - (0, l_BH) under it; the thigh from H at the
-// absolute angle phi_hip, the shank from the knee K at phi_hip + phi_knee, angles measured from
-// the horizontal and positive downwards, so a link of angle theta points along
-// d(theta) = (cos theta, -sin theta). At q = (0, 0.4, 0, 0) the leg is stretched forward,
-// level with the hip, 0.329 m above the ground. Points:
+// body, which translates only and carries the hip joint; the thigh from B at the absolute angle
+// phi_hip, the shank from the knee K at phi_hip + phi_knee, angles measured from the downward
+// vertical, positive when the foot swings forward, so a link of angle theta points along
+// d(theta) = (sin theta, -cos theta). At q = (0, 0.4, 0, 0) the leg hangs straight and the foot
+// touches the ground: the robot stands, as at the start and the target of [F] Section 7.2.
+// Points:
 //   main body's centre of mass   B + (0, s_BM)
-//   thigh's centre of mass       H + s_thigh d(phi_hip),     knee K = H + l_thigh d(phi_hip)
+//   thigh's centre of mass       B + s_thigh d(phi_hip),     knee K = B + l_thigh d(phi_hip)
 //   shank's centre of mass       K + s_shank d(phi_hip + phi_knee)
-//   foot centre                  F = K + l_shank d(phi_hip + phi_knee), radius r_f
-// The contact is the foot's lowest point: gap f_c = F_z - r_f, tangential position F_x, so
-// J_n = grad F_z and J_t = grad F_x.
+//   foot                         F = K + l_shank d(phi_hip + phi_knee)
+// The contact is the foot: gap f_c = F_z ([F] Section 7.2: f_c(q) = p_foot,z(q)), tangential
+// position F_x, so J_n = grad F_z and J_t = grad F_x. The published l_BH and r_foot do not enter:
+// with the hip below the base, or the gap measured to the bottom of a foot of radius r_foot, the
+// published standing state q = (0, 0.4, 0, 0) would be 4.3 cm or 2.8 cm inside the ground.
 //
 // Dynamics (Lagrange). With p_i(q) the centres of mass, J_i = dp_i/dq and the link inertias
 // about their centres I_thigh (angular velocity phi_hip') and I_shank (phi_hip' + phi_knee'):
 //   M(q) = sum_i m_i J_i^T J_i + I_thigh e_3 e_3^T + I_shank (e_3 + e_4)(e_3 + e_4)^T,
 //   f_v(q, v, u) = -sum_i m_i J_i^T (J_i' v) - g sum_i m_i grad p_i,z + (0, 0, u_hip, u_knee),
-// where J_i' v = s theta'^2 (-cos theta, sin theta) for a point at distance s along a link of
+// where J_i' v = s theta'^2 (-sin theta, cos theta) for a point at distance s along a link of
 // angle theta (the centripetal acceleration; the terms of the chain add up). The Coriolis terms
 // of d/dt dT/dv - dT/dq reduce to this because the second derivatives of each p_i are symmetric.
 // Parameters as published with nosnoc's hopping-robot example.
@@ -34,9 +37,9 @@ namespace bflow::examples {
 struct Monoped {
   static constexpr int kDof = 4, kControls = 2;
   double m_body = 3.975, m_thigh = 1.782, m_shank = 0.548;  // kg
-  double l_bh = 0.043, l_thigh = 0.2, l_shank = 0.2;        // m
+  double l_bh = 0.043, l_thigh = 0.2, l_shank = 0.2;        // m (l_bh: see the top)
   double s_bm = 0.02, s_thigh = 0.016, s_shank = 0.1;       // m, centres of mass
-  double r_foot = 0.028;                                    // m
+  double r_foot = 0.028;                                    // m (not used: see the top)
   double i_thigh = 0.001, i_shank = 0.0032;                 // kg m^2, about the centres
   double g = 9.81;
 
@@ -48,23 +51,23 @@ struct Monoped {
     using std::sin;
     const T t1 = q[2], t2 = q[2] + q[3];
     const T c1 = cos(t1), s1 = sin(t1), c2 = cos(t2), s2 = sin(t2);
-    p[0] = q[0] + T(a) * c1 + T(b) * c2;
-    p[1] = q[1] - T(l_bh) - T(a) * s1 - T(b) * s2;
+    p[0] = q[0] + T(a) * s1 + T(b) * s2;
+    p[1] = q[1] - T(a) * c1 - T(b) * c2;
     if (jac != nullptr) {
       // d/dq_x, d/dq_z, d/dphi_hip (both links turn), d/dphi_knee (the shank turns)
       jac[0] = T(1.0);
       jac[1] = T(0.0);
-      jac[2] = -T(a) * s1 - T(b) * s2;
-      jac[3] = -T(b) * s2;
+      jac[2] = T(a) * c1 + T(b) * c2;
+      jac[3] = T(b) * c2;
       jac[4] = T(0.0);
       jac[5] = T(1.0);
-      jac[6] = -T(a) * c1 - T(b) * c2;
-      jac[7] = -T(b) * c2;
+      jac[6] = T(a) * s1 + T(b) * s2;
+      jac[7] = T(b) * s2;
     }
     if (bias != nullptr) {
       const T w1 = v[2], w2 = v[2] + v[3];
-      bias[0] = -T(a) * w1 * w1 * c1 - T(b) * w2 * w2 * c2;
-      bias[1] = T(a) * w1 * w1 * s1 + T(b) * w2 * w2 * s2;
+      bias[0] = -T(a) * w1 * w1 * s1 - T(b) * w2 * w2 * s2;
+      bias[1] = T(a) * w1 * w1 * c1 + T(b) * w2 * w2 * c2;
     }
   }
 
@@ -134,7 +137,7 @@ struct Monoped {
   T gap(const T* q) const {
     T p[2];
     foot(q, p);
-    return p[1] - T(r_foot);
+    return p[1];
   }
   template <typename T>
   T tangential_position(const T* q) const {
