@@ -118,11 +118,19 @@ computing anything. Exits with code 1 if a check fails, a file or the standard o
 written, or gnuplot is missing or fails; the last line printed is the path of the PNG.)";
 
 constexpr const char* kOcpFooter =
-    R"(Examples (bflow/examples/ocp_examples.h), each with its exact optimum:
+    R"(Examples (bflow/examples/ocp_examples.h), the first two with their exact optima:
   turbo-car      q' = v, v' = u for v < 10 and 3 u for v > 10, |u| <= 5, |v| <= 20, from
                  (0, 0) to q = 200, v = 0 in least time: T* = 40/3, v = 10 at t = 2, 34/3
   braking-block  p' = v, v' in u - sign(v), from (0, 2), T = 3, minimising the integral of
                  v^2 + u^2: J* = 2 sqrt5 + asinh 2 - 4, at rest from t = asinh 2 (sliding)
+  monoped        the two-link hopping robot of [F] Section 7.2 by time-freezing
+                 (bflow/examples/monoped_ocp.h): from (0, 0.4) to q = (3, 0.4, 0, 0) at rest
+                 in T = 3 along a reference with two hops; x = (q, v, clock), u = (hip and
+                 knee torques, speed of time); homotopy from --sigma0 1 to --sigma-final 1e-7,
+                 --tol 1e-6, complementarity tolerance 1e-6, no polish. Adds "hops" (flight phases that
+                 start from the ground) and "t_physical_end" (the clock at T); "exact" gives the
+                 target and the errors against it. --plot also draws monoped_frames.png,
+                 monoped_states.png and monoped_controls.png against physical time.
 
 Output, one JSON object: "example", "N", "nfe", "status", "message", "notes", "objective",
 "T", "t" (stage boundaries), "x" (state at each), "u" (control per stage), "switch_times",
@@ -277,11 +285,11 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         "ocp",
         "Solve an optimal control problem of a nonsmooth example through FESD (IPOPT) and "
         "print the optimum, the switch times and the errors against the exact optimum (JSON)");
-    ocp->add_option("--example", ocp_options.example, "turbo-car or braking-block (required)")
+    ocp->add_option("--example", ocp_options.example,
+                    "turbo-car, braking-block or monoped (required)")
         ->type_name("NAME");
-    ocp->add_option("--N", ocp_options.n, "Control stages N, >= 1")
-        ->type_name("N")
-        ->capture_default_str();
+    ocp->add_option("--N", ocp_options.n, "Control stages N, >= 1 (default 10; 30 for the monoped)")
+        ->type_name("N");
     ocp->add_option("--nfe", ocp_options.nfe, "Finite elements per control stage, >= 1")
         ->type_name("N_FE")
         ->capture_default_str();
@@ -300,12 +308,15 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                     "scholtes (products <= sigma) or l1 (penalty 1/sigma times the products)")
         ->type_name("NAME")
         ->capture_default_str();
-    ocp->add_option("--sigma0", ocp_options.sigma0, "Initial relaxation sigma, > 0 (default 100)")
+    ocp->add_option("--sigma0", ocp_options.sigma0,
+                    "Initial relaxation sigma, > 0 (default 100; 1 for the monoped)")
         ->type_name("X");
-    ocp->add_option("--sigma-final", ocp_options.sigma_final,
-                    "Final relaxation sigma, > 0 and <= --sigma0 (default 1e-10)")
+    ocp->add_option(
+           "--sigma-final", ocp_options.sigma_final,
+           "Final relaxation sigma, > 0 and <= --sigma0 (default 1e-10; 1e-7 for the monoped)")
         ->type_name("X");
-    ocp->add_option("--tol", ocp_options.tol, "IPOPT's tolerance for the last NLP (default 1e-10)")
+    ocp->add_option("--tol", ocp_options.tol,
+                    "IPOPT's tolerance for the last NLP (default 1e-10; 1e-6 for the monoped)")
         ->type_name("X");
     ocp->add_flag("--trajectory", ocp_options.trajectory,
                   "Add every element boundary, the states there, the step sizes and active sets");

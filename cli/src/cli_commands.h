@@ -159,9 +159,11 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
 /** `bflow ocp`: the options as given on the command line. run_ocp() checks every range and
     names the option in its message. */
 struct OcpCommandOptions {
-  /** turbo-car or braking-block (bflow/examples/ocp_examples.h); required. */
+  /** turbo-car or braking-block (bflow/examples/ocp_examples.h) or monoped
+      (bflow/examples/monoped_ocp.h); required. */
   std::string example;
-  int n = 10;                           ///< --N: control stages, >= 1
+  /** --N: control stages, >= 1; not given: 10, or 30 for the monoped. */
+  std::optional<int> n;
   int nfe = 3;                          ///< finite elements per control stage, >= 1
   int stages = 2;                       ///< n_s, 1..9
   std::string scheme = "radau";         ///< radau or gauss

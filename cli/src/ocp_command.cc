@@ -18,6 +18,8 @@
 
 #include "bflow/core/errors.h"
 #include "bflow/core/filippov.h"
+#include "bflow/examples/monoped.h"
+#include "bflow/examples/monoped_ocp.h"
 #include "bflow/examples/ocp_examples.h"
 #include "bflow/integrators/butcher.h"
 #include "bflow/integrators/fesd.h"
@@ -32,7 +34,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-constexpr const char* kExamples[] = {"turbo-car", "braking-block"};
+constexpr const char* kExamples[] = {"turbo-car", "braking-block", "monoped"};
 
 // Bad input; the message starts with the option. Exit code 2.
 class OptionError : public std::runtime_error {
@@ -44,13 +46,26 @@ class OptionError : public std::runtime_error {
   throw OptionError(option + ": " + problem);
 }
 
-// Calls f(model, problem) with the example's model and data.
+// Calls f(model, problem) with the example's model and data (the monoped's model depends on the
+// formulation: three regions for the step formulation, the eight base sets for Stewart's).
 template <typename F>
-auto with_example(const std::string& name, F&& f) {
+auto with_example(const std::string& name, DcsFormulation formulation, F&& f) {
   if (name == "turbo-car") {
     return f(adapt_ocp(examples::TurboCar{}), examples::TurboCar::problem());
   }
+  if (name == "monoped") {
+    const OcpProblem problem = examples::MonopedTask{}.problem();
+    if (formulation == DcsFormulation::kStewart) {
+      return f(adapt_ocp(examples::monoped_model<TimeFreezingRegions::kBaseSets>()), problem);
+    }
+    return f(adapt_ocp(examples::monoped_model<TimeFreezingRegions::kUnions>()), problem);
+  }
   return f(adapt_ocp(examples::BrakingBlock{}), examples::BrakingBlock::problem());
+}
+
+// The number of control stages: --N, or the example's default.
+int stages_of(const OcpCommandOptions& options) {
+  return options.n.value_or(options.example == "monoped" ? 30 : 10);
 }
 
 OcpRelaxation parse_relaxation(const std::string& text) {
@@ -69,8 +84,9 @@ void check_positive(const std::optional<double>& value, const std::string& optio
 // Every range the library would check, checked here first so that the message names the option
 // the user typed.
 void check_ranges(const OcpCommandOptions& options, const OcpOptions& defaults) {
-  if (options.n < 1) {
-    fail("--N", "the number of control stages must be >= 1, got " + std::to_string(options.n));
+  if (stages_of(options) < 1) {
+    fail("--N",
+         "the number of control stages must be >= 1, got " + std::to_string(stages_of(options)));
   }
   if (options.nfe < 1) {
     fail("--nfe", "the number of finite elements per control stage must be >= 1, got " +
@@ -102,8 +118,8 @@ void check_ranges(const OcpCommandOptions& options, const OcpOptions& defaults) 
 // before anything is built.
 void check_size(const OcpModel& model, const OcpCommandOptions& options, const OcpOptions& o) {
   if (const std::string excess = ocp_problem_size(model, o).excess(); !excess.empty()) {
-    fail("--N", std::to_string(options.n) + " control stages of " + std::to_string(options.nfe) +
-                    " finite elements give " + excess);
+    fail("--N", std::to_string(stages_of(options)) + " control stages of " +
+                    std::to_string(options.nfe) + " finite elements give " + excess);
   }
 }
 
@@ -116,16 +132,14 @@ void write_result(std::ostream& out, const OrderedJson& j, bool compact) {
 }
 
 // |a - b|, or null when the run has no value to compare.
-OrderedJson error_json(const std::optional<double>& value, double exact) {
-  if (!value) return nullptr;
+OrderedJson error_json(const double* value, double exact) {
+  if (value == nullptr) return nullptr;
   return std::abs(*value - exact);
 }
 
 // The example's known optimum and this run's distance to it.
 OrderedJson exact_json(const std::string& example, const OcpResult& r) {
   OrderedJson j;
-  const std::optional<double> first_switch =
-      r.switch_times.empty() ? std::nullopt : std::optional<double>(r.switch_times.front());
   if (example == "turbo-car") {
     using examples::TurboCar;
     const std::vector<double> switches(std::begin(TurboCar::kSwitchTimes),
@@ -144,6 +158,19 @@ OrderedJson exact_json(const std::string& example, const OcpResult& r) {
     } else {
       j["switch_times_error"] = nullptr;
     }
+  } else if (example == "monoped") {
+    using examples::MonopedTask;
+    const Eigen::Vector4d target = MonopedTask::target();
+    j["q_target"] = std::vector<double>(target.data(), target.data() + 4);
+    j["t_physical_end"] = MonopedTask::kHorizon;
+    if (r.x_stages.cols() > 0) {
+      const Eigen::VectorXd end = r.x_stages.col(r.x_stages.cols() - 1);
+      j["q_error"] = (end.head(4) - target).cwiseAbs().maxCoeff();
+      j["t_physical_end_error"] = std::abs(end[8] - MonopedTask::kHorizon);
+    } else {
+      j["q_error"] = nullptr;
+      j["t_physical_end_error"] = nullptr;
+    }
   } else {
     using examples::BrakingBlock;
     j["objective"] = BrakingBlock::optimal_cost();
@@ -151,10 +178,10 @@ OrderedJson exact_json(const std::string& example, const OcpResult& r) {
     j["final_position"] = BrakingBlock::final_position();
     j["objective_error"] = std::abs(r.objective - BrakingBlock::optimal_cost());
     // The block comes to rest where v = c reaches 0: the run's first switch.
-    j["stop_time_error"] = error_json(first_switch, BrakingBlock::stop_time());
-    const std::optional<double> final_position =
-        r.x_stages.cols() > 0 ? std::optional<double>(r.x_stages(0, r.x_stages.cols() - 1))
-                              : std::nullopt;
+    j["stop_time_error"] = error_json(r.switch_times.empty() ? nullptr : &r.switch_times.front(),
+                                      BrakingBlock::stop_time());
+    const double* final_position =
+        r.x_stages.cols() > 0 ? &r.x_stages(0, r.x_stages.cols() - 1) : nullptr;
     j["final_position_error"] = error_json(final_position, BrakingBlock::final_position());
   }
   return j;
@@ -167,13 +194,14 @@ OrderedJson exact_json(const std::string& example, const OcpResult& r) {
 // NLP was solved), with the remedy measured in docs/ocp.md.
 std::string spurious_notice(const OcpCommandOptions& options, const OcpResult& r) {
   using examples::TurboCar;
-  if (options.example != "turbo-car" || options.standard || options.n % 5 != 0 || !r.ok()) {
+  if (options.example != "turbo-car" || options.standard || stages_of(options) % 5 != 0 ||
+      !r.ok()) {
     return "";
   }
   const double error = std::abs(r.T - TurboCar::kOptimalTime);
   if (error <= 1e-6) return "";
   return "ocp: T = " + format_number(r.T) + " is " + format_number(error) +
-         " above the optimum 40/3, which N = " + std::to_string(options.n) +
+         " above the optimum 40/3, which N = " + std::to_string(stages_of(options)) +
          " stages represent exactly: the homotopy ended at another stationary point of the "
          "complementarity problem (docs/ocp.md, Known limits); a larger --sigma0 (e.g. 1000) "
          "or another N may reach the optimum";
@@ -282,6 +310,89 @@ void write_plots(const fs::path& dir, const OcpModel& model, const OcpResult& r)
   script("ocp_switching", "Switching functions; dashed: the switch times", "c(x)", switching);
 }
 
+// The monoped's pictures against physical time (the clock, x_8): the robot drawn every 0.25 s
+// over the ground, its positions and velocities, and its torques and speed of time.
+// @throws DemoError.
+void write_monoped_plots(const fs::path& dir, const OcpResult& r) {
+  const examples::Monoped robot;
+  const double horizon = examples::MonopedTask::kHorizon;
+  const Eigen::MatrixXd& x = r.x_grid;
+  std::ostringstream frames;
+  frames << "# x z t: head (5 cm above the base), base (the hip), knee and foot of the robot, one "
+            "block per frame (bflow ocp)\n";
+  const int count = 13;
+  Eigen::Index j = 0;
+  for (int f = 0; f < count && x.cols() > 0; ++f) {
+    const double t = horizon * f / (count - 1);
+    while (j + 1 < x.cols() && x(8, j) < t - 1e-9) ++j;
+    const Eigen::Vector4d q = x.col(j).head(4);
+    double knee[2], foot[2];
+    robot.knee(q.data(), knee);
+    robot.foot(q.data(), foot);
+    const double points[4][2] = {
+        {q[0], q[1] + 0.05}, {q[0], q[1]}, {knee[0], knee[1]}, {foot[0], foot[1]}};
+    for (const auto& p : points) {
+      frames << format_number(p[0]) << ' ' << format_number(p[1]) << ' ' << format_number(t)
+             << '\n';
+    }
+    frames << "\n\n";
+  }
+  write_file(dir / "monoped_frames.dat", frames.str(), "ocp");
+
+  std::ostringstream states;
+  states << "# t q_x q_z phi_hip phi_knee v_x v_z w_hip w_knee, t the clock (physical time), at "
+            "every element boundary\n";
+  for (Eigen::Index k = 0; k < x.cols(); ++k) {
+    states << format_number(x(8, k));
+    for (int i = 0; i < 8; ++i) states << ' ' << format_number(x(i, k));
+    states << '\n';
+  }
+  write_file(dir / "monoped_states.dat", states.str(), "ocp");
+
+  const auto script = [&](const std::string& name, const std::string& body) {
+    const std::string text = "# Written by `bflow ocp`; run in this directory: gnuplot " + name +
+                             ".gp\nset encoding utf8\n" + body;
+    write_file(dir / (name + ".gp"), text, "ocp");
+    run_gnuplot(dir, name + ".gp", name + ".png", "ocp", "leave out --plot");
+  };
+  script("monoped_frames",
+         "set terminal pngcairo size 1400,420 enhanced font 'Sans,12'\n"
+         "set output 'monoped_frames.png'\n"
+         "set title 'The monoped every 0.25 s (body, thigh, shank); colour: physical time'\n"
+         "set size ratio -1\nset xlabel 'x [m]'\nset ylabel 'z [m]'\n"
+         "set xrange [-0.35:3.45]\nset yrange [-0.05:0.85]\n"
+         "set cblabel 't [s]'\nset palette rgbformulae 33,13,10\nset grid lc rgb '#dddddd'\n"
+         "plot 0 with lines lc rgb '#555555' lw 2 title 'ground', \\\n"
+         "  'monoped_frames.dat' using 1:2:3 with linespoints lw 2 pt 7 ps 0.6 lc palette "
+         "notitle\n");
+  script("monoped_states",
+         "set terminal pngcairo size 1000,800 enhanced font 'Sans,12'\n"
+         "set output 'monoped_states.png'\n"
+         "set multiplot layout 2,1 title 'The monoped against physical time'\n"
+         "set grid lc rgb '#dddddd'\nset key outside right top\nset xlabel 't [s]'\n"
+         "set ylabel 'position'\n"
+         "plot 'monoped_states.dat' using 1:2 with lines lw 2 title 'q_x [m]', \\\n"
+         "  '' using 1:3 with lines lw 2 title 'q_z [m]', \\\n"
+         "  '' using 1:4 with lines lw 2 title '{/Symbol f}_{hip} [rad]', \\\n"
+         "  '' using 1:5 with lines lw 2 title '{/Symbol f}_{knee} [rad]'\n"
+         "set ylabel 'velocity'\n"
+         "plot 'monoped_states.dat' using 1:6 with lines lw 2 title 'v_x [m/s]', \\\n"
+         "  '' using 1:7 with lines lw 2 title 'v_z [m/s]', \\\n"
+         "  '' using 1:8 with lines lw 2 title '{/Symbol w}_{hip} [rad/s]', \\\n"
+         "  '' using 1:9 with lines lw 2 title '{/Symbol w}_{knee} [rad/s]'\n"
+         "unset multiplot\n");
+  script("monoped_controls",
+         "set terminal pngcairo size 1000,500 enhanced font 'Sans,12'\n"
+         "set output 'monoped_controls.png'\n"
+         "set title 'Torques and speed of time, constant on each stage'\n"
+         "set grid lc rgb '#dddddd'\nset key outside right top\nset xlabel 't [s]'\n"
+         "set ylabel 'torque [N m]'\nset y2label 'speed of time s'\nset ytics nomirror\n"
+         "set y2tics\n"
+         "plot 'ocp_controls.dat' using 1:2 with lines lw 2 title 'u_{hip}', \\\n"
+         "  '' using 1:3 with lines lw 2 title 'u_{knee}', \\\n"
+         "  '' using 1:4 axes x1y2 with lines lw 2 dt 2 title 's'\n");
+}
+
 }  // namespace
 
 int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& err) {
@@ -300,7 +411,8 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
       report_error(err, "--example: unknown example " + quote(options.example) + "; use " + names);
       return kExitBadInput;
     }
-    OcpOptions o;
+    // The monoped starts from the published experiment's homotopy (MonopedTask::options).
+    OcpOptions o = options.example == "monoped" ? examples::MonopedTask::options(10) : OcpOptions{};
     try {
       o.formulation = parse_dcs_formulation(options.formulation);
     } catch (const InvalidArgument& e) {
@@ -315,7 +427,7 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
     }
     o.relaxation = parse_relaxation(options.relaxation);
     check_ranges(options, o);
-    o.stages = options.n;
+    o.stages = stages_of(options);
     o.elements = options.nfe;
     o.collocation_stages = options.stages;
     o.standard = options.standard;
@@ -327,65 +439,72 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
         err << progress_line(s) << '\n' << std::flush;
       };
     }
-    with_example(options.example, [&](const OcpModel& model, const OcpProblem&) {
+    with_example(options.example, o.formulation, [&](const OcpModel& model, const OcpProblem&) {
       check_size(model, options, o);
       return 0;
     });
     // A directory that cannot take the plots is refused before the solve.
     if (options.plot) prepare_output_directory(*options.plot, "ocp");
 
-    return with_example(options.example, [&](const OcpModel& model, const OcpProblem& problem) {
-      const OcpResult r = ocp_solve(model, problem, o);
-      OrderedJson j;
-      j["example"] = options.example;
-      j["N"] = options.n;
-      j["nfe"] = options.nfe;
-      j["status"] = to_string(r.status);
-      j["message"] = r.message;
-      j["notes"] = r.notes;
-      j["objective"] = r.objective;
-      j["T"] = r.T;
-      j["t"] = r.stage_times;
-      j["x"] = columns_json(r.x_stages);
-      j["u"] = columns_json(r.u);
-      j["switch_times"] = r.switch_times;
-      j["max_complementarity"] = r.max_complementarity;
-      j["polished"] = r.polished;
-      j["homotopy"] = homotopy_json(r.homotopy);
-      j["ipopt_iterations"] = r.ipopt_iterations;
-      j["cpu_seconds"] = r.cpu_seconds;
-      j["cpu_per_iteration"] = r.cpu_per_iteration;
-      j["exact"] = exact_json(options.example, r);
-      if (options.trajectory) {
-        j["grid"] = r.grid;
-        j["x_grid"] = columns_json(r.x_grid);
-        j["step_sizes"] = r.step_sizes;
-        j["active_sets"] = r.active_sets;
-      }
-      write_result(out, j, options.compact);
-      // The plots are drawn for any result (a failed run is worth seeing); one error line in
-      // all cases, the solver's first.
-      std::string plot_error;
-      if (options.plot) {
-        try {
-          write_plots(*options.plot, model, r);
-        } catch (const DemoError& e) {
-          plot_error = e.what();
-        }
-      }
-      if (const std::string notice = spurious_notice(options, r); !notice.empty()) {
-        err << "warning: " << notice << '\n' << std::flush;
-      }
-      if (!r.ok()) {
-        report_error(err, "ocp: " + std::string(to_string(r.status)) + ": " + r.message);
-        return kExitFailure;
-      }
-      if (!plot_error.empty()) {
-        report_error(err, plot_error);
-        return kExitFailure;
-      }
-      return kExitOk;
-    });
+    return with_example(
+        options.example, o.formulation, [&](const OcpModel& model, const OcpProblem& problem) {
+          const OcpResult r = ocp_solve(model, problem, o);
+          OrderedJson j;
+          j["example"] = options.example;
+          j["N"] = o.stages;
+          j["nfe"] = options.nfe;
+          j["status"] = to_string(r.status);
+          j["message"] = r.message;
+          j["notes"] = r.notes;
+          j["objective"] = r.objective;
+          j["T"] = r.T;
+          j["t"] = r.stage_times;
+          j["x"] = columns_json(r.x_stages);
+          j["u"] = columns_json(r.u);
+          j["switch_times"] = r.switch_times;
+          j["max_complementarity"] = r.max_complementarity;
+          j["polished"] = r.polished;
+          j["homotopy"] = homotopy_json(r.homotopy);
+          j["ipopt_iterations"] = r.ipopt_iterations;
+          j["cpu_seconds"] = r.cpu_seconds;
+          j["cpu_per_iteration"] = r.cpu_per_iteration;
+          if (options.example == "monoped") {
+            j["hops"] = r.x_grid.cols() > 0 ? examples::MonopedTask::hops(r.x_grid) : 0;
+            j["t_physical_end"] =
+                r.x_stages.cols() > 0 ? OrderedJson(r.x_stages(8, r.x_stages.cols() - 1)) : nullptr;
+          }
+          j["exact"] = exact_json(options.example, r);
+          if (options.trajectory) {
+            j["grid"] = r.grid;
+            j["x_grid"] = columns_json(r.x_grid);
+            j["step_sizes"] = r.step_sizes;
+            j["active_sets"] = r.active_sets;
+          }
+          write_result(out, j, options.compact);
+          // The plots are drawn for any result (a failed run is worth seeing); one error line in
+          // all cases, the solver's first.
+          std::string plot_error;
+          if (options.plot) {
+            try {
+              write_plots(*options.plot, model, r);
+              if (options.example == "monoped") write_monoped_plots(*options.plot, r);
+            } catch (const DemoError& e) {
+              plot_error = e.what();
+            }
+          }
+          if (const std::string notice = spurious_notice(options, r); !notice.empty()) {
+            err << "warning: " << notice << '\n' << std::flush;
+          }
+          if (!r.ok()) {
+            report_error(err, "ocp: " + std::string(to_string(r.status)) + ": " + r.message);
+            return kExitFailure;
+          }
+          if (!plot_error.empty()) {
+            report_error(err, plot_error);
+            return kExitFailure;
+          }
+          return kExitOk;
+        });
   } catch (const OptionError& e) {
     report_error(err, e.what());
     return kExitBadInput;

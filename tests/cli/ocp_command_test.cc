@@ -1,5 +1,6 @@
 // `bflow ocp` in-process: the JSON of a run against the examples' exact optima, the progress
 // lines, a failed solve, bad options and the plots.
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -11,8 +12,10 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <Eigen/Core>
 #include <nlohmann/json.hpp>
 
+#include "bflow/examples/monoped_ocp.h"
 #include "cli_commands.h"
 
 namespace bflow::cli {
@@ -338,6 +341,58 @@ TEST(OcpCommandTest, PlotWritesThreePngs) {
   EXPECT_EQ(t, 0.0);
   EXPECT_EQ(v, 2.0);
   EXPECT_EQ(c, 2.0);
+  fs::remove_all(dir);
+}
+
+// The monoped at N = 3 with one NLP (sigma 1; 2.6 s): not solved (the products are up to 1, above
+// the tolerance 1e-6), so exit code 1, but the JSON is whole: x = (q, v, clock) at the stage
+// boundaries, u = (u_hip, u_knee, s), the clock at T (held by the clock constraint in every NLP),
+// the hops (as MonopedTask::hops counts them on --trajectory's grid), the target and the errors
+// against it; --plot draws the robot's pictures too.
+TEST(OcpCommandTest, MonopedReportsHopsAndThePhysicalEnd) {
+  const fs::path dir = fs::path(::testing::TempDir()) / "bflow_ocp_monoped";
+  fs::remove_all(dir);
+  OcpCommandOptions o;
+  o.example = "monoped";
+  o.n = 3;
+  o.sigma0 = 1.0;
+  o.sigma_final = 1.0;
+  o.quiet = true;
+  o.trajectory = true;
+  const bool draw = gnuplot_on_path();
+  if (draw) o.plot = dir.string();
+  const Outcome r = solve(o);
+  EXPECT_EQ(r.code, kExitFailure);
+  EXPECT_THAT(r.err, StartsWith("error: ocp: complementarity_not_reached: "));
+  const nlohmann::json& j = r.json;
+  ASSERT_EQ(j["status"], "complementarity_not_reached");
+  EXPECT_EQ(j["N"], 3);
+  ASSERT_EQ(j["x"].size(), 4u);
+  ASSERT_EQ(j["x"][3].size(), 9u);
+  ASSERT_EQ(j["u"][0].size(), 3u);
+  const std::vector<double> end = j["x"][3].get<std::vector<double>>();
+  EXPECT_NEAR(j["t_physical_end"].get<double>(), 3.0, 1e-6);
+  EXPECT_EQ(j["t_physical_end"].get<double>(), end[8]);
+  EXPECT_EQ(j["exact"]["q_target"], nlohmann::json({3.0, 0.4, 0.0, 0.0}));
+  const double target[4] = {3.0, 0.4, 0.0, 0.0};
+  double q_error = 0.0;
+  for (int i = 0; i < 4; ++i) q_error = std::max(q_error, std::abs(end[i] - target[i]));
+  EXPECT_EQ(j["exact"]["q_error"].get<double>(), q_error);
+  EXPECT_EQ(j["exact"]["t_physical_end_error"].get<double>(), std::abs(end[8] - 3.0));
+  const auto grid = j["x_grid"].get<std::vector<std::vector<double>>>();
+  Eigen::MatrixXd x(9, static_cast<Eigen::Index>(grid.size()));
+  for (std::size_t k = 0; k < grid.size(); ++k) {
+    for (int i = 0; i < 9; ++i) x(i, static_cast<Eigen::Index>(k)) = grid[k][i];
+  }
+  EXPECT_EQ(j["hops"].get<int>(), examples::MonopedTask::hops(x));
+  if (draw) {
+    for (const char* png :
+         {"monoped_frames.png", "monoped_states.png", "monoped_controls.png", "ocp_states.png"}) {
+      const fs::path file = dir / png;
+      ASSERT_TRUE(fs::exists(file)) << file;
+      EXPECT_GT(fs::file_size(file), 1000u) << file;
+    }
+  }
   fs::remove_all(dir);
 }
 
