@@ -165,7 +165,7 @@ OrderedJson exact_json(const std::string& example, const OcpResult& r) {
     j["t_physical_end"] = MonopedTask::kHorizon;
     if (r.x_stages.cols() > 0) {
       const Eigen::VectorXd end = r.x_stages.col(r.x_stages.cols() - 1);
-      j["q_error"] = (end.head(4) - target).cwiseAbs().maxCoeff();
+      j["q_error"] = MonopedTask::target_error(end);
       j["t_physical_end_error"] = std::abs(end[8] - MonopedTask::kHorizon);
     } else {
       j["q_error"] = nullptr;
@@ -412,7 +412,8 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
       return kExitBadInput;
     }
     // The monoped starts from the published experiment's homotopy (MonopedTask::options).
-    OcpOptions o = options.example == "monoped" ? examples::MonopedTask::options(10) : OcpOptions{};
+    OcpOptions o = options.example == "monoped" ? examples::MonopedTask::options(stages_of(options))
+                                                : OcpOptions{};
     try {
       o.formulation = parse_dcs_formulation(options.formulation);
     } catch (const InvalidArgument& e) {

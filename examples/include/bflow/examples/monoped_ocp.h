@@ -34,21 +34,19 @@ using MonopedTimeFreezing = TimeFreezing<Monoped, kRegions, true>;
     the bound). Time-freezing reproduces an impact only where the foot meets the ground from
     above; inside the ground it stands on the auxiliary dynamics at any depth. The relaxed NLPs
     of the homotopy mix free flight into the auxiliary region and so let the foot sink, and the
-    later NLPs keep it there: measured at N = 30 without this constraint, 59 of 91 element
-    boundaries had the foot 1 mm to 6.3 cm deep. */
+    later NLPs keep it there: measured at N = 30 without this constraint (on an earlier form of
+    the model, hip under the base), 59 of 91 element boundaries had the foot 1 mm to 6.3 cm
+    deep. */
 template <TimeFreezingRegions kRegions>
 struct MonopedTimeFreezingOcp : MonopedTimeFreezing<kRegions> {
   static constexpr int kPath = 1;
   static constexpr double kGapLower = -0.005;  ///< m, as nosnoc's experiment
-  MonopedTimeFreezingOcp(Monoped robot, ContactParameters contact)
-      : MonopedTimeFreezing<kRegions>(robot, contact), robot_(robot) {}
+  using Base = MonopedTimeFreezing<kRegions>;
+  using Base::Base;
   template <typename T>
   void path(const T* x, const T*, T* g) const {
-    g[0] = robot_.gap(x);
+    g[0] = this->system().gap(x);
   }
-
- private:
-  Monoped robot_;
 };
 
 template <TimeFreezingRegions kRegions>
@@ -76,8 +74,9 @@ struct MonopedTask {
   /** The solver options of the published experiment at N control stages (N_FE = 3 elements of
       Radau IIA, n_s = 2, as the library's defaults): the homotopy from sigma = 1 down by factors
       of 10 to 1e-7, IPOPT's tolerance 1e-6 and a complementarity tolerance of 1e-6 (the last
-      NLP's products are at most 1e-7), and no polish: measured at N = 30, the polish (the
-      active set fixed) ran into IPOPT's 3000 iterations without converging. */
+      NLP's products are at most 1e-7), and no polish: measured at N = 30 (earlier form of the
+      model), the polish (the active set fixed) ran into IPOPT's 3000 iterations without
+      converging. */
   static OcpOptions options(int stages) {
     OcpOptions o;
     o.stages = stages;
@@ -92,6 +91,11 @@ struct MonopedTask {
 
   /** The target q(T) = (3, 0.4, 0, 0). */
   static Eigen::Vector4d target() { return {kTargetX, kHeight, 0.0, 0.0}; }
+
+  /** The largest |q_i - q_target,i| of a time-freezing state x = (q, v, clock). */
+  static double target_error(const Eigen::Ref<const Eigen::VectorXd>& x) {
+    return (x.head(4) - target()).cwiseAbs().maxCoeff();
+  }
 
   /** The number of hops in a run: flight phases that start from the ground. Walking through the
       columns of `x` (time-freezing states (q, v, clock) in time order), the foot is on the ground
