@@ -1244,7 +1244,8 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     app->Options()->SetNumericValue("acceptable_constr_viol_tol",
                                     std::min(1e-2, std::max(tol, 0.1 * sigma)));
     app->Options()->SetIntegerValue("acceptable_iter", 15);
-    app->Options()->SetStringValue("warm_start_init_point", first ? "no" : "yes");
+    const bool warm = !first && options.warm_start;
+    app->Options()->SetStringValue("warm_start_init_point", warm ? "yes" : "no");
     if (!first) {
       app->Options()->SetNumericValue("mu_init", std::max(1e-11, 1e-2 * sigma));
       app->Options()->SetNumericValue("warm_start_bound_push", 1e-9);

@@ -238,6 +238,20 @@ TEST(OcpRelaxations, PenaltyReachesTheScholtesOptimum) {
   EXPECT_EQ(penalty.max_complementarity, 0.0);
 }
 
+// Without the warm start every NLP after the first starts from the previous solution's point
+// alone (IPOPT's own initialisation): the homotopy takes another path to the same exact optimum.
+TEST(OcpRelaxations, ColdStartsReachTheExactOptimumToo) {
+  OcpOptions options;
+  options.warm_start = false;
+  const OcpResult cold = solve_car(5, options);
+  ASSERT_EQ(cold.status, OcpStatus::kSolved) << cold.message;
+  EXPECT_NEAR(cold.T, TurboCar::kOptimalTime, 1e-8);
+  ASSERT_EQ(cold.switch_times.size(), 2u);
+  EXPECT_NEAR(cold.switch_times[0], TurboCar::kSwitchTimes[0], 1e-8);
+  EXPECT_NEAR(cold.switch_times[1], TurboCar::kSwitchTimes[1], 1e-8);
+  EXPECT_NE(cold.ipopt_iterations, solve_car(5).ipopt_iterations);
+}
+
 // Without the polish the relaxed solution at sigma_final is reported as it is: its residual is
 // at most sigma_final, so a tolerance below it is honestly "not reached".
 TEST(OcpStatus, ResidualAboveTheToleranceIsReported) {
