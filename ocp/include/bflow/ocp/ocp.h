@@ -358,8 +358,8 @@ struct OcpOptions {
   /** Every NLP but the first starts from the previous solution. With warm_start it also takes
       the previous multipliers and stays at the bounds it reached (IPOPT's warm start, bound
       pushes 1e-9); without, IPOPT moves the point off its bounds and recomputes the multipliers
-      (its own initialisation), which costs a few iterations but keeps each NLP well centred
-      when sigma cuts into the previous solution. */
+      (its own initialisation), which keeps an NLP centred when the smaller sigma cuts into the
+      previous solution (the monoped of docs/ocp.md needs it). */
   bool warm_start = true;
   /** After the homotopy, solve once more with the last NLP's active set fixed (the zero member
       of every complementarity pair at its bound, equal lengths of neighbouring elements of a
