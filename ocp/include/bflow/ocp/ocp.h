@@ -371,6 +371,9 @@ struct OcpOptions {
   int print_level = 0;            ///< IPOPT's print_level
   /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
   std::function<void(const OcpHomotopyStep&)> progress;
+  /** IPOPT options set after bflow's own (mu_strategy adaptive, bound_relax_factor 0, MUMPS with
+      mumps_pivot_order 6 (QAMD) and mumps_mem_percent 50, and those of the homotopy), so they
+      win. */
   std::vector<std::pair<std::string, std::string>> ipopt_string_options;
   std::vector<std::pair<std::string, double>> ipopt_numeric_options;
   std::vector<std::pair<std::string, int>> ipopt_integer_options;
