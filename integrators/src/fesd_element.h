@@ -268,8 +268,13 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
         values);
   }
   const double* alg = lambda + l.s * d + d;
+  // The step and Stewart equalities are the model's switching functions of [x; u] plus terms
+  // linear in z (fesd_dcs.h): z enters them as constants, which leaves their (exactly zero)
+  // second derivatives out of the nested AD. The lifted products of z are not linear.
+  const bool linear_in_z = dcs.kind() != PointDcs::Kind::kLifted;
   for (int m = 0; m < l.points; ++m) {
     gather(pieces[static_cast<std::size_t>(l.s + m)]);
+    if (linear_in_z) std::fill(piece_globals.begin() + d + nu, piece_globals.end(), -1);
     hessian.add(
         piece_globals, piece_base, l.neq, alg + m * l.neq,
         [&](const HessianScalar* in, HessianScalar* out) { dcs.algebraic(in, in + d + nu, out); },
@@ -425,6 +430,7 @@ class HessianBlocks {
         }
       }
     }
+    index_ready_ = false;
   }
   std::size_t size() const { return rows_.size(); }
   const std::vector<int>& rows() const { return rows_; }
@@ -434,7 +440,8 @@ class HessianBlocks {
   // the lower-triangle values.
   template <typename Eval>
   void add(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
-           const double* weights, Eval eval, double* values) const {
+           const double* weights, Eval eval, double* values) {
+    if (!index_ready_) build_index();
     std::vector<int> free;
     for (std::size_t k = 0; k < globals.size(); ++k) {
       if (globals[k] >= 0) free.push_back(static_cast<int>(k));
@@ -469,7 +476,7 @@ class HessianBlocks {
             for (int r = 0; r < outputs; ++r) {
               h += weights[r] * out[static_cast<std::size_t>(r)].derivatives()[j].derivatives()[i];
             }
-            values[position_.at({std::max(ga, gb), std::min(ga, gb)})] += h;
+            values[position(std::max(ga, gb), std::min(ga, gb))] += h;
           }
         }
       }
@@ -477,8 +484,41 @@ class HessianBlocks {
   }
 
  private:
+  // Row-wise sorted columns and positions (a std::map lookup per entry was a few per cent of an
+  // IPOPT iteration).
+  void build_index() {
+    int rows = 0;
+    for (int a : rows_) rows = std::max(rows, a + 1);
+    row_begin_.assign(static_cast<std::size_t>(rows) + 1, 0);
+    for (int a : rows_) ++row_begin_[static_cast<std::size_t>(a) + 1];
+    for (std::size_t a = 0; a < static_cast<std::size_t>(rows); ++a)
+      row_begin_[a + 1] += row_begin_[a];
+    index_cols_.resize(rows_.size());
+    index_positions_.resize(rows_.size());
+    for (const auto& [key, pos] : position_) {  // ordered by (row, column)
+      const auto at = static_cast<std::size_t>(row_begin_[static_cast<std::size_t>(key.first)]++);
+      index_cols_[at] = key.second;
+      index_positions_[at] = pos;
+    }
+    for (std::size_t a = static_cast<std::size_t>(rows); a > 0; --a)
+      row_begin_[a] = row_begin_[a - 1];
+    row_begin_[0] = 0;
+    index_ready_ = true;
+  }
+  // The position of the registered pair (a, b), a >= b.
+  std::size_t position(int a, int b) const {
+    const auto first = index_cols_.begin() + row_begin_[static_cast<std::size_t>(a)];
+    const auto last = index_cols_.begin() + row_begin_[static_cast<std::size_t>(a) + 1];
+    const auto it = std::lower_bound(first, last, b);
+    BFLOW_ASSERT(it != last && *it == b);
+    return static_cast<std::size_t>(
+        index_positions_[static_cast<std::size_t>(it - index_cols_.begin())]);
+  }
+
   std::map<std::pair<int, int>, int> position_;
   std::vector<int> rows_, cols_;
+  bool index_ready_ = false;
+  std::vector<int> row_begin_, index_cols_, index_positions_;
 };
 
 }  // namespace fesd_detail
