@@ -72,7 +72,7 @@ execute_process(COMMAND ${CMAKE_COMMAND} -S ${WORK_DIR}/unknown_source -B ${WORK
                 -G ${GENERATOR} -DCMAKE_PREFIX_PATH=${prefix}
                 RESULT_VARIABLE code OUTPUT_VARIABLE out ERROR_VARIABLE err)
 string(REGEX REPLACE "[ \t\r\n]+" " " err_flat "${err}")
-set(expected "unknown component \"bogus\"; the components are core, ad, integrators and ocp")
+set(expected "unknown component \"bogus\"; the components are core, ad, integrators, ocp and sweep")
 if(code EQUAL 0 OR NOT err_flat MATCHES "bflow_FOUND to FALSE" OR
    NOT err_flat MATCHES "${expected}")
   message(FATAL_ERROR "unknown: expected a failure with [${expected}], got ${code}:\n${err}")

@@ -1,0 +1,193 @@
+// An ordered parallel map: the records of samples first, first + 1, ..., end - 1 computed on a
+// pool of threads and handed to a sink in index order, as soon as each is ready.
+//
+//   bflow::SweepRunOptions o;
+//   o.threads = 2;
+//   bflow::run_ordered<Record>(
+//       0, samples,
+//       [&](std::uint64_t i) { return evaluate(i); },          // any thread, any order
+//       [&](std::uint64_t i, const std::string& what) {       // evaluate threw
+//         return Record::failed(i, what);
+//       },
+//       [&](Record&& r) { write(out, r); },                   // the calling thread, i in order
+//       o);
+//
+// Guarantees:
+// - The sink sees every index of [first, end) exactly once, in increasing order, on the calling
+//   thread; what it receives does not depend on the number of threads (evaluate must depend on
+//   its index only).
+// - Workers take the next index from a shared counter (dynamic scheduling: a slow sample holds
+//   up one worker, not a share of the samples fixed in advance).
+// - At most `window` records wait for the sink at any time (the memory does not grow with the
+//   number of samples): a worker whose index is `window` ahead of the sink waits.
+// - An exception from evaluate becomes that sample's record through on_error (its what()); the
+//   sweep goes on. An exception from the sink or from on_error stops the workers after the
+//   samples they hold and is rethrown.
+// - progress (optional) is called on the calling thread after the sink, at most every
+//   progress_interval seconds and once after the last sample.
+#ifndef BFLOW_SWEEP_PARALLEL_H_
+#define BFLOW_SWEEP_PARALLEL_H_
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <exception>
+#include <functional>
+#include <map>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <utility>
+#include <vector>
+
+#include "bflow/core/errors.h"
+
+namespace bflow {
+
+/** Where an ordered run stands, for a progress display. */
+struct SweepProgress {
+  std::uint64_t done = 0;   ///< samples handed to the sink in this run
+  std::uint64_t total = 0;  ///< samples of this run (end - first)
+  double seconds = 0.0;     ///< wall-clock time since the run started
+  /** Samples per second so far (0 before the first). */
+  double rate() const { return seconds > 0.0 ? static_cast<double>(done) / seconds : 0.0; }
+  /** Estimated seconds left at the rate so far (0 when done, -1 when unknown). */
+  double seconds_left() const {
+    if (done >= total) return 0.0;
+    const double r = rate();
+    return r > 0.0 ? static_cast<double>(total - done) / r : -1.0;
+  }
+};
+
+struct SweepRunOptions {
+  /** Worker threads; 0: std::thread::hardware_concurrency() (1 if unknown). */
+  int threads = 0;
+  /** Records that may wait for the sink; 0: 64 per thread. */
+  std::uint64_t window = 0;
+  std::function<void(const SweepProgress&)> progress;
+  double progress_interval = 0.25;  ///< seconds between progress calls
+};
+
+/** The number of worker threads `options` asks for (threads, or the hardware's when 0).
+    @throws InvalidArgument for threads < 0. */
+inline int sweep_threads(const SweepRunOptions& options) {
+  if (options.threads < 0) {
+    throw InvalidArgument("sweep: threads must be >= 0 (0: one per core), got " +
+                          std::to_string(options.threads));
+  }
+  if (options.threads > 0) return options.threads;
+  const unsigned hardware = std::thread::hardware_concurrency();
+  return hardware > 0 ? static_cast<int>(hardware) : 1;
+}
+
+/** See the top of this header. @throws InvalidArgument for first > end or threads < 0. */
+template <typename Record, typename Evaluate, typename OnError, typename Sink>
+void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnError on_error,
+                 Sink sink, const SweepRunOptions& options = {}) {
+  if (first > end) {
+    throw InvalidArgument("sweep: the first sample " + std::to_string(first) +
+                          " is after the end " + std::to_string(end));
+  }
+  const int threads = sweep_threads(options);
+  const std::uint64_t window =
+      options.window > 0 ? options.window : 64 * static_cast<std::uint64_t>(threads);
+  using Clock = std::chrono::steady_clock;
+  const Clock::time_point start = Clock::now();
+  Clock::time_point last_report = start;
+  SweepProgress progress;
+  progress.total = end - first;
+
+  std::mutex mutex;
+  std::condition_variable ready;  // a record arrived (the sink waits on it)
+  std::condition_variable room;   // the sink moved on (workers ahead of it wait on it)
+  std::map<std::uint64_t, Record> waiting;
+  std::atomic<std::uint64_t> next{first};
+  std::uint64_t written = first;      // the next index the sink takes (guarded by mutex)
+  bool stop = false;                  // the sink or on_error failed (guarded by mutex)
+  std::exception_ptr worker_failure;  // on_error's exception (guarded by mutex)
+
+  const auto work = [&]() {
+    while (true) {
+      const std::uint64_t index = next.fetch_add(1);
+      if (index >= end) return;
+      {
+        std::unique_lock<std::mutex> lock(mutex);
+        room.wait(lock, [&] { return stop || index < written + window; });
+        if (stop) return;
+      }
+      Record record;
+      try {
+        try {
+          record = evaluate(index);
+        } catch (const std::exception& e) {
+          record = on_error(index, std::string(e.what()));
+        } catch (...) {
+          record = on_error(index, std::string("unknown exception"));
+        }
+      } catch (...) {  // from on_error: the run stops and the caller gets it
+        {
+          std::lock_guard<std::mutex> lock(mutex);
+          if (!worker_failure) worker_failure = std::current_exception();
+          stop = true;
+        }
+        ready.notify_all();
+        room.notify_all();
+        return;
+      }
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        waiting.emplace(index, std::move(record));
+      }
+      ready.notify_all();
+    }
+  };
+
+  std::vector<std::thread> pool;
+  pool.reserve(static_cast<std::size_t>(threads));
+  for (int k = 0; k < threads; ++k) pool.emplace_back(work);
+  std::exception_ptr failure;
+  try {
+    while (written < end) {
+      Record record;
+      {
+        std::unique_lock<std::mutex> lock(mutex);
+        ready.wait(lock, [&] { return stop || waiting.count(written) > 0; });
+        if (stop) std::rethrow_exception(worker_failure);
+        auto it = waiting.find(written);
+        record = std::move(it->second);
+        waiting.erase(it);
+      }
+      sink(std::move(record));
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        ++written;
+      }
+      room.notify_all();
+      ++progress.done;
+      const Clock::time_point now = Clock::now();
+      if (options.progress &&
+          (written == end ||
+           std::chrono::duration<double>(now - last_report).count() >= options.progress_interval)) {
+        progress.seconds = std::chrono::duration<double>(now - start).count();
+        options.progress(progress);
+        last_report = now;
+      }
+    }
+  } catch (...) {
+    failure = std::current_exception();
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      stop = true;
+    }
+    room.notify_all();
+    next.store(end);
+  }
+  for (std::thread& t : pool) t.join();
+  if (failure) std::rethrow_exception(failure);
+}
+
+}  // namespace bflow
+
+#endif  // BFLOW_SWEEP_PARALLEL_H_

@@ -1,0 +1,276 @@
+#include "bflow/sweep/sweep.h"
+
+#include <cmath>
+#include <cstdio>
+#include <exception>
+#include <limits>
+#include <sstream>
+#include <utility>
+
+#include <nlohmann/json.hpp>
+
+#include "bflow/core/errors.h"
+#include "bflow/core/flow_derivative.h"
+
+namespace bflow {
+namespace {
+
+constexpr std::uint64_t kMaxSamples = std::uint64_t{1} << 53;
+
+void check_axis(const SweepAxis& axis) {
+  if (axis.count == 0) {
+    throw InvalidArgument("sweep: the axis " + axis.name() + " has a count of 0; it needs >= 1");
+  }
+  if (!std::isfinite(axis.lo) || !std::isfinite(axis.hi)) {
+    throw InvalidArgument("sweep: the axis " + axis.name() + " has a non-finite end: " +
+                          format_number(axis.lo) + " to " + format_number(axis.hi));
+  }
+  if (axis.kind == SweepAxis::Kind::kState && axis.state < 0) {
+    throw InvalidArgument("sweep: a state axis has the negative index " +
+                          std::to_string(axis.state));
+  }
+}
+
+// 17 significant digits: a double reads back exactly.
+std::string number(double value) {
+  if (std::isnan(value)) return "nan";
+  if (std::isinf(value)) return value > 0 ? "inf" : "-inf";
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.17g", value);
+  return buffer;
+}
+
+// A CSV field, quoted when it holds a separator, a quote or a line break.
+std::string csv_field(const std::string& text) {
+  if (text.find_first_of(",\"\n\r") == std::string::npos) return text;
+  std::string quoted = "\"";
+  for (char c : text) {
+    if (c == '"') quoted += '"';
+    quoted += c;
+  }
+  return quoted + "\"";
+}
+
+nlohmann::ordered_json vector_json(const Eigen::Ref<const Eigen::VectorXd>& v) {
+  nlohmann::ordered_json list = nlohmann::ordered_json::array();
+  for (Eigen::Index k = 0; k < v.size(); ++k) {
+    // JSON has no inf or nan: a non-finite entry is written as null.
+    if (std::isfinite(v[k])) {
+      list.push_back(v[k]);
+    } else {
+      list.push_back(nullptr);
+    }
+  }
+  return list;
+}
+
+}  // namespace
+
+SweepAxis SweepAxis::state_axis(int index, double lo, double hi, std::uint64_t count) {
+  SweepAxis axis;
+  axis.kind = Kind::kState;
+  axis.state = index;
+  axis.lo = lo;
+  axis.hi = hi;
+  axis.count = count;
+  return axis;
+}
+
+SweepAxis SweepAxis::parameter_axis(std::string name, double lo, double hi, std::uint64_t count) {
+  SweepAxis axis;
+  axis.kind = Kind::kParameter;
+  axis.parameter = std::move(name);
+  axis.lo = lo;
+  axis.hi = hi;
+  axis.count = count;
+  return axis;
+}
+
+double SweepAxis::value(std::uint64_t k) const {
+  if (count <= 1 || k == 0) return lo;
+  if (k + 1 == count) return hi;
+  return lo + (hi - lo) * static_cast<double>(k) / static_cast<double>(count - 1);
+}
+
+std::string SweepAxis::name() const {
+  return kind == Kind::kState ? "x[" + std::to_string(state) + "]" : parameter;
+}
+
+SweepGrid::SweepGrid(std::vector<SweepAxis> axes) : axes_(std::move(axes)) {
+  for (const SweepAxis& axis : axes_) {
+    check_axis(axis);
+    if (axis.count > kMaxSamples / samples_) {
+      throw InvalidArgument("sweep: the grid has more than 2^53 samples (the axis " + axis.name() +
+                            " has " + std::to_string(axis.count) + " values)");
+    }
+    samples_ *= axis.count;
+  }
+}
+
+std::vector<double> SweepGrid::values(std::uint64_t index) const {
+  BFLOW_ASSERT(index < samples_);
+  std::vector<double> out(axes_.size());
+  for (std::size_t a = axes_.size(); a-- > 0;) {  // the last axis varies fastest
+    out[a] = axes_[a].value(index % axes_[a].count);
+    index /= axes_[a].count;
+  }
+  return out;
+}
+
+void SweepGrid::apply_states(std::uint64_t index, Eigen::Ref<Eigen::VectorXd> x) const {
+  const std::vector<double> v = values(index);
+  for (std::size_t a = 0; a < axes_.size(); ++a) {
+    if (axes_[a].kind != SweepAxis::Kind::kState) continue;
+    if (axes_[a].state >= x.size()) {
+      throw InvalidArgument("sweep: the axis " + axes_[a].name() +
+                            " is outside the state (d = " + std::to_string(x.size()) + ")");
+    }
+    x[axes_[a].state] = v[a];
+  }
+}
+
+FlowSampleRecord FlowSampleRecord::error(std::uint64_t index, std::vector<double> varied,
+                                         const std::string& message) {
+  FlowSampleRecord r;
+  r.index = index;
+  r.varied = std::move(varied);
+  r.status = "error";
+  r.message = message;
+  r.pieces = 0.0;
+  return r;
+}
+
+FlowSampleRecord evaluate_flow_sample(const SegmentModel& model,
+                                      const Eigen::Ref<const Eigen::VectorXd>& x0,
+                                      const FlowSweepRequest& request, std::uint64_t index,
+                                      std::vector<double> varied) {
+  FlowSampleRecord r;
+  r.index = index;
+  r.varied = std::move(varied);
+  try {
+    FlowResult trajectory;
+    const FlowDerivative derivative =
+        flow_derivative(model, x0, request.t, request.flow, &trajectory);
+    r.t_reached = trajectory.t;
+    r.x_t = trajectory.x;
+    r.events = std::move(trajectory.events);
+    for (const Eigen::VectorXd& dx : request.directions) {
+      r.images.push_back(derivative.apply(dx));
+      std::vector<std::vector<int>> orders;
+      for (CrossingOrder& order : derivative.crossing_orders(dx))
+        orders.push_back(std::move(order.order));
+      r.orders.push_back(std::move(orders));
+    }
+    for (const EventRecord& e : r.events) {
+      for (int k = 2; k <= e.group_size(); ++k) r.pieces *= k;
+    }
+    return r;
+  } catch (const InvalidArgument& e) {
+    r.message = e.what();
+  }
+  // Not a whole run: was it an integration outcome (the library quotes it in the exception)?
+  r.pieces = 0.0;
+  try {
+    const FlowResult plain = simulate(model, x0, request.t, request.flow);
+    r.t_reached = plain.t;
+    r.events = plain.events;
+    if (!plain.ok()) {
+      r.status = to_string(plain.status);
+      r.message = plain.message;
+      return r;
+    }
+  } catch (const InvalidArgument& e) {
+    r.message = e.what();
+  }
+  r.status = "rejected";
+  return r;
+}
+
+SweepFormat parse_sweep_format(const std::string& text) {
+  if (text == "jsonl") return SweepFormat::kJsonLines;
+  if (text == "csv") return SweepFormat::kCsv;
+  throw InvalidArgument("sweep: unknown format \"" + text + "\"; the formats are jsonl and csv");
+}
+
+SweepWriter::SweepWriter(std::ostream& out, SweepFormat format, const SweepGrid& grid, int states,
+                         int directions)
+    : out_(out), format_(format), grid_(grid), states_(states), directions_(directions) {}
+
+void SweepWriter::header() {
+  if (format_ != SweepFormat::kCsv) return;
+  std::ostringstream line;
+  line << "index";
+  for (const SweepAxis& axis : grid_.axes()) line << ',' << csv_field(axis.name());
+  line << ",status,message,t_reached";
+  for (int i = 0; i < states_; ++i) line << ",x_t[" << i << ']';
+  for (int k = 0; k < directions_; ++k) {
+    for (int i = 0; i < states_; ++i) line << ",image" << k << '[' << i << ']';
+  }
+  line << ",events,orders,pieces\n";
+  out_ << line.str();
+}
+
+void SweepWriter::write(const FlowSampleRecord& r) {
+  std::ostringstream line;
+  if (format_ == SweepFormat::kJsonLines) {
+    nlohmann::ordered_json j = nlohmann::ordered_json::object();
+    j["index"] = r.index;
+    j["varied"] = r.varied;
+    j["status"] = r.status;
+    if (!r.ok()) j["message"] = r.message;
+    j["t_reached"] = r.t_reached;
+    j["x_t"] = vector_json(r.x_t);
+    nlohmann::ordered_json events = nlohmann::ordered_json::array();
+    for (const EventRecord& e : r.events) {
+      events.push_back(nlohmann::ordered_json{{"t", e.t}, {"surfaces", e.surfaces}});
+    }
+    j["events"] = std::move(events);
+    nlohmann::ordered_json images = nlohmann::ordered_json::array();
+    for (const Eigen::VectorXd& image : r.images) images.push_back(vector_json(image));
+    j["images"] = std::move(images);
+    j["orders"] = r.orders;
+    j["pieces"] = r.pieces;
+    line << j.dump() << '\n';
+  } else {
+    line << r.index;
+    for (double v : r.varied) line << ',' << number(v);
+    line << ',' << r.status << ',' << csv_field(r.message) << ',' << number(r.t_reached);
+    for (int i = 0; i < states_; ++i) {
+      line << ',';
+      if (r.ok() && i < r.x_t.size()) line << number(r.x_t[i]);
+    }
+    for (int k = 0; k < directions_; ++k) {
+      for (int i = 0; i < states_; ++i) {
+        line << ',';
+        if (r.ok() && static_cast<std::size_t>(k) < r.images.size() &&
+            i < r.images[static_cast<std::size_t>(k)].size()) {
+          line << number(r.images[static_cast<std::size_t>(k)][i]);
+        }
+      }
+    }
+    line << ',';
+    for (std::size_t e = 0; e < r.events.size(); ++e) {
+      if (e > 0) line << ';';
+      line << number(r.events[e].t) << ':';
+      for (std::size_t s = 0; s < r.events[e].surfaces.size(); ++s) {
+        if (s > 0) line << '+';
+        line << r.events[e].surfaces[s];
+      }
+    }
+    line << ',';
+    for (std::size_t k = 0; k < r.orders.size(); ++k) {
+      if (k > 0) line << '|';
+      for (std::size_t e = 0; e < r.orders[k].size(); ++e) {
+        if (e > 0) line << ';';
+        for (std::size_t s = 0; s < r.orders[k][e].size(); ++s) {
+          if (s > 0) line << '>';
+          line << r.orders[k][e][s];
+        }
+      }
+    }
+    line << ',' << number(r.pieces) << '\n';
+  }
+  out_ << line.str();
+}
+
+}  // namespace bflow

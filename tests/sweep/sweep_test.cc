@@ -1,0 +1,220 @@
+#include "bflow/sweep/sweep.h"
+
+#include <cmath>
+#include <cstdint>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "bflow/core/errors.h"
+#include "bflow/examples/piecewise_constant.h"
+#include "bflow/integrators/model_adapter.h"
+#include "bflow/sweep/parallel.h"
+
+namespace bflow {
+namespace {
+
+TEST(SweepGrid, TheFirstAxisVariesSlowestAndTheEndsAreExact) {
+  const SweepGrid grid(
+      {SweepAxis::state_axis(1, -1.0, 1.0, 3), SweepAxis::parameter_axis("delta", 0.1, 0.7, 4)});
+  ASSERT_EQ(grid.samples(), 12u);
+  EXPECT_EQ(grid.values(0), (std::vector<double>{-1.0, 0.1}));
+  EXPECT_EQ(grid.values(3), (std::vector<double>{-1.0, 0.7}));
+  EXPECT_EQ(grid.values(4), (std::vector<double>{0.0, 0.1}));
+  EXPECT_EQ(grid.values(11), (std::vector<double>{1.0, 0.7}));
+  // The inner values: lo + k (hi - lo) / (count - 1).
+  EXPECT_DOUBLE_EQ(grid.values(1)[1], 0.1 + 0.6 / 3.0);
+  EXPECT_DOUBLE_EQ(grid.values(2)[1], 0.1 + 1.2 / 3.0);
+  Eigen::VectorXd x = Eigen::VectorXd::Constant(2, 5.0);
+  grid.apply_states(5, x);
+  EXPECT_EQ(x[0], 5.0);  // not varied
+  EXPECT_EQ(x[1], 0.0);
+}
+
+TEST(SweepGrid, NoAxesIsOneSample) {
+  const SweepGrid grid({});
+  EXPECT_EQ(grid.samples(), 1u);
+  EXPECT_TRUE(grid.values(0).empty());
+}
+
+TEST(SweepGrid, BadAxesAreRefusedWithTheirValues) {
+  const auto message = [](std::vector<SweepAxis> axes) {
+    try {
+      SweepGrid grid(std::move(axes));
+    } catch (const InvalidArgument& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  EXPECT_NE(message({SweepAxis::state_axis(0, 0.0, 1.0, 0)}).find("x[0] has a count of 0"),
+            std::string::npos);
+  EXPECT_NE(message({SweepAxis::parameter_axis("m", 0.0, INFINITY, 3)}).find("m has a non-finite"),
+            std::string::npos);
+  EXPECT_NE(message({SweepAxis::state_axis(0, 0.0, 1.0, std::uint64_t{1} << 30),
+                     SweepAxis::state_axis(1, 0.0, 1.0, std::uint64_t{1} << 30)})
+                .find("more than 2^53"),
+            std::string::npos);
+  const SweepGrid grid({SweepAxis::state_axis(3, 0.0, 1.0, 2)});
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(2);
+  EXPECT_THROW(grid.apply_states(0, x), InvalidArgument);
+}
+
+// The piecewise-constant field of [B] Section 3.1 (d = 2, linear Delta, delta = 0.5): straight
+// lines between the coordinate planes, so its exact flow (PiecewiseConstantField::flow) is the
+// reference for x_t and its one-sided differences for the images (the flow is piecewise affine).
+class PwconstSweep : public ::testing::Test {
+ protected:
+  const examples::PiecewiseConstantField field_ = examples::PiecewiseConstantField::linear(2, 0.5);
+  const ModelAdapter<examples::PiecewiseConstantField> model_ = adapt(field_);
+  FlowSweepRequest request_{1.5, {Eigen::Vector2d(1.0, 0.0), Eigen::Vector2d(0.3, -0.7)}, {}};
+  // x0 over [-1, -0.1] x [-0.9, 0.2]: every sample crosses x_0 = 0, some x_1 = 0 too, and the
+  // samples with x0[1] = 0 start on a surface.
+  const SweepGrid grid_{
+      {SweepAxis::state_axis(0, -1.0, -0.1, 4), SweepAxis::state_axis(1, -0.9, 0.2, 12)}};
+
+  std::vector<FlowSampleRecord> sweep(int threads, std::string* text = nullptr) {
+    std::vector<FlowSampleRecord> out;
+    std::ostringstream stream;
+    SweepWriter writer(stream, SweepFormat::kJsonLines, grid_, 2, 2);
+    SweepRunOptions o;
+    o.threads = threads;
+    run_ordered<FlowSampleRecord>(
+        0, grid_.samples(),
+        [&](std::uint64_t i) {
+          Eigen::VectorXd x0 = Eigen::VectorXd::Zero(2);
+          grid_.apply_states(i, x0);
+          return evaluate_flow_sample(model_, x0, request_, i, grid_.values(i));
+        },
+        [&](std::uint64_t i, const std::string& what) {
+          return FlowSampleRecord::error(i, grid_.values(i), what);
+        },
+        [&](FlowSampleRecord&& r) {
+          writer.write(r);
+          out.push_back(std::move(r));
+        },
+        o);
+    if (text != nullptr) *text = stream.str();
+    return out;
+  }
+};
+
+TEST_F(PwconstSweep, EverySampleAgreesWithTheExactFlowAndItsOneSidedDifferences) {
+  const std::vector<FlowSampleRecord> out = sweep(2);
+  ASSERT_EQ(out.size(), 48u);
+  int ok = 0, simultaneous = 0;
+  for (const FlowSampleRecord& r : out) {
+    const Eigen::Vector2d x0(r.varied[0], r.varied[1]);
+    if (x0[1] == 0.0) continue;  // on a surface: the next test
+    ASSERT_EQ(r.status, "ok") << r.index << ": " << r.message;
+    ++ok;
+    const Eigen::VectorXd exact = field_.flow(x0, request_.t);
+    // Constant fields between the planes: rounding alone (at most 3.2e-16 measured).
+    EXPECT_LT((r.x_t - exact).norm(), 2e-15) << r.index;
+    for (std::size_t k = 0; k < request_.directions.size(); ++k) {
+      const Eigen::VectorXd& dx = request_.directions[k];
+      const double alpha = 1e-7;
+      const Eigen::VectorXd fd = (field_.flow(x0 + alpha * dx, request_.t) - exact) / alpha;
+      // Piecewise affine: the one-sided difference is exact up to rounding, 1e-16 / alpha (at
+      // most 1.7e-9 measured), also where both planes are crossed at once (the B-derivative is
+      // the one-sided derivative, whichever plane dx brings first).
+      EXPECT_LT((r.images[k] - fd).norm(), 1e-8) << r.index << " dx " << k;
+    }
+    // x_1 moves at 1.5 while negative, so it reaches its plane before t = 0.6; x_0 always does.
+    int crossed = 0;
+    for (const EventRecord& e : r.events) crossed += e.group_size();
+    EXPECT_EQ(crossed, x0[1] < 0.0 ? 2 : 1) << r.index;
+    // Both planes at once where F_-- = (1.5, 1.5) takes x0 to the origin: x0[0] = x0[1].
+    const bool together = std::abs(x0[0] - x0[1]) < 1e-12;
+    simultaneous += together ? 1 : 0;
+    EXPECT_EQ(r.pieces, together ? 2.0 : 1.0) << r.index;
+  }
+  EXPECT_EQ(ok, 44);
+  EXPECT_EQ(simultaneous, 3);  // (-0.7, -0.7), (-0.4, -0.4), (-0.1, -0.1)
+}
+
+TEST_F(PwconstSweep, SamplesThatStartOnASurfaceFailAloneInTheMiddleOfTheSweep) {
+  // x0[1] = -0.9 + 1.1 k / 11 is 0 exactly at k = 9: indices 9, 21, 33 and 45.
+  const std::vector<FlowSampleRecord> out = sweep(3);
+  ASSERT_EQ(out.size(), 48u);
+  std::vector<std::uint64_t> failed;
+  for (const FlowSampleRecord& r : out) {
+    if (r.ok()) continue;
+    failed.push_back(r.index);
+    EXPECT_EQ(r.status, "rejected");
+    EXPECT_NE(r.message.find("h_1 = 0"), std::string::npos) << r.message;
+    EXPECT_EQ(r.pieces, 0.0);
+    EXPECT_EQ(r.x_t.size(), 0);
+  }
+  EXPECT_EQ(failed, (std::vector<std::uint64_t>{9, 21, 33, 45}));
+  EXPECT_TRUE(out[10].ok());  // the sweep went on after it
+}
+
+TEST_F(PwconstSweep, TheOutputIsTheSameByteForByteWithOneTwoOrFiveThreads) {
+  std::string one, two, five;
+  sweep(1, &one);
+  sweep(2, &two);
+  sweep(5, &five);
+  EXPECT_FALSE(one.empty());
+  EXPECT_EQ(one, two);
+  EXPECT_EQ(one, five);
+}
+
+TEST_F(PwconstSweep, ASimultaneousCrossingHasTwoPiecesAndTheOrderOfTheDirection) {
+  // From -F_--(0)/2 the flow reaches the origin at t = 1/2: both planes at once ([B] 3.1).
+  const Eigen::VectorXd x0 = -0.5 * field_.limits().col(0);
+  request_.directions = {Eigen::Vector2d(1.0, 0.0), Eigen::Vector2d(0.0, 1.0)};
+  const FlowSampleRecord r = evaluate_flow_sample(model_, x0, request_, 0, {});
+  ASSERT_EQ(r.status, "ok") << r.message;
+  ASSERT_EQ(r.events.size(), 1u);
+  EXPECT_EQ(r.events[0].surfaces, (std::vector<int>{0, 1}));
+  EXPECT_EQ(r.pieces, 2.0);
+  // Pushing x_0 forward makes plane 0 come first, and pushing x_1 forward plane 1.
+  EXPECT_EQ(r.orders[0], (std::vector<std::vector<int>>{{0, 1}}));
+  EXPECT_EQ(r.orders[1], (std::vector<std::vector<int>>{{1, 0}}));
+}
+
+TEST_F(PwconstSweep, AnIntegrationThatStopsEarlyIsRecordedWithItsStatus) {
+  request_.flow.integrator.max_steps = 3;
+  const FlowSampleRecord r =
+      evaluate_flow_sample(model_, Eigen::Vector2d(-1.0, -0.9), request_, 3, {-1.0, -0.9});
+  EXPECT_EQ(r.status, "too many steps") << r.message;
+  EXPECT_NE(r.message.find("max_steps"), std::string::npos) << r.message;
+  EXPECT_GT(r.t_reached, 0.0);
+  EXPECT_LT(r.t_reached, request_.t);
+  EXPECT_EQ(r.pieces, 0.0);
+  EXPECT_TRUE(r.images.empty());
+}
+
+TEST(SweepWriter, CsvHasTheAxesAsColumnsAndQuotesMessages) {
+  const SweepGrid grid({SweepAxis::state_axis(0, 0.0, 1.0, 2)});
+  std::ostringstream out;
+  SweepWriter writer(out, SweepFormat::kCsv, grid, 2, 1);
+  writer.header();
+  FlowSampleRecord ok;
+  ok.index = 0;
+  ok.varied = {0.0};
+  ok.t_reached = 1.0;
+  ok.x_t = Eigen::Vector2d(0.1, 2.0);
+  ok.images = {Eigen::Vector2d(1.0, -1.0)};
+  EventRecord e;
+  e.t = 0.5;
+  e.surfaces = {0, 1};
+  ok.events = {e};
+  ok.orders = {{{1, 0}}};
+  ok.pieces = 2.0;
+  writer.write(ok);
+  writer.write(FlowSampleRecord::error(1, {1.0}, "bad, \"really\""));
+  EXPECT_EQ(out.str(),
+            "index,x[0],status,message,t_reached,x_t[0],x_t[1],image0[0],image0[1],events,orders,"
+            "pieces\n"
+            "0,0,ok,,1,0.10000000000000001,2,1,-1,0.5:0+1,1>0,2\n"
+            "1,1,error,\"bad, \"\"really\"\"\",0,,,,,,,0\n");
+  EXPECT_EQ(parse_sweep_format("csv"), SweepFormat::kCsv);
+  EXPECT_EQ(parse_sweep_format("jsonl"), SweepFormat::kJsonLines);
+  EXPECT_THROW(parse_sweep_format("xml"), InvalidArgument);
+}
+
+}  // namespace
+}  // namespace bflow
