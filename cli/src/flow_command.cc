@@ -44,15 +44,10 @@
 #include "cli_commands.h"
 #include "cli_json.h"
 #include "cli_util.h"
+#include "scene_setup.h"
 
 namespace bflow::cli {
 namespace {
-
-// Bad input; the message starts with the option. Exit code 2.
-class InputError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
 
 // A number of the result that overflowed; the message names it. Exit code 1 with the record
 // computed so far.
@@ -61,154 +56,8 @@ class OverflowError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-[[noreturn]] void fail(const std::string& option, const std::string& problem) {
-  throw InputError(option + ": " + problem);
-}
-
-std::string trimmed(const std::string& text) {
-  const auto first = text.find_first_not_of(" \t");
-  if (first == std::string::npos) return "";
-  const auto last = text.find_last_not_of(" \t");
-  return text.substr(first, last - first + 1);
-}
-
-// A whole string read by strtod, finite.
-double parse_number(const std::string& raw, const std::string& option) {
-  const std::string text = trimmed(raw);
-  if (text.empty()) fail(option, "expected a number, got an empty string");
-  char* end = nullptr;
-  errno = 0;
-  const double value = std::strtod(text.c_str(), &end);
-  if (end != text.c_str() + text.size()) fail(option, quote(text) + " is not a number");
-  if (errno == ERANGE && std::fabs(value) > 1.0) {
-    fail(option, quote(text) + " is out of the range of a double");
-  }
-  if (!std::isfinite(value)) fail(option, quote(text) + " is not a finite number");
-  return value;
-}
-
-// A whole string of decimal digits, at most `max`.
-std::uint64_t parse_unsigned(const std::string& raw, const std::string& option, std::uint64_t max) {
-  const std::string text = trimmed(raw);
-  if (text.empty() || text.find_first_not_of("0123456789") != std::string::npos) {
-    fail(option, quote(raw) + " is not a non-negative integer");
-  }
-  errno = 0;
-  const unsigned long long value = std::strtoull(text.c_str(), nullptr, 10);
-  if (errno == ERANGE || value > max) {
-    fail(option, quote(raw) + " is too large (at most " + std::to_string(max) + ")");
-  }
-  return value;
-}
-
-// "a,b,c" with exactly `dim` numbers.
-Eigen::VectorXd parse_vector(const std::string& text, const std::string& option, int dim) {
-  std::vector<std::string> items;
-  std::size_t start = 0;
-  while (true) {
-    const std::size_t comma = text.find(',', start);
-    items.push_back(text.substr(start, comma == std::string::npos ? comma : comma - start));
-    if (comma == std::string::npos) break;
-    start = comma + 1;
-  }
-  if (static_cast<int>(items.size()) != dim) {
-    fail(option, "has " + std::to_string(items.size()) + " number" +
-                     (items.size() == 1 ? "" : "s") + ", expected d = " + std::to_string(dim) +
-                     " (comma-separated)");
-  }
-  Eigen::VectorXd v(dim);
-  for (int i = 0; i < dim; ++i) {
-    v[i] = parse_number(items[static_cast<std::size_t>(i)], option + "[" + std::to_string(i) + "]");
-  }
-  return v;
-}
-
-// ---------------------------------------------------------------------------------------------
-// Scenes.
-
-struct PwconstParams {
-  int d = 2;
-  std::optional<double> delta;
-  std::optional<std::uint64_t> seed;
-};
-
-constexpr double kDefaultDelta = 0.25;
-
-// Messages in the style of bflow::set_param: `pwconst parameter "d" must be ...`.
-PwconstParams pwconst_params(const std::vector<std::pair<std::string, std::string>>& params) {
-  PwconstParams p;
-  for (const auto& [key, raw] : params) {
-    const std::string name = "pwconst parameter " + quote(key);
-    const std::string value = trimmed(raw);
-    const bool digits =
-        !value.empty() && value.find_first_not_of("0123456789") == std::string::npos;
-    if (key == "d") {
-      errno = 0;
-      const unsigned long long d = digits ? std::strtoull(value.c_str(), nullptr, 10) : 0;
-      if (d < 1 || d > 16 || errno == ERANGE) {
-        fail("--param", name + " must be an integer in [1, 16], got " + quote(raw));
-      }
-      p.d = static_cast<int>(d);
-    } else if (key == "delta") {
-      char* end = nullptr;
-      const double delta = std::strtod(value.c_str(), &end);
-      if (value.empty() || end != value.c_str() + value.size()) {
-        fail("--param", name + " = " + quote(raw) + " is not a number");
-      }
-      if (!(std::fabs(delta) < 1.0)) {
-        fail("--param", name +
-                            " must be in (-1, 1) (every component of Delta(b) = -delta b must "
-                            "exceed -1), got " +
-                            quote(raw));
-      }
-      p.delta = delta;
-    } else if (key == "seed") {
-      errno = 0;
-      const unsigned long long seed = digits ? std::strtoull(value.c_str(), nullptr, 10) : 0;
-      if (!digits || errno == ERANGE) {
-        fail("--param", name + " must be an integer in [0, 2^64), got " + quote(raw));
-      }
-      p.seed = seed;
-    } else {
-      fail("--param", "unknown pwconst parameter " + quote(key) + " (known: d, delta, seed)");
-    }
-  }
-  if (p.delta && p.seed) {
-    fail("--param", "give delta (the linear case) or seed (a random Delta), not both");
-  }
-  return p;
-}
-
-examples::PiecewiseConstantField make_pwconst(const PwconstParams& p) {
-  if (p.seed) return examples::PiecewiseConstantField::random(p.d, *p.seed);
-  return examples::PiecewiseConstantField::linear(p.d, p.delta.value_or(kDefaultDelta));
-}
-
-BipedParams biped_params(const std::vector<std::pair<std::string, std::string>>& params) {
-  BipedParams p;
-  for (const auto& [key, value] : params) {
-    try {
-      set_param(p, key, value);
-    } catch (const InvalidArgument& e) {
-      std::string message = e.what();
-      const std::string prefix = "set_param: ";
-      if (message.rfind(prefix, 0) == 0) message.erase(0, prefix.size());
-      fail("--param", message);
-    }
-  }
-  return p;
-}
-
 // ---------------------------------------------------------------------------------------------
 // The run.
-
-struct Request {
-  double t = 0.0;
-  std::optional<std::string> x0_text;
-  std::vector<std::string> dx_texts;
-  FlowOptions flow;
-  bool fd = false;
-};
 
 void check_finite(const Eigen::Ref<const Eigen::MatrixXd>& values, const std::string& what) {
   if (!values.allFinite()) throw OverflowError(what + " is not finite");
@@ -481,119 +330,10 @@ Evaluation evaluate(const SegmentModel& model, const Eigen::VectorXd& x0,
 }
 
 Evaluation run(const FlowCommandOptions& options) {
-  // Scene and parameters.
-  if (options.scene.empty()) fail("--scene", "required; the scenes are pwconst and biped");
-  if (options.scene != "pwconst" && options.scene != "biped") {
-    fail("--scene", "unknown scene " + quote(options.scene) + "; the scenes are pwconst and biped");
-  }
-  std::vector<std::pair<std::string, std::string>> params;
-  for (const std::string& text : options.params) {
-    const auto equals = text.find('=');
-    if (equals == std::string::npos || equals == 0) {
-      fail("--param", quote(text) + " is not key=value");
-    }
-    const std::string key = text.substr(0, equals);
-    for (const auto& earlier : params) {
-      if (earlier.first == key) fail("--param", quote(key) + " is given twice");
-    }
-    params.emplace_back(key, text.substr(equals + 1));
-  }
-  const bool biped = options.scene == "biped";
-  std::optional<PwconstParams> pwconst;
-  BipedParams biped_p;
-  if (biped) {
-    biped_p = biped_params(params);
-  } else {
-    pwconst = pwconst_params(params);
-  }
-
-  // Time and integrator.
-  Request request;
-  request.t = biped ? 0.6 : 1.0;
-  if (options.t) {
-    request.t = parse_number(*options.t, "--t");
-    if (!(request.t >= 0.0)) fail("--t", "must be >= 0, got " + format_number(request.t));
-  }
-  if (options.rtol) {
-    request.flow.integrator.rtol = parse_number(*options.rtol, "--rtol");
-    const double rtol = request.flow.integrator.rtol;
-    if (!(rtol >= IntegratorOptions::kMinRtol) || !std::isfinite(rtol)) {
-      fail("--rtol", "must be >= " + format_number(IntegratorOptions::kMinRtol) +
-                         " (below that no step can meet it in double precision), got " +
-                         format_number(rtol));
-    }
-  }
-  if (options.atol) {
-    const double atol = parse_number(*options.atol, "--atol");
-    if (!(atol > 0.0)) fail("--atol", "must be > 0, got " + format_number(atol));
-    request.flow.integrator.atol = atol;
-  }
-  try {
-    request.flow.backend = parse_backend(options.integrator);
-  } catch (const InvalidArgument& e) {
-    fail("--integrator", e.what());
-  }
-  if (options.grouping) {
-    try {
-      request.flow.grouping = parse_grouping(*options.grouping);
-    } catch (const InvalidArgument& e) {
-      fail("--grouping", e.what());
-    }
-  }
-  if (options.window) {
-    if (request.flow.grouping != Grouping::kFixedWindow) {
-      fail("--window", "needs --grouping window");
-    }
-    const double window = parse_number(*options.window, "--window");
-    if (!(window >= 0.0) || !std::isfinite(window)) {
-      fail("--window", "must be finite and >= 0, got " + format_number(window));
-    }
-    request.flow.simultaneity_window = window;
-  } else if (request.flow.grouping == Grouping::kFixedWindow) {
-    fail("--grouping", "window needs --window T");
-  }
-  if (options.max_steps) {
-    const std::uint64_t steps = parse_unsigned(*options.max_steps, "--max-steps", 1000000000);
-    if (steps < 1) fail("--max-steps", "must be >= 1, got 0");
-    request.flow.integrator.max_steps = static_cast<long>(steps);
-  }
-  request.x0_text = options.x0;
-  request.dx_texts = options.dx;
-  request.fd = options.fd;
-
-  OrderedJson head = OrderedJson::object();
-  head["scene"] = options.scene;
-  OrderedJson params_json = OrderedJson::object();
-  if (biped) {
-    params_json["variant"] = biped_variant_name(biped_p.variant);
-    params_json["m"] = biped_p.m;
-    params_json["J"] = biped_p.J;
-    params_json["g"] = biped_p.g;
-    params_json["leg_length"] = biped_p.leg_length;
-    params_json["psi"] = biped_p.psi;
-    params_json["kappa"] = biped_p.kappa;
-    params_json["beta"] = biped_p.beta;
-  } else {
-    params_json["d"] = pwconst->d;
-    if (pwconst->seed) {
-      params_json["seed"] = *pwconst->seed;
-    } else {
-      params_json["delta"] = pwconst->delta.value_or(kDefaultDelta);
-    }
-  }
-  head["params"] = std::move(params_json);
-  head["integrator"] = to_string(request.flow.backend);
-  head["rtol"] = request.flow.integrator.rtol;
-  head["atol"] = request.flow.integrator.absolute_tolerance();
-  head["grouping"] = to_string(request.flow.grouping);
-  if (request.flow.grouping == Grouping::kFixedWindow) {
-    head["window"] = request.flow.simultaneity_window;
-  }
-  head["t"] = request.t;
-
+  const SceneSetup setup = parse_scene_setup(options);
+  const Request& request = setup.request;
   // x0 and the directions, now that d is known; then the run.
-  const auto with_model = [&request, &head](const SegmentModel& model,
-                                            const Eigen::VectorXd& default_x0) {
+  return with_scene(setup, {}, [&](const SegmentModel& model, const Eigen::VectorXd& default_x0) {
     const int d = model.states();
     const Eigen::VectorXd x0 =
         request.x0_text ? parse_vector(*request.x0_text, "--x0", d) : default_x0;
@@ -604,18 +344,8 @@ Evaluation run(const FlowCommandOptions& options) {
     if (directions.empty()) {
       for (int i = 0; i < d; ++i) directions.push_back(Eigen::VectorXd::Unit(d, i));
     }
-    return evaluate(model, x0, directions, request, head);
-  };
-  if (biped) {
-    return visit_biped(biped_p, [&with_model](const auto& scene) {
-      const auto model = adapt(scene);
-      return with_model(model, Eigen::VectorXd(biped_initial_state()));
-    });
-  }
-  const examples::PiecewiseConstantField field = make_pwconst(*pwconst);
-  const auto model = adapt(field);
-  // rho- = -F_--(0)/2 reaches rho+ = F_++(0)/2 through rho = 0 in unit time ([B] Sec. 3.1).
-  return with_model(model, Eigen::VectorXd(-0.5 * field.limits().col(0)));
+    return evaluate(model, x0, directions, request, setup.head);
+  });
 }
 
 int flow_command(const FlowCommandOptions& options, std::ostream& out, std::ostream& err) {
