@@ -62,6 +62,28 @@ Example (one surface, x_0 = 0, in d = 2):
 Bad input exits with code 2 and one line on stderr, e.g.
   error: tangents[0]: has 3 numbers, expected d = 2)";
 
+constexpr const char* kSweepFooter =
+    R"(The scenes and their parameters are those of 'bflow flow'. Samples are every combination
+of the --vary and --vary-param values, in grid order (index 0 first; the first axis given
+varies slowest); the records come out in that order whatever the number of threads, as soon as
+each is ready, and a progress bar on stderr shows the samples done, the rate and the time left.
+
+A JSON-lines record (one line per sample):
+  {"index", "varied" (the values, in the order of the options), "status", "message" (when not
+   ok), "t_reached", "x_t", "events": [{"t", "surfaces"}], "images" (one per --dx),
+   "orders" (per --dx, per event: the crossing order that direction takes), "pieces" (the
+   number of linear pieces: the product over events of (surfaces crossed together)!)}
+CSV has the same columns: index, one per axis, status, message, t_reached, x_t[i],
+image<k>[i], events (t:s1+s2;...), orders (events ';', surfaces '>', directions '|'), pieces.
+status is "ok", an integration status that stopped the sample early ("too many steps",
+"step-size underflow", ...), "rejected" (the engine refused the start: on a surface, grazing,
+sliding; the message says which) or "error". A failed sample never stops the sweep; the exit
+code is 0 and the last stderr line counts the samples by status.
+
+Example: the piecewise-constant field over a line of starts through the origin's cone
+  $ bflow sweep --scene pwconst --vary 1=-0.9:-0.1:9 --x0=-0.5,0 --dx 1,0 --quiet
+  {"index":0,"varied":[-0.9],"status":"ok","t_reached":1.0,"x_t":[...],"events":[...],...})";
+
 constexpr const char* kFlowFooter =
     R"(Scenes (--param key=value, each key at most once):
   pwconst  xdot = 1 + Delta(sign(x)), h(x) = x, of [B] Section 3.1: all d surfaces meet at
@@ -327,17 +349,90 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     ocp->add_flag("--quiet", ocp_options.quiet, "No progress lines on stderr");
     ocp->footer(kOcpFooter);
 
+    SweepCommandOptions sweep_options;
+    CLI::App* sweep = app.add_subcommand(
+        "sweep",
+        "The flow of a scene and its B-derivative over a grid of initial states and parameters, "
+        "on threads: one record per sample (JSON lines or CSV), in grid order");
+    sweep->add_option("--scene", sweep_options.flow.scene, "pwconst or biped (required)")
+        ->type_name("NAME");
+    sweep
+        ->add_option("--param", sweep_options.flow.params,
+                     "A scene parameter, key=value; repeat for several")
+        ->type_name("KEY=VALUE")
+        ->allow_extra_args(false);
+    sweep->add_option("--t", sweep_options.flow.t, "Final time, >= 0 (pwconst: 1, biped: 0.6)")
+        ->type_name("T");
+    sweep
+        ->add_option("--x0", sweep_options.flow.x0,
+                     "The initial state the varied entries start from, d comma-separated numbers "
+                     "(default: the scene's)")
+        ->type_name("A,B,...");
+    sweep
+        ->add_option("--vary", sweep_options.vary,
+                     "Vary x0[I] over COUNT values from LO to HI (both included); repeat for a "
+                     "grid, the first given varies slowest")
+        ->type_name("I=LO:HI:COUNT")
+        ->allow_extra_args(false);
+    sweep
+        ->add_option("--vary-param", sweep_options.vary_param,
+                     "Vary a real-valued scene parameter the same way")
+        ->type_name("KEY=LO:HI:COUNT")
+        ->allow_extra_args(false);
+    sweep
+        ->add_option("--dx", sweep_options.flow.dx,
+                     "A direction, d comma-separated numbers: its image and crossing orders in "
+                     "every record; repeat for several (default: none)")
+        ->type_name("A,B,...")
+        ->allow_extra_args(false);
+    sweep->add_option("--threads", sweep_options.threads, "Worker threads (default: one per core)")
+        ->type_name("K");
+    sweep->add_option("--format", sweep_options.format, "jsonl or csv")
+        ->type_name("FORMAT")
+        ->capture_default_str();
+    sweep
+        ->add_option("--output", sweep_options.output,
+                     "Write the records to FILE instead of stdout")
+        ->type_name("FILE");
+    sweep->add_flag("--quiet", sweep_options.quiet, "No progress bar on stderr");
+    sweep->add_option("--rtol", sweep_options.flow.rtol, "Relative tolerance, > 0 (default 1e-8)")
+        ->type_name("R");
+    sweep
+        ->add_option("--atol", sweep_options.flow.atol,
+                     "Absolute tolerance, > 0 (default: rtol / 100)")
+        ->type_name("A");
+    sweep
+        ->add_option("--grouping", sweep_options.flow.grouping,
+                     "How crossings become one event: auto (default), window (--window T) or "
+                     "none")
+        ->type_name("POLICY");
+    sweep
+        ->add_option("--window", sweep_options.flow.window,
+                     "With --grouping window: crossings closer than T in time are one event")
+        ->type_name("T");
+    sweep
+        ->add_option("--integrator", sweep_options.flow.integrator,
+                     "dopri5, cvodes-bdf or cvodes-adams")
+        ->type_name("NAME")
+        ->capture_default_str();
+    sweep
+        ->add_option("--max-steps", sweep_options.flow.max_steps,
+                     "Steps per smooth segment before a sample stops (default 1000000)")
+        ->type_name("N");
+    sweep->footer(kSweepFooter);
+
     if (argc <= 1) {
       report_error(err,
-                   "a command is required: jump, flow, demo, fesd or ocp (see 'bflow --help')");
+                   "a command is required: jump, flow, demo, fesd, ocp or sweep (see 'bflow "
+                   "--help')");
       return kExitBadInput;
     }
     const std::string command = argv[1];
     if (command[0] != '-' && command != "jump" && command != "flow" && command != "demo" &&
-        command != "fesd" && command != "ocp") {
-      report_error(err,
-                   "unknown command " + quote(command) +
-                       "; the commands are jump, flow, demo, fesd and ocp (see 'bflow --help')");
+        command != "fesd" && command != "ocp" && command != "sweep") {
+      report_error(
+          err, "unknown command " + quote(command) +
+                   "; the commands are jump, flow, demo, fesd, ocp and sweep (see 'bflow --help')");
       return kExitBadInput;
     }
     std::vector<std::string> args;
@@ -351,7 +446,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
       std::string message = e.what();
       if (message.empty()) message = e.get_name();
       std::string name;
-      for (const CLI::App* sub : {jump, flow, demo, fesd, ocp}) {
+      for (const CLI::App* sub : {jump, flow, demo, fesd, ocp, sweep}) {
         if (sub->parsed()) name = sub->get_name();
       }
       const std::string where = name.empty() ? "" : name + ": ";
@@ -366,6 +461,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     if (flow->parsed()) return finish_output(out, err, run_flow(flow_options, out, err));
     if (fesd->parsed()) return finish_output(out, err, run_fesd(fesd_options, out, err));
     if (ocp->parsed()) return finish_output(out, err, run_ocp(ocp_options, out, err));
+    if (sweep->parsed()) return finish_output(out, err, run_sweep(sweep_options, out, err));
     return finish_output(out, err, run_demo(demo_options, out, err));
   } catch (const std::exception& e) {
     report_error(err, std::string("internal: ") + e.what());

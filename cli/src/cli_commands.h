@@ -103,6 +103,28 @@ struct FlowCommandOptions {
     Never throws. */
 int run_flow(const FlowCommandOptions& options, std::ostream& out, std::ostream& err);
 
+/** `bflow sweep`: the flow of a scene and its B-derivative for every sample of a grid of initial
+    states and scene parameters, on threads, one record per sample in grid order
+    (bflow/sweep/sweep.h has the record formats, docs/sweep.md the command). */
+struct SweepCommandOptions {
+  /** The scene, parameters, t, x0, directions (dx), tolerances, integrator and grouping, as for
+      `bflow flow` (fd and compact are not used). Without --dx no direction is evaluated. */
+  FlowCommandOptions flow;
+  /** "I=lo:hi:count": x0[I] takes count values from lo to hi; repeat for more axes. */
+  std::vector<std::string> vary;
+  /** "key=lo:hi:count": the scene parameter key (a real-valued one) does the same. */
+  std::vector<std::string> vary_param;
+  /** Worker threads, >= 1 (default: one per core). */
+  std::optional<std::string> threads;
+  /** "jsonl" (default) or "csv". */
+  std::string format = "jsonl";
+  /** Write the records to this file instead of `out`. */
+  std::optional<std::string> output;
+  /** No progress bar on `err`. */
+  bool quiet = false;
+};
+int run_sweep(const SweepCommandOptions& options, std::ostream& out, std::ostream& err);
+
 struct DemoOptions {
   /** Directory for the demo's .dat, .gp and .png files; created if missing. */
   std::string output_dir = "bflow-demo";

@@ -209,7 +209,7 @@ TEST(SweepWriter, CsvHasTheAxesAsColumnsAndQuotesMessages) {
   EXPECT_EQ(out.str(),
             "index,x[0],status,message,t_reached,x_t[0],x_t[1],image0[0],image0[1],events,orders,"
             "pieces\n"
-            "0,0,ok,,1,0.10000000000000001,2,1,-1,0.5:0+1,1>0,2\n"
+            "0,0,ok,,1,0.1,2,1,-1,0.5:0+1,1>0,2\n"
             "1,1,error,\"bad, \"\"really\"\"\",0,,,,,,,0\n");
   EXPECT_EQ(parse_sweep_format("csv"), SweepFormat::kCsv);
   EXPECT_EQ(parse_sweep_format("jsonl"), SweepFormat::kJsonLines);

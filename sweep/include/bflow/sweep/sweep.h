@@ -120,8 +120,8 @@ SweepFormat parse_sweep_format(const std::string& text);
     CSV: a header line, then index, varied values (columns named after the axes), status,
     message, t_reached, x_t[0..d), image<k>[0..d) per direction, events (t:s1+s2;... ), orders
     (per direction: events separated by ';', surfaces by '>' and directions by '|'), pieces;
-    failed samples leave the numbers empty. Numbers are written with 17 significant digits, so
-    they read back exactly. */
+    failed samples leave the numbers empty. Numbers have the fewest of 15 to 17 significant
+    digits that read back as the same double. */
 class SweepWriter {
  public:
   SweepWriter(std::ostream& out, SweepFormat format, const SweepGrid& grid, int states,
