@@ -188,19 +188,28 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
     grid->apply_states(i, start);
     return evaluate_flow_sample(model, start, sweep_request, i, grid->values(i));
   };
+  // The workers format their records too; the writing thread only copies the lines.
+  struct Formatted {
+    std::string status, line;
+  };
   const auto run = [&](const std::function<FlowSampleRecord(std::uint64_t)>& evaluate) {
     std::map<std::string, std::uint64_t> counts;
     SweepRunOptions o;
     o.threads = threads;
     if (!options.quiet) o.progress = [&err](const SweepProgress& p) { draw_progress(err, p); };
-    run_ordered<FlowSampleRecord>(
-        0, grid->samples(), evaluate,
-        [&](std::uint64_t i, const std::string& what) {
-          return FlowSampleRecord::error(i, grid->values(i), what);
+    run_ordered<Formatted>(
+        0, grid->samples(),
+        [&](std::uint64_t i) {
+          const FlowSampleRecord r = evaluate(i);
+          return Formatted{r.status, writer.line(r)};
         },
-        [&](FlowSampleRecord&& r) {
-          writer.write(r);
-          ++counts[r.status];
+        [&](std::uint64_t i, const std::string& what) {
+          const FlowSampleRecord r = FlowSampleRecord::error(i, grid->values(i), what);
+          return Formatted{r.status, writer.line(r)};
+        },
+        [&](Formatted&& f) {
+          records << f.line;
+          ++counts[f.status];
           if (!records) throw std::runtime_error("writing the records failed");
         },
         o);

@@ -214,7 +214,7 @@ void SweepWriter::header() {
   out_ << line.str();
 }
 
-void SweepWriter::write(const FlowSampleRecord& r) {
+std::string SweepWriter::line(const FlowSampleRecord& r) const {
   std::ostringstream line;
   if (format_ == SweepFormat::kJsonLines) {
     nlohmann::ordered_json j = nlohmann::ordered_json::object();
@@ -274,7 +274,7 @@ void SweepWriter::write(const FlowSampleRecord& r) {
     }
     line << ',' << number(r.pieces) << '\n';
   }
-  out_ << line.str();
+  return line.str();
 }
 
 }  // namespace bflow

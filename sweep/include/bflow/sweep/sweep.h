@@ -43,7 +43,8 @@ struct SweepAxis {
 
   static SweepAxis state_axis(int index, double lo, double hi, std::uint64_t count);
   static SweepAxis parameter_axis(std::string name, double lo, double hi, std::uint64_t count);
-  /** The k-th value, lo + k (hi - lo) / (count - 1) (lo when count = 1); hi exactly at the end. */
+  /** The k-th value, lo + k (hi - lo) / (count - 1) (lo when count = 1); hi exactly at the
+      end. */
   double value(std::uint64_t k) const;
   /** "x[1]" or the parameter's name. */
   std::string name() const;
@@ -129,7 +130,10 @@ class SweepWriter {
   /** The CSV header (nothing for JSON lines); call once before the first record of a new
       output. */
   void header();
-  void write(const FlowSampleRecord& record);
+  /** The record's line (with its newline), for writing later: thread-safe, so that workers can
+      format their records and the writing thread only copies bytes. */
+  std::string line(const FlowSampleRecord& record) const;
+  void write(const FlowSampleRecord& record) { out_ << line(record); }
 
  private:
   std::ostream& out_;

@@ -1,0 +1,125 @@
+// Throughput of a sweep (bflow/sweep/parallel.h, sweep.h): samples per second with 1 and 2
+// worker threads, each sample a whole flow_derivative with its images written as a JSON line.
+//
+//   BM_Sweep/biped/<threads>     the biped of [B] Section 3.2.4 (mode-damping) from its double
+//                                touchdown start, theta0 over [-0.05, 0.05] (400 samples,
+//                                t = 0.6, dx = e_theta): two feet touching in either order
+//   BM_Sweep/pwconst/<threads>   the piecewise-constant field, d = 4, x0[0] over [-1, -0.1]
+//                                (4000 samples, t = 1, dx = e_0): cheap samples, where the
+//                                pool's own cost shows
+//
+// The time is wall-clock (UseRealTime); items_per_second is samples per second. The parallel
+// efficiency is rate(2 threads) / (2 rate(1 thread)); scripts/bench --sweep prints it.
+#include <benchmark/benchmark.h>
+
+#include <cstdint>
+#include <ostream>
+#include <streambuf>
+#include <string>
+#include <utility>
+
+#include <Eigen/Core>
+
+#include "bflow/core/biped.h"
+#include "bflow/examples/piecewise_constant.h"
+#include "bflow/integrators/model_adapter.h"
+#include "bflow/sweep/parallel.h"
+#include "bflow/sweep/sweep.h"
+
+namespace {
+
+// Counts the bytes written and drops them: the records are formatted as for a file.
+class CountingBuffer : public std::streambuf {
+ public:
+  std::uint64_t bytes = 0;
+
+ protected:
+  std::streamsize xsputn(const char*, std::streamsize n) override {
+    bytes += static_cast<std::uint64_t>(n);
+    return n;
+  }
+  int overflow(int c) override {
+    ++bytes;
+    return c;
+  }
+};
+
+void run_sweep(benchmark::State& state, const bflow::SegmentModel& model, const Eigen::VectorXd& x0,
+               const bflow::SweepGrid& grid, const bflow::FlowSweepRequest& request) {
+  bflow::SweepRunOptions o;
+  o.threads = static_cast<int>(state.range(0));
+  std::uint64_t ok = 0, bytes = 0;
+  for (auto _ : state) {
+    CountingBuffer buffer;
+    std::ostream out(&buffer);
+    bflow::SweepWriter writer(out, bflow::SweepFormat::kJsonLines, grid, model.states(),
+                              static_cast<int>(request.directions.size()));
+    ok = 0;
+    // As `bflow sweep` does: each worker formats its records, the writing thread copies lines.
+    bflow::run_ordered<std::pair<bool, std::string>>(
+        0, grid.samples(),
+        [&](std::uint64_t i) {
+          Eigen::VectorXd start = x0;
+          grid.apply_states(i, start);
+          const bflow::FlowSampleRecord r =
+              bflow::evaluate_flow_sample(model, start, request, i, grid.values(i));
+          return std::make_pair(r.ok(), writer.line(r));
+        },
+        [&](std::uint64_t i, const std::string& what) {
+          return std::make_pair(
+              false, writer.line(bflow::FlowSampleRecord::error(i, grid.values(i), what)));
+        },
+        [&](std::pair<bool, std::string>&& r) {
+          ok += r.first ? 1 : 0;
+          out << r.second;
+        },
+        o);
+    bytes = buffer.bytes;
+  }
+  state.SetItemsProcessed(static_cast<std::int64_t>(state.iterations() * grid.samples()));
+  state.counters["samples"] = static_cast<double>(grid.samples());
+  state.counters["ok"] = static_cast<double>(ok);
+  state.counters["bytes"] = static_cast<double>(bytes);
+}
+
+void BM_SweepBiped(benchmark::State& state) {
+  const bflow::BipedParams params;
+  bflow::visit_biped(params, [&](const auto& scene) {
+    const auto model = bflow::adapt(scene);
+    const Eigen::VectorXd x0 = bflow::biped_initial_state();
+    const bflow::SweepGrid grid({bflow::SweepAxis::state_axis(2, -0.05, 0.05, 400)});
+    bflow::FlowSweepRequest request;
+    request.t = 0.6;
+    request.directions = {Eigen::VectorXd::Unit(6, 2)};
+    run_sweep(state, model, x0, grid, request);
+  });
+}
+
+void BM_SweepPwconst(benchmark::State& state) {
+  const bflow::examples::PiecewiseConstantField field =
+      bflow::examples::PiecewiseConstantField::linear(4, 0.25);
+  const auto model = bflow::adapt(field);
+  const Eigen::VectorXd x0 = -0.5 * field.limits().col(0);
+  const bflow::SweepGrid grid({bflow::SweepAxis::state_axis(0, -1.0, -0.1, 4000)});
+  bflow::FlowSweepRequest request;
+  request.t = 1.0;
+  request.directions = {Eigen::VectorXd::Unit(4, 0)};
+  run_sweep(state, model, x0, grid, request);
+}
+
+}  // namespace
+
+BENCHMARK(BM_SweepBiped)
+    ->Name("BM_Sweep/biped")
+    ->Arg(1)
+    ->Arg(2)
+    ->UseRealTime()
+    ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_SweepPwconst)
+    ->Name("BM_Sweep/pwconst")
+    ->Arg(1)
+    ->Arg(2)
+    ->UseRealTime()
+    ->Unit(benchmark::kMillisecond);
+
+BENCHMARK_MAIN();
