@@ -1202,13 +1202,6 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   app->Options()->SetIntegerValue("max_iter", options.max_nlp_iterations);
   app->Options()->SetStringValue("mu_strategy", "adaptive");
   app->Options()->SetNumericValue("bound_relax_factor", 0.0);
-  // MUMPS: the QAMD ordering and 50 % workspace headroom instead of IPOPT's automatic choice
-  // and 1000 %. One factorization of the monoped's KKT system (N = 60, 15661 rows) took 25 ms of
-  // CPU instead of 44 ms (N = 30: 9 ms instead of 14; N = 90: 29 instead of 47); most of the
-  // difference is the allocation and clearing of the larger workspace. IPOPT enlarges the
-  // workspace and factorizes again when MUMPS asks for more.
-  app->Options()->SetIntegerValue("mumps_pivot_order", 6);
-  app->Options()->SetIntegerValue("mumps_mem_percent", 50);
   fesd_detail::apply_ipopt_options(*app, options, "ocp");
   if (app->Initialize() != Ipopt::Solve_Succeeded) {
     throw InvalidArgument("ocp: IPOPT failed to initialise");

@@ -371,9 +371,10 @@ struct OcpOptions {
   int print_level = 0;            ///< IPOPT's print_level
   /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
   std::function<void(const OcpHomotopyStep&)> progress;
-  /** IPOPT options set after bflow's own (mu_strategy adaptive, bound_relax_factor 0, MUMPS with
-      mumps_pivot_order 6 (QAMD) and mumps_mem_percent 50, and those of the homotopy), so they
-      win. */
+  /** IPOPT options set after bflow's own (mu_strategy adaptive, bound_relax_factor 0 and those
+      of the homotopy), so they win. MUMPS factorizes faster with {"mumps_pivot_order", 6} (QAMD)
+      and {"mumps_mem_percent", 50} (docs/ocp.md, the monoped's cost per iteration), at the price
+      of different round-off. */
   std::vector<std::pair<std::string, std::string>> ipopt_string_options;
   std::vector<std::pair<std::string, double>> ipopt_numeric_options;
   std::vector<std::pair<std::string, int>> ipopt_integer_options;

@@ -100,11 +100,13 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
   progress.total = end - first;
 
   std::mutex mutex;
-  std::condition_variable ready;  // a record arrived (the sink waits on it)
+  std::condition_variable ready;  // the record the sink waits for arrived
   std::condition_variable room;   // the sink moved on (workers ahead of it wait on it)
-  std::map<std::uint64_t, Record> waiting;
+  std::map<std::uint64_t, Record> waiting;  // guarded by mutex
   std::atomic<std::uint64_t> next{first};
-  std::uint64_t written = first;      // the next index the sink takes (guarded by mutex)
+  // The next index the sink takes; written under mutex, read without it by workers that are
+  // within the window (the common case takes no lock before evaluating).
+  std::atomic<std::uint64_t> written{first};
   bool stop = false;                  // the sink or on_error failed (guarded by mutex)
   std::exception_ptr worker_failure;  // on_error's exception (guarded by mutex)
 
@@ -112,9 +114,9 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
     while (true) {
       const std::uint64_t index = next.fetch_add(1);
       if (index >= end) return;
-      {
+      if (index >= written.load() + window) {
         std::unique_lock<std::mutex> lock(mutex);
-        room.wait(lock, [&] { return stop || index < written + window; });
+        room.wait(lock, [&] { return stop || index < written.load() + window; });
         if (stop) return;
       }
       Record record;
@@ -136,11 +138,15 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
         room.notify_all();
         return;
       }
+      bool wanted = false;
       {
         std::lock_guard<std::mutex> lock(mutex);
+        if (stop) return;
         waiting.emplace(index, std::move(record));
+        wanted = index == written.load();
       }
-      ready.notify_all();
+      // Only the record the sink waits for wakes it; it then takes every consecutive one.
+      if (wanted) ready.notify_one();
     }
   };
 
@@ -148,31 +154,36 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
   pool.reserve(static_cast<std::size_t>(threads));
   for (int k = 0; k < threads; ++k) pool.emplace_back(work);
   std::exception_ptr failure;
+  std::vector<Record> batch;
   try {
-    while (written < end) {
-      Record record;
+    while (written.load() < end) {
+      batch.clear();
       {
         std::unique_lock<std::mutex> lock(mutex);
-        ready.wait(lock, [&] { return stop || waiting.count(written) > 0; });
+        ready.wait(lock, [&] { return stop || waiting.count(written.load()) > 0; });
         if (stop) std::rethrow_exception(worker_failure);
-        auto it = waiting.find(written);
-        record = std::move(it->second);
-        waiting.erase(it);
+        for (auto it = waiting.find(written.load() + batch.size());
+             it != waiting.end() && it->first == written.load() + batch.size();
+             it = waiting.erase(it)) {
+          batch.push_back(std::move(it->second));
+        }
       }
-      sink(std::move(record));
-      {
-        std::lock_guard<std::mutex> lock(mutex);
-        ++written;
-      }
-      room.notify_all();
-      ++progress.done;
-      const Clock::time_point now = Clock::now();
-      if (options.progress &&
-          (written == end ||
-           std::chrono::duration<double>(now - last_report).count() >= options.progress_interval)) {
-        progress.seconds = std::chrono::duration<double>(now - start).count();
-        options.progress(progress);
-        last_report = now;
+      for (Record& record : batch) {
+        sink(std::move(record));
+        ++progress.done;
+        {
+          std::lock_guard<std::mutex> lock(mutex);
+          written.store(written.load() + 1);
+        }
+        room.notify_all();
+        const Clock::time_point now = Clock::now();
+        if (options.progress &&
+            (written.load() == end || std::chrono::duration<double>(now - last_report).count() >=
+                                          options.progress_interval)) {
+          progress.seconds = std::chrono::duration<double>(now - start).count();
+          options.progress(progress);
+          last_report = now;
+        }
       }
     }
   } catch (...) {
