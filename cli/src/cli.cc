@@ -78,7 +78,10 @@ image<k>[i], events (t:s1+s2;...), orders (events ';', surfaces '>', directions 
 status is "ok", an integration status that stopped the sample early ("too many steps",
 "step-size underflow", ...), "rejected" (the engine refused the start: on a surface, grazing,
 sliding; the message says which) or "error". A failed sample never stops the sweep; the exit
-code is 0 and the last stderr line counts the samples by status.
+code is 0 and the last stderr line counts the samples by status. With --output FILE --resume,
+the whole records an interrupted run left in FILE are kept (after checking that their indices
+and varied values are this sweep's) and the sweep goes on from the first missing sample; the
+file then holds exactly what an uninterrupted run writes.
 
 Example: the piecewise-constant field over a line of starts through the origin's cone
   $ bflow sweep --scene pwconst --vary 1=-0.9:-0.1:9 --x0=-0.5,0 --dx 1,0 --quiet
@@ -394,6 +397,9 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->add_option("--output", sweep_options.output,
                      "Write the records to FILE instead of stdout")
         ->type_name("FILE");
+    sweep->add_flag("--resume", sweep_options.resume,
+                    "With --output: keep the whole records an interrupted run of the same sweep "
+                    "left in FILE and compute the rest");
     sweep->add_flag("--quiet", sweep_options.quiet, "No progress bar on stderr");
     sweep->add_option("--rtol", sweep_options.flow.rtol, "Relative tolerance, > 0 (default 1e-8)")
         ->type_name("R");

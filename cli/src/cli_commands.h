@@ -120,6 +120,9 @@ struct SweepCommandOptions {
   std::string format = "jsonl";
   /** Write the records to this file instead of `out`. */
   std::optional<std::string> output;
+  /** With --output: keep the whole records an earlier run of the same sweep left in the file
+      and compute the rest (bflow::find_resume_point). */
+  bool resume = false;
   /** No progress bar on `err`. */
   bool quiet = false;
 };

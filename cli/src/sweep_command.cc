@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <cstring>
 #include <exception>
+#include <filesystem>
 #include <fstream>
 #include <functional>
 #include <map>
@@ -19,6 +20,7 @@
 #include <new>
 #include <ostream>
 #include <string>
+#include <system_error>
 #include <utility>
 #include <vector>
 
@@ -170,16 +172,37 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
   for (const SweepAxis& axis : grid->axes())
     varies_parameters |= axis.kind == SweepAxis::Kind::kParameter;
 
+  if (options.resume && !options.output) fail("--resume", "needs --output FILE");
   std::ofstream file;
-  if (options.output) {
-    file.open(*options.output, std::ios::out | std::ios::trunc);
-    if (!file) {
-      fail("--output", "cannot write " + quote(*options.output) + ": " + std::strerror(errno));
-    }
-  }
   std::ostream& records = options.output ? file : out;
   SweepWriter writer(records, format, *grid, d, static_cast<int>(sweep_request.directions.size()));
-  writer.header();
+  SweepResumePoint kept;
+  if (options.output) {
+    const std::string& path = *options.output;
+    if (options.resume) {
+      std::ifstream earlier(path);
+      if (earlier) {
+        try {
+          kept = find_resume_point(earlier, writer);
+        } catch (const InvalidArgument& e) {
+          fail("--resume",
+               quote(path) + ": " + std::string(e.what()).substr(std::string("sweep: ").size()));
+        }
+      }
+    }
+    std::error_code code;
+    if (kept.bytes > 0) std::filesystem::resize_file(path, kept.bytes, code);
+    if (code) fail("--output", "cannot truncate " + quote(path) + ": " + code.message());
+    file.open(path,
+              kept.bytes > 0 ? std::ios::out | std::ios::app : std::ios::out | std::ios::trunc);
+    if (!file) fail("--output", "cannot write " + quote(path) + ": " + std::strerror(errno));
+    if (options.resume) {
+      err << "sweep: " << kept.records << " of " << grid->samples() << " samples kept from "
+          << quote(path) << ", resuming at index " << kept.records << '\n';
+    }
+  }
+  if (kept.bytes == 0) writer.header();
+  const std::uint64_t first = kept.records;
 
   // The start: --x0, or the scene's own for the sample's parameters; then the varied states.
   const auto evaluate_sample = [&](const SegmentModel& model, const Eigen::VectorXd& scene_x0,
@@ -198,7 +221,7 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
     o.threads = threads;
     if (!options.quiet) o.progress = [&err](const SweepProgress& p) { draw_progress(err, p); };
     run_ordered<Formatted>(
-        0, grid->samples(),
+        first, grid->samples(),
         [&](std::uint64_t i) {
           const FlowSampleRecord r = evaluate(i);
           return Formatted{r.status, writer.line(r)};
@@ -215,7 +238,7 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
         o);
     records.flush();
     if (!records) throw std::runtime_error("writing the records failed");
-    std::string summary = "sweep: " + std::to_string(grid->samples()) + " samples";
+    std::string summary = "sweep: " + std::to_string(grid->samples() - first) + " samples";
     for (const auto& [status, count] : counts)
       summary += ", " + std::to_string(count) + " " + status;
     err << summary << '\n';

@@ -44,15 +44,41 @@ std::string number(double value) {
   return buffer;
 }
 
-// A CSV field, quoted when it holds a separator, a quote or a line break.
-std::string csv_field(const std::string& text) {
-  if (text.find_first_of(",\"\n\r") == std::string::npos) return text;
+// A CSV field on one line: line breaks become spaces; quoted when it holds a separator or a
+// quote.
+std::string csv_field(std::string text) {
+  for (char& c : text) {
+    if (c == '\n' || c == '\r') c = ' ';
+  }
+  if (text.find_first_of(",\"") == std::string::npos) return text;
   std::string quoted = "\"";
   for (char c : text) {
     if (c == '"') quoted += '"';
     quoted += c;
   }
   return quoted + "\"";
+}
+
+[[noreturn]] void not_this_sweep(std::uint64_t line, const std::string& problem) {
+  throw InvalidArgument("sweep: the output to resume is not from this sweep: line " +
+                        std::to_string(line) + " " + problem);
+}
+
+// The index and the varied values at the start of a CSV record.
+std::vector<double> csv_leading_numbers(const std::string& line, std::size_t count) {
+  std::vector<double> values;
+  std::size_t start = 0;
+  while (values.size() < count) {
+    const std::size_t comma = line.find(',', start);
+    const std::string field = line.substr(start, comma - start);
+    char* end = nullptr;
+    const double v = std::strtod(field.c_str(), &end);
+    if (field.empty() || end != field.c_str() + field.size()) return {};
+    values.push_back(v);
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  return values.size() == count ? values : std::vector<double>{};
 }
 
 nlohmann::ordered_json vector_json(const Eigen::Ref<const Eigen::VectorXd>& v) {
@@ -200,8 +226,8 @@ SweepWriter::SweepWriter(std::ostream& out, SweepFormat format, const SweepGrid&
                          int directions)
     : out_(out), format_(format), grid_(grid), states_(states), directions_(directions) {}
 
-void SweepWriter::header() {
-  if (format_ != SweepFormat::kCsv) return;
+std::string SweepWriter::header_line() const {
+  if (format_ != SweepFormat::kCsv) return "";
   std::ostringstream line;
   line << "index";
   for (const SweepAxis& axis : grid_.axes()) line << ',' << csv_field(axis.name());
@@ -211,7 +237,7 @@ void SweepWriter::header() {
     for (int i = 0; i < states_; ++i) line << ",image" << k << '[' << i << ']';
   }
   line << ",events,orders,pieces\n";
-  out_ << line.str();
+  return line.str();
 }
 
 std::string SweepWriter::line(const FlowSampleRecord& r) const {
@@ -275,6 +301,56 @@ std::string SweepWriter::line(const FlowSampleRecord& r) const {
     line << ',' << number(r.pieces) << '\n';
   }
   return line.str();
+}
+
+SweepResumePoint find_resume_point(std::istream& in, const SweepWriter& writer) {
+  SweepResumePoint point;
+  const SweepGrid& grid = writer.grid();
+  const std::string header = writer.header_line();
+  std::string line;
+  std::uint64_t number = 0;  // line number, from 1
+  std::uint64_t offset = 0;
+  while (std::getline(in, line)) {
+    ++number;
+    if (in.eof()) break;  // no newline: the line was cut
+    const std::uint64_t next_offset = offset + line.size() + 1;
+    if (number == 1 && !header.empty()) {
+      if (line + "\n" != header) not_this_sweep(number, "is not the CSV header of this sweep");
+      offset = point.bytes = next_offset;
+      continue;
+    }
+    const std::uint64_t index = point.records;
+    if (index >= grid.samples()) not_this_sweep(number, "is a record beyond the grid's samples");
+    std::vector<double> found;
+    if (writer.format() == SweepFormat::kJsonLines) {
+      const nlohmann::json j = nlohmann::json::parse(line, nullptr, false);
+      if (j.is_discarded() || !j.is_object() || !j.contains("index") ||
+          !j["index"].is_number_unsigned() || !j.contains("varied") || !j["varied"].is_array()) {
+        not_this_sweep(number, "is not a JSON-lines record");
+      }
+      found.push_back(static_cast<double>(j["index"].get<std::uint64_t>()));
+      for (const auto& v : j["varied"]) {
+        if (!v.is_number()) not_this_sweep(number, "has a varied value that is not a number");
+        found.push_back(v.get<double>());
+      }
+    } else {
+      found = csv_leading_numbers(line, 1 + grid.axes().size());
+      if (found.empty()) not_this_sweep(number, "is not a CSV record of this sweep");
+    }
+    std::vector<double> expected{static_cast<double>(index)};
+    for (double v : grid.values(index)) expected.push_back(v);
+    if (found != expected) {
+      const auto text = [](const std::vector<double>& v) {
+        return format_vector(
+            Eigen::Map<const Eigen::VectorXd>(v.data(), static_cast<Eigen::Index>(v.size())));
+      };
+      not_this_sweep(number,
+                     "has index and varied values " + text(found) + ", expected " + text(expected));
+    }
+    ++point.records;
+    offset = point.bytes = next_offset;
+  }
+  return point;
 }
 
 }  // namespace bflow

@@ -129,6 +129,63 @@ TEST(SweepCommand, ProgressGoesToStderrAndRecordsToTheOutputFile) {
   EXPECT_EQ(lines, 10);
 }
 
+std::string read_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+void write_file(const std::string& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out << text;
+}
+
+TEST(SweepCommand, AnInterruptedOutputResumedIsTheUninterruptedOne) {
+  for (const char* format : {"jsonl", "csv"}) {
+    const std::string whole_path = ::testing::TempDir() + "sweep_whole." + format;
+    const std::string cut_path = ::testing::TempDir() + "sweep_cut." + format;
+    const std::vector<std::string> args = {"sweep",         "--scene", "pwconst",     "--vary",
+                                           "1=-0.9:0.2:12", "--vary",  "0=-1:-0.1:4", "--dx",
+                                           "1,0.5",         "--quiet", "--format",    format};
+    std::vector<std::string> whole_args = args;
+    whole_args.insert(whole_args.end(), {"--output", whole_path});
+    ASSERT_EQ(command_line(whole_args).code, 0);
+    const std::string whole = read_file(whole_path);
+    // A run killed in the middle of its 18th line (what a crash or a lost node leaves).
+    std::size_t cut = 0;
+    for (int lines = 0; lines < 17; ++lines) cut = whole.find('\n', cut) + 1;
+    write_file(cut_path, whole.substr(0, cut + 25));
+    std::vector<std::string> resume_args = args;
+    resume_args.insert(resume_args.end(), {"--output", cut_path, "--resume", "--threads", "3"});
+    const Outcome r = command_line(resume_args);
+    ASSERT_EQ(r.code, 0) << r.err;
+    const int kept = std::string(format) == "csv" ? 16 : 17;  // the CSV header is a line
+    EXPECT_THAT(r.err, HasSubstr("sweep: " + std::to_string(kept) + " of 48 samples kept"));
+    EXPECT_THAT(r.err, HasSubstr("sweep: " + std::to_string(48 - kept) + " samples, "));
+    EXPECT_EQ(read_file(cut_path), whole) << format;
+    // Resuming a finished output changes nothing.
+    ASSERT_EQ(command_line(resume_args).code, 0);
+    EXPECT_EQ(read_file(cut_path), whole) << format;
+  }
+}
+
+TEST(SweepCommand, AnotherSweepsOutputIsNotResumedAndNotTouched) {
+  const std::string path = ::testing::TempDir() + "sweep_other.jsonl";
+  ASSERT_EQ(command_line({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.1:4", "--quiet",
+                          "--output", path})
+                .code,
+            0);
+  const std::string before = read_file(path);
+  const Outcome r = command_line({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.2:4", "--quiet",
+                                  "--output", path, "--resume"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("error: --resume: \"" + path +
+                               "\": the output to resume is not from this sweep: line 2 has "
+                               "index and varied values [1, -0.7], expected [1, -0.733"));
+  EXPECT_EQ(read_file(path), before);
+}
+
 TEST(SweepCommand, BadOptionsAreRefusedBeforeAnythingIsWritten) {
   const auto refused = [](std::vector<std::string> extra, const std::string& message) {
     std::vector<std::string> args = {"sweep", "--scene", "pwconst", "--quiet"};
@@ -154,6 +211,7 @@ TEST(SweepCommand, BadOptionsAreRefusedBeforeAnythingIsWritten) {
   refused({"--threads", "0"}, "--threads: must be >= 1, got 0");
   refused({"--format", "xml"}, "--format: unknown format \"xml\"; the formats are jsonl and csv");
   refused({"--dx", "1,2,3"}, "--dx[0]: has 3 numbers, expected d = 2 (comma-separated)");
+  refused({"--resume"}, "--resume: needs --output FILE");
   refused({"--vary", "0=0:1:3", "--output", "/nonexistent-dir/out.jsonl"},
           "--output: cannot write \"/nonexistent-dir/out.jsonl\": No such file or directory");
 }

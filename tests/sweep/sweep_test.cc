@@ -187,6 +187,57 @@ TEST_F(PwconstSweep, AnIntegrationThatStopsEarlyIsRecordedWithItsStatus) {
   EXPECT_TRUE(r.images.empty());
 }
 
+TEST_F(PwconstSweep, AnOutputCutAnywhereResumesAtItsFirstIncompleteRecord) {
+  for (const SweepFormat format : {SweepFormat::kJsonLines, SweepFormat::kCsv}) {
+    // The whole output of the sweep, and where each of its lines ends.
+    std::ostringstream whole;
+    SweepWriter writer(whole, format, grid_, 2, 2);
+    writer.header();
+    for (const FlowSampleRecord& r : sweep(2)) writer.write(r);
+    const std::string text = whole.str();
+    std::vector<std::size_t> ends;
+    for (std::size_t k = 0; k < text.size(); ++k) {
+      if (text[k] == '\n') ends.push_back(k + 1);
+    }
+    const std::size_t header_lines = format == SweepFormat::kCsv ? 1 : 0;
+    ASSERT_EQ(ends.size(), 48 + header_lines);
+    for (const std::size_t cut : {std::size_t{0}, ends[0] - 1, ends[0], ends[0] + 3, ends[10] - 1,
+                                  ends[10], ends[30] + 7, text.size() - 1, text.size()}) {
+      std::istringstream in(text.substr(0, cut));
+      const SweepResumePoint point = find_resume_point(in, writer);
+      std::size_t whole_lines = 0;
+      while (whole_lines < ends.size() && ends[whole_lines] <= cut) ++whole_lines;
+      const std::size_t kept = whole_lines < header_lines ? 0 : whole_lines - header_lines;
+      EXPECT_EQ(point.records, kept) << "cut at " << cut;
+      EXPECT_EQ(point.bytes, whole_lines == 0 ? 0 : ends[whole_lines - 1]) << "cut at " << cut;
+    }
+  }
+}
+
+TEST_F(PwconstSweep, AnOutputOfAnotherSweepIsNotResumed) {
+  std::ostringstream whole;
+  SweepWriter writer(whole, SweepFormat::kJsonLines, grid_, 2, 2);
+  for (const FlowSampleRecord& r : sweep(2)) writer.write(r);
+  // The same records read as those of a grid whose second axis has 13 values.
+  const SweepGrid other(
+      {SweepAxis::state_axis(0, -1.0, -0.1, 4), SweepAxis::state_axis(1, -0.9, 0.2, 13)});
+  std::ostringstream unused;
+  const SweepWriter other_writer(unused, SweepFormat::kJsonLines, other, 2, 2);
+  std::istringstream in(whole.str());
+  try {
+    find_resume_point(in, other_writer);
+    FAIL() << "resumed another sweep's output";
+  } catch (const InvalidArgument& e) {
+    EXPECT_NE(std::string(e.what()).find("line 2 has index and varied values [1, -1, -0.8"),
+              std::string::npos)
+        << e.what();
+  }
+  // A CSV reader does not take JSON lines.
+  const SweepWriter csv(unused, SweepFormat::kCsv, grid_, 2, 2);
+  std::istringstream again(whole.str());
+  EXPECT_THROW(find_resume_point(again, csv), InvalidArgument);
+}
+
 TEST(SweepWriter, CsvHasTheAxesAsColumnsAndQuotesMessages) {
   const SweepGrid grid({SweepAxis::state_axis(0, 0.0, 1.0, 2)});
   std::ostringstream out;
@@ -205,12 +256,12 @@ TEST(SweepWriter, CsvHasTheAxesAsColumnsAndQuotesMessages) {
   ok.orders = {{{1, 0}}};
   ok.pieces = 2.0;
   writer.write(ok);
-  writer.write(FlowSampleRecord::error(1, {1.0}, "bad, \"really\""));
+  writer.write(FlowSampleRecord::error(1, {1.0}, "bad, \"really\"\nworse"));
   EXPECT_EQ(out.str(),
             "index,x[0],status,message,t_reached,x_t[0],x_t[1],image0[0],image0[1],events,orders,"
             "pieces\n"
             "0,0,ok,,1,0.1,2,1,-1,0.5:0+1,1>0,2\n"
-            "1,1,error,\"bad, \"\"really\"\"\",0,,,,,,,0\n");
+            "1,1,error,\"bad, \"\"really\"\" worse\",0,,,,,,,0\n");
   EXPECT_EQ(parse_sweep_format("csv"), SweepFormat::kCsv);
   EXPECT_EQ(parse_sweep_format("jsonl"), SweepFormat::kJsonLines);
   EXPECT_THROW(parse_sweep_format("xml"), InvalidArgument);

@@ -100,8 +100,8 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
   progress.total = end - first;
 
   std::mutex mutex;
-  std::condition_variable ready;  // the record the sink waits for arrived
-  std::condition_variable room;   // the sink moved on (workers ahead of it wait on it)
+  std::condition_variable ready;            // the record the sink waits for arrived
+  std::condition_variable room;             // the sink moved on (workers ahead of it wait on it)
   std::map<std::uint64_t, Record> waiting;  // guarded by mutex
   std::atomic<std::uint64_t> next{first};
   // The next index the sink takes; written under mutex, read without it by workers that are

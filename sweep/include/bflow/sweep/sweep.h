@@ -121,15 +121,20 @@ SweepFormat parse_sweep_format(const std::string& text);
     CSV: a header line, then index, varied values (columns named after the axes), status,
     message, t_reached, x_t[0..d), image<k>[0..d) per direction, events (t:s1+s2;... ), orders
     (per direction: events separated by ';', surfaces by '>' and directions by '|'), pieces;
-    failed samples leave the numbers empty. Numbers have the fewest of 15 to 17 significant
-    digits that read back as the same double. */
+    failed samples leave the numbers empty; line breaks in a message become spaces, so a record
+    is always one line. Numbers have the fewest of 15 to 17 significant digits that read back as
+    the same double. */
 class SweepWriter {
  public:
   SweepWriter(std::ostream& out, SweepFormat format, const SweepGrid& grid, int states,
               int directions);
   /** The CSV header (nothing for JSON lines); call once before the first record of a new
       output. */
-  void header();
+  void header() { out_ << header_line(); }
+  /** The CSV header line with its newline ("" for JSON lines). */
+  std::string header_line() const;
+  SweepFormat format() const { return format_; }
+  const SweepGrid& grid() const { return grid_; }
   /** The record's line (with its newline), for writing later: thread-safe, so that workers can
       format their records and the writing thread only copies bytes. */
   std::string line(const FlowSampleRecord& record) const;
@@ -141,6 +146,20 @@ class SweepWriter {
   const SweepGrid& grid_;
   int states_, directions_;
 };
+
+/** How much of an earlier output of the same sweep can be kept. */
+struct SweepResumePoint {
+  std::uint64_t records = 0;  ///< whole records 0 .. records - 1: resume at this index
+  std::uint64_t bytes = 0;    ///< the length of the output that holds them (and the CSV header)
+};
+
+/** Reads an output that `writer`'s sweep wrote and stopped (a killed process, a lost node):
+    its CSV header, then records 0, 1, 2, ..., each a whole line whose index and varied values
+    are those of the grid. A last line without its newline is not whole and is left out; so is
+    anything after it. An empty output has nothing to keep.
+    @throws InvalidArgument naming the line when the output is not from this sweep (another
+    format, header, index order or varied values), so that it is never overwritten by mistake. */
+SweepResumePoint find_resume_point(std::istream& in, const SweepWriter& writer);
 
 }  // namespace bflow
 
