@@ -78,7 +78,10 @@ image<k>[i], events (t:s1+s2;...), orders (events ';', surfaces '>', directions 
 status is "ok", an integration status that stopped the sample early ("too many steps",
 "step-size underflow", ...), "rejected" (the engine refused the start: on a surface, grazing,
 sliding; the message says which) or "error". A failed sample never stops the sweep; the exit
-code is 0 and the last stderr line counts the samples by status. With --output FILE --resume,
+code is 0 and the last stderr line counts the samples by status. --atlas PNG (two axes and a
+--dx) maps the event structure of every sample: the surfaces of each event in time order, and
+for surfaces crossed together the order the first --dx takes, e.g. 0+1 (1>0). With
+--output FILE --resume,
 the whole records an interrupted run left in FILE are kept (after checking that their indices
 and varied values are this sweep's) and the sweep goes on from the first missing sample; the
 file then holds exactly what an uninterrupted run writes.
@@ -397,6 +400,11 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->add_option("--output", sweep_options.output,
                      "Write the records to FILE instead of stdout")
         ->type_name("FILE");
+    sweep
+        ->add_option("--atlas", sweep_options.atlas,
+                     "Also draw the atlas of crossing orders of a two-axis grid to this PNG "
+                     "(a colour per event structure along the first --dx; gnuplot)")
+        ->type_name("PNG");
     sweep->add_flag("--resume", sweep_options.resume,
                     "With --output: keep the whole records an interrupted run of the same sweep "
                     "left in FILE and compute the rest");

@@ -120,6 +120,10 @@ struct SweepCommandOptions {
   std::string format = "jsonl";
   /** Write the records to this file instead of `out`. */
   std::optional<std::string> output;
+  /** Also draw the atlas of crossing orders of a two-axis grid to this PNG (gnuplot): a colour
+      per event structure along the first --dx (bflow::event_structure); the grouped events and
+      the failed samples marked. Its data and script are written beside it (.dat, .gp). */
+  std::optional<std::string> atlas;
   /** With --output: keep the whole records an earlier run of the same sweep left in the file
       and compute the rest (bflow::find_resume_point). */
   bool resume = false;

@@ -7,6 +7,7 @@
 // nothing written. A sample that fails (a start on a surface, grazing, sliding, an integration
 // that stops early) is a record with its status and message; the sweep goes on and exits with 0.
 // The last line on `err` counts the samples by status.
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -19,6 +20,7 @@
 #include <memory>
 #include <new>
 #include <ostream>
+#include <sstream>
 #include <string>
 #include <system_error>
 #include <utility>
@@ -31,6 +33,7 @@
 #include "bflow/sweep/sweep.h"
 #include "cli_commands.h"
 #include "cli_util.h"
+#include "demo_util.h"
 #include "scene_setup.h"
 
 namespace bflow::cli {
@@ -96,6 +99,66 @@ void draw_progress(std::ostream& err, const SweepProgress& p) {
     err << "in " << duration_text(p.seconds) << "            \n";
   }
   err.flush();
+}
+
+struct AtlasPoint {
+  double x = 0.0, y = 0.0;
+  std::string structure;
+  bool grouped = false, failed = false;
+};
+
+// A gnuplot title, quoted for a single-quoted string (noenhanced: '_' stays itself).
+std::string gnuplot_text(std::string text) {
+  std::string quoted;
+  for (char c : text) quoted += c == '\'' ? std::string("''") : std::string(1, c);
+  return "'" + quoted + "'";
+}
+
+// The atlas: one colour per event structure (in order of first appearance in the grid), open
+// black squares over the samples with a group of surfaces crossed together, black crosses on
+// the failed ones. Writes STEM.dat and STEM.gp beside the PNG and runs gnuplot.
+void draw_atlas(const std::filesystem::path& png, const SweepGrid& grid,
+                const std::vector<AtlasPoint>& points, const Eigen::VectorXd& dx) {
+  std::map<std::string, int> ids;
+  std::vector<std::string> labels;
+  std::ostringstream data;
+  data << "# " << grid.axes()[0].name() << ' ' << grid.axes()[1].name()
+       << " structure grouped failed\n";
+  for (const AtlasPoint& p : points) {
+    const auto [it, added] = ids.emplace(p.structure, static_cast<int>(ids.size()));
+    if (added) labels.push_back(p.structure);
+    data << number_text(p.x) << ' ' << number_text(p.y) << ' ' << it->second << ' '
+         << (p.grouped ? 1 : 0) << ' ' << (p.failed ? 1 : 0) << '\n';
+  }
+  const std::filesystem::path dir = png.has_parent_path() ? png.parent_path() : ".";
+  const std::string stem = png.stem().string();
+  write_file(dir / (stem + ".dat"), data.str(), "sweep");
+  static const char* const kColours[] = {"#1f77b4", "#ff7f0e", "#2ca02c", "#d62728",
+                                         "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
+                                         "#bcbd22", "#17becf", "#393b79", "#ad494a"};
+  const double cells = static_cast<double>(std::max(grid.axes()[0].count, grid.axes()[1].count));
+  const double size = std::min(3.0, std::max(0.3, 60.0 / cells));
+  std::ostringstream gp;
+  gp << "# The atlas of crossing orders written by bflow sweep --atlas; run: gnuplot " << stem
+     << ".gp\n"
+     << "set terminal pngcairo size 1100,800 noenhanced font 'Sans,11'\n"
+     << "set output " << gnuplot_text(png.filename().string()) << "\n"
+     << "set title " << gnuplot_text("Event structure along dx = " + format_vector(dx)) << "\n"
+     << "set xlabel " << gnuplot_text(grid.axes()[0].name()) << "\n"
+     << "set ylabel " << gnuplot_text(grid.axes()[1].name()) << "\n"
+     << "set key outside right top\nset grid\n"
+     << "plot \\\n";
+  const std::string file = gnuplot_text(stem + ".dat");
+  for (std::size_t k = 0; k < labels.size(); ++k) {
+    gp << "  " << file << " using ($3 == " << k << " ? $1 : NaN):2 with points pt 5 ps " << size
+       << " lc rgb '" << kColours[k % 12] << "' title " << gnuplot_text(labels[k]) << ", \\\n";
+  }
+  gp << "  " << file << " using ($4 == 1 ? $1 : NaN):2 with points pt 4 ps " << size
+     << " lc rgb 'black' title 'surfaces crossed together', \\\n"
+     << "  " << file << " using ($5 == 1 ? $1 : NaN):2 with points pt 2 ps " << size
+     << " lc rgb 'black' title 'failed'\n";
+  write_file(dir / (stem + ".gp"), gp.str(), "sweep");
+  run_gnuplot(dir, stem + ".gp", png.filename().string(), "sweep", "leave out --atlas");
 }
 
 int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::ostream& err) {
@@ -168,6 +231,21 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
     sweep_request.directions.push_back(
         parse_vector(request.dx_texts[k], "--dx[" + std::to_string(k) + "]", d));
   }
+  if (options.atlas) {
+    if (grid->axes().size() != 2) {
+      fail("--atlas", "needs a grid of exactly two axes (--vary, --vary-param), got " +
+                          std::to_string(grid->axes().size()));
+    }
+    if (sweep_request.directions.empty()) {
+      fail("--atlas", "needs a --dx: the direction whose crossing orders it maps");
+    }
+    const std::filesystem::path png(*options.atlas);
+    try {
+      prepare_output_directory(png.has_parent_path() ? png.parent_path() : ".", "sweep");
+    } catch (const DemoError& e) {
+      fail("--atlas", std::string(e.what()).substr(std::string("sweep: ").size()));
+    }
+  }
   bool varies_parameters = false;
   for (const SweepAxis& axis : grid->axes())
     varies_parameters |= axis.kind == SweepAxis::Kind::kParameter;
@@ -214,6 +292,18 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
   // The workers format their records too; the writing thread only copies the lines.
   struct Formatted {
     std::string status, line;
+    AtlasPoint point;
+  };
+  std::vector<AtlasPoint> atlas;
+  const auto atlas_point = [&](const FlowSampleRecord& r) {
+    AtlasPoint p;
+    if (!options.atlas) return p;
+    p.x = r.varied.at(0);
+    p.y = r.varied.at(1);
+    p.structure = event_structure(r);
+    p.failed = !r.ok();
+    for (const EventRecord& e : r.events) p.grouped |= r.ok() && e.group_size() > 1;
+    return p;
   };
   const auto run = [&](const std::function<FlowSampleRecord(std::uint64_t)>& evaluate) {
     std::map<std::string, std::uint64_t> counts;
@@ -224,15 +314,16 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
         first, grid->samples(),
         [&](std::uint64_t i) {
           const FlowSampleRecord r = evaluate(i);
-          return Formatted{r.status, writer.line(r)};
+          return Formatted{r.status, writer.line(r), atlas_point(r)};
         },
         [&](std::uint64_t i, const std::string& what) {
           const FlowSampleRecord r = FlowSampleRecord::error(i, grid->values(i), what);
-          return Formatted{r.status, writer.line(r)};
+          return Formatted{r.status, writer.line(r), atlas_point(r)};
         },
         [&](Formatted&& f) {
           records << f.line;
           ++counts[f.status];
+          if (options.atlas) atlas.push_back(std::move(f.point));
           if (!records) throw std::runtime_error("writing the records failed");
         },
         o);
@@ -242,6 +333,14 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
     for (const auto& [status, count] : counts)
       summary += ", " + std::to_string(count) + " " + status;
     err << summary << '\n';
+  };
+  const auto finish_atlas = [&]() {
+    if (!options.atlas) return;
+    if (first > 0) {
+      err << "sweep: the atlas shows the samples of this run only (from index " << first << ")\n";
+    }
+    draw_atlas(*options.atlas, *grid, atlas, sweep_request.directions.front());
+    err << "sweep: wrote " << quote(*options.atlas, 200) << '\n';
   };
   if (!varies_parameters) {
     // One model serves every sample (its evaluations are const and thread-safe).
@@ -263,6 +362,7 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
                         });
     });
   }
+  finish_atlas();
   return kExitOk;
 }
 
@@ -277,6 +377,9 @@ int run_sweep(const SweepCommandOptions& options, std::ostream& out, std::ostrea
   } catch (const InvalidArgument& e) {
     report_error(err, std::string("sweep: ") + e.what());
     return kExitBadInput;
+  } catch (const DemoError& e) {  // the atlas could not be written or drawn
+    report_error(err, e.what());
+    return kExitFailure;
   } catch (const std::bad_alloc&) {
     report_error(err, "sweep: out of memory");
     return kExitFailure;

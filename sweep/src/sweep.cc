@@ -216,6 +216,30 @@ FlowSampleRecord evaluate_flow_sample(const SegmentModel& model,
   return r;
 }
 
+std::string event_structure(const FlowSampleRecord& r, std::size_t direction) {
+  if (!r.ok()) return r.status;
+  if (r.events.empty()) return "no event";
+  std::string text;
+  for (std::size_t e = 0; e < r.events.size(); ++e) {
+    if (e > 0) text += " | ";
+    const std::vector<int>& surfaces = r.events[e].surfaces;
+    for (std::size_t k = 0; k < surfaces.size(); ++k) {
+      if (k > 0) text += '+';
+      text += std::to_string(surfaces[k]);
+    }
+    if (surfaces.size() > 1 && direction < r.orders.size() && e < r.orders[direction].size()) {
+      text += " (";
+      const std::vector<int>& order = r.orders[direction][e];
+      for (std::size_t k = 0; k < order.size(); ++k) {
+        if (k > 0) text += '>';
+        text += std::to_string(order[k]);
+      }
+      text += ')';
+    }
+  }
+  return text;
+}
+
 SweepFormat parse_sweep_format(const std::string& text) {
   if (text == "jsonl") return SweepFormat::kJsonLines;
   if (text == "csv") return SweepFormat::kCsv;

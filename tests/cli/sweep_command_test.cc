@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -186,6 +187,41 @@ TEST(SweepCommand, AnotherSweepsOutputIsNotResumedAndNotTouched) {
   EXPECT_EQ(read_file(path), before);
 }
 
+TEST(SweepCommand, TheAtlasOfThePiecewiseConstantFieldHasItsThreeCones) {
+  // 21 x 21 starts over [-1, -0.05]^2: plane 0 first below the diagonal, plane 1 first above
+  // it, both at once on it (dx = (1, 0) then brings plane 0 first): [B] Section 3.1.
+  const std::string png = ::testing::TempDir() + "sweep_atlas_test.png";
+  const Outcome r =
+      command_line({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.05:21", "--vary",
+                    "1=-1:-0.05:21", "--dx", "1,0", "--quiet", "--atlas", png});
+  if (r.code == 1 && r.err.find("install gnuplot") != std::string::npos) {
+    GTEST_SKIP() << "gnuplot is not installed: " << r.err;
+  }
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_THAT(r.err, HasSubstr("sweep: wrote"));
+  EXPECT_GT(read_file(png).size(), 1000u);
+  const std::string gp = read_file(::testing::TempDir() + "sweep_atlas_test.gp");
+  std::ifstream data(::testing::TempDir() + "sweep_atlas_test.dat");
+  std::string line;
+  std::getline(data, line);
+  EXPECT_EQ(line, "# x[0] x[1] structure grouped failed");
+  std::map<int, int> count;
+  int grouped = 0;
+  double x = 0, y = 0;
+  int id = 0, group = 0, failed = 0;
+  while (data >> x >> y >> id >> group >> failed) {
+    ++count[id];
+    grouped += group;
+    EXPECT_EQ(failed, 0);
+  }
+  // Ids in order of first appearance: sample 0 is (-1, -1), on the diagonal.
+  EXPECT_THAT(gp, HasSubstr("title '0+1 (0>1)'"));
+  EXPECT_THAT(gp, HasSubstr("title '1 | 0'"));
+  EXPECT_THAT(gp, HasSubstr("title '0 | 1'"));
+  EXPECT_EQ(count, (std::map<int, int>{{0, 21}, {1, 210}, {2, 210}}));
+  EXPECT_EQ(grouped, 21);
+}
+
 TEST(SweepCommand, BadOptionsAreRefusedBeforeAnythingIsWritten) {
   const auto refused = [](std::vector<std::string> extra, const std::string& message) {
     std::vector<std::string> args = {"sweep", "--scene", "pwconst", "--quiet"};
@@ -212,6 +248,10 @@ TEST(SweepCommand, BadOptionsAreRefusedBeforeAnythingIsWritten) {
   refused({"--format", "xml"}, "--format: unknown format \"xml\"; the formats are jsonl and csv");
   refused({"--dx", "1,2,3"}, "--dx[0]: has 3 numbers, expected d = 2 (comma-separated)");
   refused({"--resume"}, "--resume: needs --output FILE");
+  refused({"--vary", "0=-1:0:3", "--dx", "1,0", "--atlas", "a.png"},
+          "--atlas: needs a grid of exactly two axes (--vary, --vary-param), got 1");
+  refused({"--vary", "0=-1:0:3", "--vary", "1=-1:0:3", "--atlas", "a.png"},
+          "--atlas: needs a --dx: the direction whose crossing orders it maps");
   refused({"--vary", "0=0:1:3", "--output", "/nonexistent-dir/out.jsonl"},
           "--output: cannot write \"/nonexistent-dir/out.jsonl\": No such file or directory");
 }

@@ -238,6 +238,29 @@ TEST_F(PwconstSweep, AnOutputOfAnotherSweepIsNotResumed) {
   EXPECT_THROW(find_resume_point(again, csv), InvalidArgument);
 }
 
+TEST_F(PwconstSweep, TheEventStructuresAreTheKnownConesOfTheField) {
+  // From x0 = (a, b) in the open negative quadrant both coordinates grow at 1.25 until their
+  // plane (Delta(b) = -0.25 b: crossing one plane leaves the other coordinate's speed alone), so
+  // plane 0 comes first where a > b, plane 1 where a < b, both at once on the diagonal a = b;
+  // there dx = (1, 0) brings plane 0 first. A 21 x 21 grid over [-1, -0.05]^2.
+  request_.directions = {Eigen::Vector2d(1.0, 0.0)};
+  const SweepGrid grid(
+      {SweepAxis::state_axis(0, -1.0, -0.05, 21), SweepAxis::state_axis(1, -1.0, -0.05, 21)});
+  int diagonal = 0;
+  for (std::uint64_t i = 0; i < grid.samples(); ++i) {
+    Eigen::VectorXd x0(2);
+    grid.apply_states(i, x0);
+    const FlowSampleRecord r = evaluate_flow_sample(model_, x0, request_, i, grid.values(i));
+    const std::string expected = x0[0] > x0[1] ? "0 | 1" : x0[0] < x0[1] ? "1 | 0" : "0+1 (0>1)";
+    diagonal += x0[0] == x0[1] ? 1 : 0;
+    EXPECT_EQ(event_structure(r), expected) << "x0 = " << x0.transpose();
+  }
+  EXPECT_EQ(diagonal, 21);
+  EXPECT_EQ(event_structure(FlowSampleRecord::error(0, {}, "boom")), "error");
+  FlowSampleRecord quiet;
+  EXPECT_EQ(event_structure(quiet), "no event");
+}
+
 TEST(SweepWriter, CsvHasTheAxesAsColumnsAndQuotesMessages) {
   const SweepGrid grid({SweepAxis::state_axis(0, 0.0, 1.0, 2)});
   std::ostringstream out;

@@ -110,6 +110,14 @@ FlowSampleRecord evaluate_flow_sample(const SegmentModel& model,
                                       const FlowSweepRequest& request, std::uint64_t index,
                                       std::vector<double> varied);
 
+/** A record's event structure, the colour of its cell in an atlas of crossing orders: its
+    events in time order joined by " | ", each the surfaces crossed together ("0+1"), followed for
+    a group by the order that direction `direction` takes ("0+1 (1>0)"); "no event" when there is
+    none; the status for a failed sample ("rejected", ...). Samples with the same structure cross
+    the same surfaces in the same order, so their B-derivatives along the direction come from the
+    same piece. */
+std::string event_structure(const FlowSampleRecord& record, std::size_t direction = 0);
+
 enum class SweepFormat { kJsonLines, kCsv };
 /** "jsonl" or "csv". @throws InvalidArgument naming the formats for anything else. */
 SweepFormat parse_sweep_format(const std::string& text);
