@@ -8,11 +8,17 @@
 //                                (4000 samples, t = 1, dx = e_0): cheap samples, where the
 //                                pool's own cost shows
 //
+//   BM_SweepCommand/threads/2    (built with BFLOW_MPI) the command over 200000 biped samples,
+//   BM_SweepCommand/mpi/2        2 threads in one process against mpirun -np 2 of 1 thread each
+//
 // The time is wall-clock (UseRealTime); items_per_second is samples per second. The parallel
-// efficiency is rate(2 threads) / (2 rate(1 thread)); scripts/bench --sweep prints it.
+// efficiency is rate(2 threads) / (2 rate(1 thread)), and MPI's rate(2 ranks) / rate(2 threads);
+// scripts/bench --sweep prints both.
 #include <benchmark/benchmark.h>
 
+#include <chrono>
 #include <cstdint>
+#include <cstdlib>
 #include <ostream>
 #include <streambuf>
 #include <string>
@@ -106,6 +112,46 @@ void BM_SweepPwconst(benchmark::State& state) {
   request.directions = {Eigen::VectorXd::Unit(4, 0)};
   run_sweep(state, model, x0, grid, request);
 }
+
+#ifdef BFLOW_SWEEP_MPIRUN
+// The command itself, `bflow sweep` over 200000 biped samples to /dev/null: with 2 threads in one
+// process, and with 2 MPI ranks of 1 thread each (mpirun --oversubscribe -np 2). Wall-clock time
+// of the whole command, start-up included; items_per_second is samples per second.
+constexpr int kCommandSamples = 200000;
+
+void BM_SweepCommand(benchmark::State& state, bool mpi) {
+  const std::string sweep =
+      std::string(BFLOW_SWEEP_COMMAND) +
+      " sweep --scene biped --vary 2=-0.05:0.05:" + std::to_string(kCommandSamples) +
+      " --dx 0,0,1,0,0,0 --quiet --output /dev/null";
+  const std::string command =
+      mpi ? "OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 "
+            "OMPI_MCA_btl_vader_single_copy_mechanism=none " BFLOW_SWEEP_MPIRUN
+            " --oversubscribe -np 2 " +
+                sweep + " --threads 1 2>/dev/null"
+          : sweep + " --threads 2 2>/dev/null";
+  for (auto _ : state) {
+    const auto start = std::chrono::steady_clock::now();
+    const int code = std::system(command.c_str());
+    const double seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (code != 0) {
+      state.SkipWithError(("the command failed: " + command).c_str());
+      return;
+    }
+    state.SetIterationTime(seconds);
+  }
+  state.SetItemsProcessed(static_cast<std::int64_t>(state.iterations()) * kCommandSamples);
+}
+BENCHMARK_CAPTURE(BM_SweepCommand, threads2, false)
+    ->Name("BM_SweepCommand/threads/2")
+    ->UseManualTime()
+    ->Unit(benchmark::kMillisecond);
+BENCHMARK_CAPTURE(BM_SweepCommand, mpi2, true)
+    ->Name("BM_SweepCommand/mpi/2")
+    ->UseManualTime()
+    ->Unit(benchmark::kMillisecond);
+#endif
 
 }  // namespace
 

@@ -28,6 +28,10 @@
 #include <string>
 #include <vector>
 
+namespace bflow {
+class MpiSession;
+}  // namespace bflow
+
 namespace bflow::cli {
 
 inline constexpr int kExitOk = 0;
@@ -131,6 +135,9 @@ struct SweepCommandOptions {
   bool quiet = false;
 };
 int run_sweep(const SweepCommandOptions& options, std::ostream& out, std::ostream& err);
+/** The MPI world `bflow sweep` shares its samples with (main() sets it; nullptr or one rank: a
+    single process). On ranks other than 0 the command writes nothing. */
+void set_mpi_session(const MpiSession* session);
 
 struct DemoOptions {
   /** Directory for the demo's .dat, .gp and .png files; created if missing. */

@@ -29,6 +29,7 @@
 #include <Eigen/Core>
 
 #include "bflow/core/errors.h"
+#include "bflow/sweep/mpi.h"
 #include "bflow/sweep/parallel.h"
 #include "bflow/sweep/sweep.h"
 #include "cli_commands.h"
@@ -100,6 +101,8 @@ void draw_progress(std::ostream& err, const SweepProgress& p) {
   }
   err.flush();
 }
+
+const MpiSession* g_mpi = nullptr;
 
 struct AtlasPoint {
   double x = 0.0, y = 0.0;
@@ -251,35 +254,45 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
     varies_parameters |= axis.kind == SweepAxis::Kind::kParameter;
 
   if (options.resume && !options.output) fail("--resume", "needs --output FILE");
+  // Under MPI every rank computes and rank 0 alone writes; the others hear from it whether its
+  // file checks passed.
+  const bool ranks = g_mpi != nullptr && g_mpi->size() > 1;
+  const bool writes = !ranks || g_mpi->rank() == 0;
   std::ofstream file;
   std::ostream& records = options.output ? file : out;
   SweepWriter writer(records, format, *grid, d, static_cast<int>(sweep_request.directions.size()));
   SweepResumePoint kept;
-  if (options.output) {
-    const std::string& path = *options.output;
-    if (options.resume) {
-      std::ifstream earlier(path);
-      if (earlier) {
-        try {
-          kept = find_resume_point(earlier, writer);
-        } catch (const InvalidArgument& e) {
-          fail("--resume",
-               quote(path) + ": " + std::string(e.what()).substr(std::string("sweep: ").size()));
+  if (writes) try {
+      if (options.output) {
+        const std::string& path = *options.output;
+        if (options.resume) {
+          std::ifstream earlier(path);
+          if (earlier) {
+            try {
+              kept = find_resume_point(earlier, writer);
+            } catch (const InvalidArgument& e) {
+              fail("--resume", quote(path) + ": " +
+                                   std::string(e.what()).substr(std::string("sweep: ").size()));
+            }
+          }
+        }
+        std::error_code code;
+        if (kept.bytes > 0) std::filesystem::resize_file(path, kept.bytes, code);
+        if (code) fail("--output", "cannot truncate " + quote(path) + ": " + code.message());
+        file.open(path,
+                  kept.bytes > 0 ? std::ios::out | std::ios::app : std::ios::out | std::ios::trunc);
+        if (!file) fail("--output", "cannot write " + quote(path) + ": " + std::strerror(errno));
+        if (options.resume) {
+          err << "sweep: " << kept.records << " of " << grid->samples() << " samples kept from "
+              << quote(path) << ", resuming at index " << kept.records << '\n';
         }
       }
+      if (kept.bytes == 0) writer.header();
+    } catch (...) {
+      if (ranks) g_mpi->agree(false);
+      throw;
     }
-    std::error_code code;
-    if (kept.bytes > 0) std::filesystem::resize_file(path, kept.bytes, code);
-    if (code) fail("--output", "cannot truncate " + quote(path) + ": " + code.message());
-    file.open(path,
-              kept.bytes > 0 ? std::ios::out | std::ios::app : std::ios::out | std::ios::trunc);
-    if (!file) fail("--output", "cannot write " + quote(path) + ": " + std::strerror(errno));
-    if (options.resume) {
-      err << "sweep: " << kept.records << " of " << grid->samples() << " samples kept from "
-          << quote(path) << ", resuming at index " << kept.records << '\n';
-    }
-  }
-  if (kept.bytes == 0) writer.header();
+  if (ranks && !g_mpi->agree(true)) return kExitFailure;  // rank 0 reported why
   const std::uint64_t first = kept.records;
 
   // The start: --x0, or the scene's own for the sample's parameters; then the varied states.
@@ -310,23 +323,64 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
     SweepRunOptions o;
     o.threads = threads;
     if (!options.quiet) o.progress = [&err](const SweepProgress& p) { draw_progress(err, p); };
-    run_ordered<Formatted>(
-        first, grid->samples(),
-        [&](std::uint64_t i) {
-          const FlowSampleRecord r = evaluate(i);
-          return Formatted{r.status, writer.line(r), atlas_point(r)};
-        },
-        [&](std::uint64_t i, const std::string& what) {
-          const FlowSampleRecord r = FlowSampleRecord::error(i, grid->values(i), what);
-          return Formatted{r.status, writer.line(r), atlas_point(r)};
-        },
-        [&](Formatted&& f) {
-          records << f.line;
-          ++counts[f.status];
-          if (options.atlas) atlas.push_back(std::move(f.point));
-          if (!records) throw std::runtime_error("writing the records failed");
-        },
-        o);
+    const auto formatted = [&](const FlowSampleRecord& r) {
+      return Formatted{r.status, writer.line(r), atlas_point(r)};
+    };
+    const auto take = [&](Formatted&& f) {
+      records << f.line;
+      ++counts[f.status];
+      if (options.atlas) atlas.push_back(std::move(f.point));
+      if (!records) throw std::runtime_error("writing the records failed");
+    };
+    if (ranks) {
+      // A record travels as status, structure, grouped, failed and line, separated by \x1f
+      // (none of them holds it); rank 0 takes x and y of the atlas from the grid.
+      std::uint64_t index = first;
+      run_ordered_mpi(
+          *g_mpi, first, grid->samples(),
+          [&](std::uint64_t i) {
+            FlowSampleRecord r;
+            try {
+              r = evaluate(i);
+            } catch (const std::exception& e) {
+              r = FlowSampleRecord::error(i, grid->values(i), e.what());
+            }
+            const Formatted f = formatted(r);
+            return f.status + '\x1f' + f.point.structure + '\x1f' + (f.point.grouped ? "1" : "0") +
+                   '\x1f' + (f.point.failed ? "1" : "0") + '\x1f' + f.line;
+          },
+          [&](std::string&& bytes) {
+            Formatted f;
+            std::size_t at = 0;
+            const auto field = [&]() {
+              const std::size_t stop = bytes.find('\x1f', at);
+              std::string text = bytes.substr(at, stop - at);
+              at = stop + 1;
+              return text;
+            };
+            f.status = field();
+            f.point.structure = field();
+            f.point.grouped = field() == "1";
+            f.point.failed = field() == "1";
+            f.line = bytes.substr(at);
+            if (options.atlas) {
+              const std::vector<double> v = grid->values(index);
+              f.point.x = v.at(0);
+              f.point.y = v.at(1);
+            }
+            ++index;
+            take(std::move(f));
+          },
+          o);
+    } else {
+      run_ordered<Formatted>(
+          first, grid->samples(), [&](std::uint64_t i) { return formatted(evaluate(i)); },
+          [&](std::uint64_t i, const std::string& what) {
+            return formatted(FlowSampleRecord::error(i, grid->values(i), what));
+          },
+          take, o);
+    }
+    if (!writes) return;
     records.flush();
     if (!records) throw std::runtime_error("writing the records failed");
     std::string summary = "sweep: " + std::to_string(grid->samples() - first) + " samples";
@@ -335,7 +389,7 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
     err << summary << '\n';
   };
   const auto finish_atlas = [&]() {
-    if (!options.atlas) return;
+    if (!options.atlas || !writes) return;
     if (first > 0) {
       err << "sweep: the atlas shows the samples of this run only (from index " << first << ")\n";
     }
@@ -366,9 +420,7 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
   return kExitOk;
 }
 
-}  // namespace
-
-int run_sweep(const SweepCommandOptions& options, std::ostream& out, std::ostream& err) {
+int run_sweep_on(const SweepCommandOptions& options, std::ostream& out, std::ostream& err) {
   try {
     return sweep_command(options, out, err);
   } catch (const InputError& e) {
@@ -387,6 +439,18 @@ int run_sweep(const SweepCommandOptions& options, std::ostream& out, std::ostrea
     report_error(err, std::string("sweep: ") + e.what());
     return kExitFailure;
   }
+}
+
+}  // namespace
+
+void set_mpi_session(const MpiSession* session) { g_mpi = session; }
+
+int run_sweep(const SweepCommandOptions& options, std::ostream& out, std::ostream& err) {
+  // Ranks other than 0 write nothing: rank 0 writes the records, the progress and any error.
+  std::ostream null_stream(nullptr);
+  const bool quiet_rank = g_mpi != nullptr && g_mpi->size() > 1 && g_mpi->rank() != 0;
+  std::ostream& err_stream = quiet_rank ? null_stream : err;
+  return run_sweep_on(options, quiet_rank ? null_stream : out, err_stream);
 }
 
 }  // namespace bflow::cli
