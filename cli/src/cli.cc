@@ -391,7 +391,10 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                      "every record; repeat for several (default: none)")
         ->type_name("A,B,...")
         ->allow_extra_args(false);
-    sweep->add_option("--threads", sweep_options.threads, "Worker threads (default: one per core)")
+    sweep
+        ->add_option("--threads", sweep_options.threads,
+                     "Worker threads (default: one per core; under mpirun, the cores of a "
+                     "machine shared among its ranks)")
         ->type_name("K");
     sweep->add_option("--format", sweep_options.format, "jsonl or csv")
         ->type_name("FORMAT")

@@ -118,7 +118,8 @@ struct SweepCommandOptions {
   std::vector<std::string> vary;
   /** "key=lo:hi:count": the scene parameter key (a real-valued one) does the same. */
   std::vector<std::string> vary_param;
-  /** Worker threads, >= 1 (default: one per core). */
+  /** Worker threads, >= 1 (default: one per core; under MPI, per rank: the cores divided by the
+      ranks on the machine). */
   std::optional<std::string> threads;
   /** "jsonl" (default) or "csv". */
   std::string format = "jsonl";

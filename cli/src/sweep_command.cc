@@ -11,6 +11,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <exception>
 #include <filesystem>
@@ -23,6 +24,7 @@
 #include <sstream>
 #include <string>
 #include <system_error>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -172,6 +174,12 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
   if (options.threads) {
     threads = static_cast<int>(parse_unsigned(*options.threads, "--threads", 4096));
     if (threads < 1) fail("--threads", "must be >= 1, got 0");
+  } else if (g_mpi != nullptr && g_mpi->size() > 1) {
+    // Under MPI the ranks on one machine share its cores.
+    const char* local = std::getenv("OMPI_COMM_WORLD_LOCAL_SIZE");
+    const int per_node = local != nullptr ? std::max(1, std::atoi(local)) : 1;
+    const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+    threads = std::max(1, cores / per_node);
   }
   SweepFormat format = SweepFormat::kJsonLines;
   try {
@@ -223,7 +231,7 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
   try {
     grid = std::make_unique<SweepGrid>(axes);
   } catch (const InvalidArgument& e) {
-    fail("--vary", e.what());
+    fail("--vary", std::string(e.what()).substr(std::string("sweep: ").size()));
   }
   const Eigen::VectorXd x0 =
       request.x0_text ? parse_vector(*request.x0_text, "--x0", d) : default_x0;
