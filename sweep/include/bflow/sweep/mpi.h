@@ -34,6 +34,8 @@ class MpiSession {
   MpiSession& operator=(const MpiSession&) = delete;
   int rank() const { return rank_; }
   int size() const { return size_; }
+  /** Whether this process called MPI_Init (and the destructor MPI_Finalize). */
+  bool initialised() const { return initialised_; }
   /** Rank 0 tells every rank whether to go on (after its own checks, e.g. of a file); returns
       rank 0's word on every rank. One rank: returns `go`. */
   bool agree(bool go) const;
