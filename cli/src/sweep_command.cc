@@ -71,17 +71,11 @@ AxisText parse_axis(const std::string& text, const std::string& option) {
   return axis;
 }
 
-std::string number_text(double value) {
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%.17g", value);
-  return buffer;
-}
-
 std::string duration_text(double seconds) {
   if (seconds < 0.0) return "?";
-  if (seconds < 60.0) return number_text(std::round(seconds)) + " s";
-  if (seconds < 3600.0) return number_text(std::floor(seconds / 60.0)) + " min";
-  return number_text(std::floor(seconds / 360.0) / 10.0) + " h";
+  if (seconds < 60.0) return format_number(std::round(seconds)) + " s";
+  if (seconds < 3600.0) return format_number(std::floor(seconds / 60.0)) + " min";
+  return format_number(std::floor(seconds / 360.0) / 10.0) + " h";
 }
 
 // One line, rewritten in place: "[=====>     ] 1234/10000 samples  523/s  about 17 s left".
@@ -132,7 +126,7 @@ void draw_atlas(const std::filesystem::path& png, const SweepGrid& grid,
   for (const AtlasPoint& p : points) {
     const auto [it, added] = ids.emplace(p.structure, static_cast<int>(ids.size()));
     if (added) labels.push_back(p.structure);
-    data << number_text(p.x) << ' ' << number_text(p.y) << ' ' << it->second << ' '
+    data << format_number(p.x) << ' ' << format_number(p.y) << ' ' << it->second << ' '
          << (p.grouped ? 1 : 0) << ' ' << (p.failed ? 1 : 0) << '\n';
   }
   const std::filesystem::path dir = png.has_parent_path() ? png.parent_path() : ".";
@@ -213,7 +207,7 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
       int states = 0;
       try {
         states = with_scene(
-            setup, {{a.key, number_text(end)}},
+            setup, {{a.key, format_number(end)}},
             [](const SegmentModel& model, const Eigen::VectorXd&) { return model.states(); });
       } catch (const InputError& e) {
         fail(option, std::string(e.what()).substr(std::string("--param: ").size()));
@@ -416,7 +410,7 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
       const std::vector<double> values = grid->values(i);
       for (std::size_t a = 0; a < grid->axes().size(); ++a) {
         if (grid->axes()[a].kind == SweepAxis::Kind::kParameter)
-          overrides.emplace_back(grid->axes()[a].parameter, number_text(values[a]));
+          overrides.emplace_back(grid->axes()[a].parameter, format_number(values[a]));
       }
       return with_scene(setup, overrides,
                         [&](const SegmentModel& model, const Eigen::VectorXd& scene_x0) {

@@ -32,18 +32,6 @@ void check_axis(const SweepAxis& axis) {
   }
 }
 
-// The shortest of 15, 16 and 17 significant digits that reads back as the same double.
-std::string number(double value) {
-  if (std::isnan(value)) return "nan";
-  if (std::isinf(value)) return value > 0 ? "inf" : "-inf";
-  char buffer[32];
-  for (int digits = 15; digits <= 17; ++digits) {
-    std::snprintf(buffer, sizeof buffer, "%.*g", digits, value);
-    if (std::strtod(buffer, nullptr) == value) break;
-  }
-  return buffer;
-}
-
 // A CSV field on one line: line breaks become spaces; quoted when it holds a separator or a
 // quote.
 std::string csv_field(std::string text) {
@@ -287,25 +275,25 @@ std::string SweepWriter::line(const FlowSampleRecord& r) const {
     line << j.dump() << '\n';
   } else {
     line << r.index;
-    for (double v : r.varied) line << ',' << number(v);
-    line << ',' << r.status << ',' << csv_field(r.message) << ',' << number(r.t_reached);
+    for (double v : r.varied) line << ',' << format_number(v);
+    line << ',' << r.status << ',' << csv_field(r.message) << ',' << format_number(r.t_reached);
     for (int i = 0; i < states_; ++i) {
       line << ',';
-      if (r.ok() && i < r.x_t.size()) line << number(r.x_t[i]);
+      if (r.ok() && i < r.x_t.size()) line << format_number(r.x_t[i]);
     }
     for (int k = 0; k < directions_; ++k) {
       for (int i = 0; i < states_; ++i) {
         line << ',';
         if (r.ok() && static_cast<std::size_t>(k) < r.images.size() &&
             i < r.images[static_cast<std::size_t>(k)].size()) {
-          line << number(r.images[static_cast<std::size_t>(k)][i]);
+          line << format_number(r.images[static_cast<std::size_t>(k)][i]);
         }
       }
     }
     line << ',';
     for (std::size_t e = 0; e < r.events.size(); ++e) {
       if (e > 0) line << ';';
-      line << number(r.events[e].t) << ':';
+      line << format_number(r.events[e].t) << ':';
       for (std::size_t s = 0; s < r.events[e].surfaces.size(); ++s) {
         if (s > 0) line << '+';
         line << r.events[e].surfaces[s];
@@ -322,7 +310,7 @@ std::string SweepWriter::line(const FlowSampleRecord& r) const {
         }
       }
     }
-    line << ',' << number(r.pieces) << '\n';
+    line << ',' << format_number(r.pieces) << '\n';
   }
   return line.str();
 }

@@ -130,8 +130,8 @@ SweepFormat parse_sweep_format(const std::string& text);
     message, t_reached, x_t[0..d), image<k>[0..d) per direction, events (t:s1+s2;... ), orders
     (per direction: events separated by ';', surfaces by '>' and directions by '|'), pieces;
     failed samples leave the numbers empty; line breaks in a message become spaces, so a record
-    is always one line. Numbers have the fewest of 15 to 17 significant digits that read back as
-    the same double. */
+    is always one line. Numbers are in the shortest form that reads back as the same double
+    (format_number). */
 class SweepWriter {
  public:
   SweepWriter(std::ostream& out, SweepFormat format, const SweepGrid& grid, int states,
