@@ -147,7 +147,7 @@ std::string gnuplot_script(double range) {
         "# Written by `bflow demo`; run in this directory: gnuplot demo_biped.gp\n"
         "set encoding utf8\n"
         "set terminal pngcairo size 800,800 enhanced font 'Sans,12'\n"
-        "set output 'demo_biped.png'\n"
+        "set output (exists('bflow_output') ? bflow_output : 'demo_biped.png')\n"
         "set title \"Biped with mode-dependent damping ([B] Sec. 3.2.4, Fig. 3.2): B-derivative "
         "of φ_{0.6}\\n"
         "the circle δx = cos a e_θ + sin a e_y at t = 0 and its image at t = 0.6 projected on "

@@ -65,7 +65,7 @@ std::string gnuplot_script(const Pieces& pieces, double range) {
         "# Written by `bflow demo`; run in this directory: gnuplot demo_circle.gp\n"
         "set encoding utf8\n"
         "set terminal pngcairo size 800,800 enhanced font 'Sans,12'\n"
-        "set output 'demo_circle.png'\n"
+        "set output (exists('bflow_output') ? bflow_output : 'demo_circle.png')\n"
         "set title \"B-derivative of the piecewise-constant field ([B] Sec. 3.1) at ρ = 0\\n"
         "the unit circle and its image under B, a piecewise ellipse\"\n"
         "set size ratio -1\n"

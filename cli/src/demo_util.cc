@@ -1,10 +1,12 @@
 #include "demo_util.h"
 
 #include <fcntl.h>
+#include <signal.h>
 #include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -70,13 +72,46 @@ void prepare_output_directory(const fs::path& dir, const std::string& command) {
   ::unlink(probe.c_str());
 }
 
+namespace {
+
+// A name in the same directory as `path` for a file that is renamed onto it once whole: its
+// first part says what it is, the process and a counter make it unique.
+fs::path temporary_beside(const fs::path& path, const std::string& extension = ".tmp") {
+  static std::atomic<unsigned> counter{0};
+  const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
+  return dir /
+         (".bflow-" + std::to_string(::getpid()) + "-" + std::to_string(counter++) + extension);
+}
+
+}  // namespace
+
+void check_replaceable_file(const fs::path& path, const std::string& command) {
+  std::error_code ec;
+  const fs::file_status status = fs::status(path, ec);
+  if (!fs::exists(status) || fs::is_regular_file(status)) return;
+  throw DemoError(command + ": " + quote(path.string(), 200) +
+                  " exists and is not a regular file; it is not replaced (remove it or name "
+                  "another output)");
+}
+
 void write_file(const fs::path& path, const std::string& contents, const std::string& command) {
-  std::ofstream file(path, std::ios::binary);
+  check_replaceable_file(path, command);
+  const fs::path temporary = temporary_beside(path);
+  std::error_code ec;
+  errno = 0;
+  std::ofstream file(temporary, std::ios::binary | std::ios::trunc);
   if (file) file << contents;
   if (file) file.close();
   if (!file) {
-    throw DemoError(command + ": cannot write " + quote(path.string(), 200) + ": " +
-                    std::strerror(errno));
+    const std::string why = errno != 0 ? std::strerror(errno) : "an I/O error";
+    fs::remove(temporary, ec);
+    throw DemoError(command + ": cannot write " + quote(path.string(), 200) + ": " + why);
+  }
+  fs::rename(temporary, path, ec);
+  if (ec) {
+    std::error_code ignored;
+    fs::remove(temporary, ignored);
+    throw DemoError(command + ": cannot write " + quote(path.string(), 200) + ": " + ec.message());
   }
 }
 
@@ -84,17 +119,41 @@ void run_gnuplot(const fs::path& dir, const std::string& script, const std::stri
                  const std::string& command_name, const std::string& without_plot) {
   const std::string command =
       "gnuplot " + script + " (in directory " + quote(dir.string(), 200) + ")";
+  check_replaceable_file(dir / png, command_name);
+  // gnuplot draws into a temporary file (the scripts set their output to bflow_output when it
+  // is defined), renamed onto the PNG once gnuplot has succeeded: a failed plot leaves the
+  // previous PNG, if any, as it was, and a stale plot never passes for a new one.
+  const fs::path temporary = temporary_beside(dir / png, ".png");
+  const std::string output_name = temporary.filename().string();
   std::error_code ec;
-  fs::remove(dir / png, ec);  // a stale plot must not pass for a new one
+  struct Cleanup {
+    fs::path path;
+    ~Cleanup() {
+      std::error_code ignored;
+      if (!path.empty()) fs::remove(path, ignored);
+    }
+  } cleanup{temporary};
   posix_spawn_file_actions_t actions;
   posix_spawn_file_actions_init(&actions);
   posix_spawn_file_actions_addchdir_np(&actions, dir.c_str());
+  // bflow ignores SIGPIPE (a closed pipe is reported as a failed write); gnuplot gets the
+  // default back.
+  posix_spawnattr_t attributes;
+  posix_spawnattr_init(&attributes);
+  sigset_t default_signals;
+  sigemptyset(&default_signals);
+  sigaddset(&default_signals, SIGPIPE);
+  posix_spawnattr_setsigdefault(&attributes, &default_signals);
+  posix_spawnattr_setflags(&attributes, POSIX_SPAWN_SETSIGDEF);
   std::string program = "gnuplot";
+  std::string option = "-e";
+  std::string assignment = "bflow_output='" + output_name + "'";
   std::string script_arg = script;
-  char* argv[] = {program.data(), script_arg.data(), nullptr};
+  char* argv[] = {program.data(), option.data(), assignment.data(), script_arg.data(), nullptr};
   pid_t pid = 0;
-  const int spawn_error = posix_spawnp(&pid, program.c_str(), &actions, nullptr, argv, environ);
+  const int spawn_error = posix_spawnp(&pid, program.c_str(), &actions, &attributes, argv, environ);
   posix_spawn_file_actions_destroy(&actions);
+  posix_spawnattr_destroy(&attributes);
   if (spawn_error != 0) {
     throw DemoError(command_name + ": cannot run " + command + ": " + std::strerror(spawn_error) +
                     "; install gnuplot (Debian: gnuplot-nox) or " + without_plot);
@@ -114,10 +173,22 @@ void run_gnuplot(const fs::path& dir, const std::string& script, const std::stri
     throw DemoError(command_name + ": " + command + " failed with exit status " +
                     std::to_string(WEXITSTATUS(status)) + " (gnuplot's message is above)");
   }
-  const auto size = fs::file_size(dir / png, ec);
+  const auto size = fs::file_size(temporary, ec);
   if (ec || size == 0) {
     throw DemoError(command_name + ": " + command + " exited normally but did not write " + png);
   }
+  fs::rename(temporary, dir / png, ec);
+  if (ec) {
+    throw DemoError(command_name + ": cannot write " + quote((dir / png).string(), 200) + ": " +
+                    ec.message());
+  }
+  cleanup.path.clear();
+}
+
+std::string gnuplot_output(const std::string& png) {
+  std::string quoted;
+  for (char c : png) quoted += c == '\'' ? std::string("''") : std::string(1, c);
+  return "set output (exists('bflow_output') ? bflow_output : '" + quoted + "')\n";
 }
 
 void write_samples(std::ostream& out, const std::vector<Sample>& samples) {

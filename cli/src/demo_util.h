@@ -55,18 +55,29 @@ bool print_checks(std::ostream& out, const std::vector<Check>& checks);
 void prepare_output_directory(const std::filesystem::path& dir,
                               const std::string& command = "demo");
 
-/** Writes `contents` to `path`. @throws DemoError "<command>: ..." naming the file and the
-    reason. */
+/** @throws DemoError "<command>: ..." when `path` exists and is not a regular file (a
+    directory, a device): the commands never replace one. */
+void check_replaceable_file(const std::filesystem::path& path, const std::string& command = "demo");
+
+/** Writes `contents` to `path`: to a temporary file beside it, renamed onto `path` once whole,
+    so that a failure leaves any earlier `path` as it was. @throws DemoError "<command>: ..."
+    naming the file and the reason, also when `path` exists and is not a regular file. */
 void write_file(const std::filesystem::path& path, const std::string& contents,
                 const std::string& command = "demo");
 
-/** Runs `gnuplot SCRIPT` in `dir` and checks that it wrote a non-empty `png` there (a stale
-    one is removed first). @throws DemoError "<command>: ..." naming the gnuplot command on
-    failure; when gnuplot cannot be started, the message ends with "install gnuplot (Debian:
+/** Runs `gnuplot SCRIPT` in `dir` with bflow_output set to a temporary file, checks that gnuplot
+    wrote it, non-empty, and renames it onto `png`: a failed plot leaves an earlier `png` as it
+    was. The script sets its output with gnuplot_output(png). @throws DemoError "<command>: ..."
+    naming the gnuplot command on failure, or `png` when it exists and is not a regular file;
+    when gnuplot cannot be started, the message ends with "install gnuplot (Debian:
     gnuplot-nox) or <without_plot>". */
 void run_gnuplot(const std::filesystem::path& dir, const std::string& script,
                  const std::string& png, const std::string& command = "demo",
                  const std::string& without_plot = "pass --no-plot");
+
+/** "set output (exists('bflow_output') ? bflow_output : 'PNG')\n": a script's output line, the
+    PNG when a user runs the script, the temporary file when run_gnuplot() does. */
+std::string gnuplot_output(const std::string& png);
 
 /** The two demo scenes (run_demo() prepares the output directory, dispatches and catches). */
 int demo_pwconst(const DemoOptions& options, std::ostream& out, std::ostream& err);

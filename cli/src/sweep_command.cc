@@ -35,6 +35,7 @@
 #include "bflow/sweep/parallel.h"
 #include "bflow/sweep/sweep.h"
 #include "cli_commands.h"
+#include "cli_json.h"
 #include "cli_util.h"
 #include "demo_util.h"
 #include "scene_setup.h"
@@ -98,7 +99,51 @@ void draw_progress(std::ostream& err, const SweepProgress& p) {
   err.flush();
 }
 
+namespace fs = std::filesystem;
+
 const MpiSession* g_mpi = nullptr;
+
+// The records could not be written; the message names the output and the reason. Exit code 1.
+class WriteError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// Whether a and b name one file: the same path once resolved, or the same file by another name
+// (a link).
+bool same_file(const fs::path& a, const fs::path& b) {
+  std::error_code code;
+  const fs::path ca = fs::weakly_canonical(fs::absolute(a), code);
+  if (code) return false;
+  const fs::path cb = fs::weakly_canonical(fs::absolute(b), code);
+  if (code) return false;
+  if (ca == cb) return true;
+  return fs::exists(a, code) && fs::exists(b, code) && fs::equivalent(a, b, code) && !code;
+}
+
+// What an earlier run left in `path` to keep (--resume); refused (exit 2, the file untouched)
+// unless it is a regular file holding an output of this very sweep.
+SweepResumePoint resume_point(const std::string& path, const SweepWriter& writer) {
+  std::error_code code;
+  const fs::file_status status = fs::status(path, code);
+  if (!fs::exists(status)) return {};
+  if (!fs::is_regular_file(status)) {
+    fail("--resume", quote(path, 200) + " is not a regular file; only a file an earlier run " +
+                         "of this sweep wrote can be resumed");
+  }
+  errno = 0;
+  std::ifstream earlier(path, std::ios::binary);
+  if (!earlier) fail("--resume", "cannot read " + quote(path, 200) + ": " + std::strerror(errno));
+  SweepResumePoint point;
+  try {
+    point = find_resume_point(earlier, writer);
+  } catch (const InvalidArgument& e) {
+    fail("--resume",
+         quote(path, 200) + ": " + std::string(e.what()).substr(std::string("sweep: ").size()));
+  }
+  if (earlier.bad()) fail("--resume", "reading " + quote(path, 200) + " failed");
+  return point;
+}
 
 struct AtlasPoint {
   double x = 0.0, y = 0.0;
@@ -141,8 +186,8 @@ void draw_atlas(const std::filesystem::path& png, const SweepGrid& grid,
   gp << "# The atlas of crossing orders written by bflow sweep --atlas; run: gnuplot " << stem
      << ".gp\n"
      << "set terminal pngcairo size 1100,800 noenhanced font 'Sans,11'\n"
-     << "set output " << gnuplot_text(png.filename().string()) << "\n"
-     << "set title " << gnuplot_text("Event structure along dx = " + format_vector(dx)) << "\n"
+     << gnuplot_output(png.filename().string()) << "set title "
+     << gnuplot_text("Event structure along dx = " + format_vector(dx)) << "\n"
      << "set xlabel " << gnuplot_text(grid.axes()[0].name()) << "\n"
      << "set ylabel " << gnuplot_text(grid.axes()[1].name()) << "\n"
      << "set key outside right top\nset grid\n"
@@ -190,6 +235,13 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
   const int d = scene_start.first;
   const Eigen::VectorXd& default_x0 = scene_start.second;
   std::vector<SweepAxis> axes;
+  std::map<std::string, std::string> varied_by;  // axis name -> the option that varies it
+  const auto claim = [&](const std::string& name, const std::string& option) {
+    const auto [it, added] = varied_by.emplace(name, option);
+    if (!added) {
+      fail(option, name + " is already varied by " + it->second + "; vary each once");
+    }
+  };
   for (std::size_t k = 0; k < options.vary.size(); ++k) {
     const std::string option = "--vary[" + std::to_string(k) + "]";
     const AxisText a = parse_axis(options.vary[k], option);
@@ -199,27 +251,57 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
                        " is outside x0 (d = " + std::to_string(d) + ")");
     }
     axes.push_back(SweepAxis::state_axis(static_cast<int>(index), a.lo, a.hi, a.count));
+    claim(axes.back().name(), option);
   }
+  // The scenes' real parameters are valid on intervals, their integer ones (seed) at whole
+  // numbers, so an axis whose ends and second value are valid is valid everywhere: those three
+  // are built, one axis at a time, then all axes together (parameters that exclude each other).
+  const auto probe_scene = [&](const Params& overrides, const std::string& option) {
+    int states = 0;
+    try {
+      states = with_scene(setup, overrides, [](const SegmentModel& model, const Eigen::VectorXd&) {
+        return model.states();
+      });
+    } catch (const InputError& e) {
+      fail(option, std::string(e.what()).substr(std::string("--param: ").size()));
+    } catch (const InvalidArgument& e) {
+      fail(option, e.what());
+    }
+    return states;
+  };
+  std::vector<AxisText> parameter_axes;
   for (std::size_t k = 0; k < options.vary_param.size(); ++k) {
     const std::string option = "--vary-param[" + std::to_string(k) + "]";
     const AxisText a = parse_axis(options.vary_param[k], option);
-    for (const double end : {a.lo, a.hi}) {
-      int states = 0;
-      try {
-        states = with_scene(
-            setup, {{a.key, format_number(end)}},
-            [](const SegmentModel& model, const Eigen::VectorXd&) { return model.states(); });
-      } catch (const InputError& e) {
-        fail(option, std::string(e.what()).substr(std::string("--param: ").size()));
-      } catch (const InvalidArgument& e) {
-        fail(option, e.what());
+    claim(a.key, option);
+    for (const auto& [key, value] : setup.params) {
+      if (key == a.key) {
+        fail(option, a.key + " is also fixed by --param " + a.key + "=" + quote(value) +
+                         "; give it either fixed or varied");
       }
+    }
+    const SweepAxis axis = SweepAxis::parameter_axis(a.key, a.lo, a.hi, a.count);
+    for (const std::uint64_t probe : {std::uint64_t{0}, std::uint64_t{1}, a.count - 1}) {
+      const double value = axis.value(std::min(probe, a.count - 1));
+      const int states = probe_scene({{a.key, format_number(value)}}, option);
       if (states != d) {
         fail(option, a.key + " changes the dimension of the state (d = " + std::to_string(d) +
                          " to " + std::to_string(states) + "); it cannot vary in a sweep");
       }
     }
-    axes.push_back(SweepAxis::parameter_axis(a.key, a.lo, a.hi, a.count));
+    axes.push_back(axis);
+    parameter_axes.push_back(a);
+  }
+  if (parameter_axes.size() > 1) {
+    for (const std::uint64_t probe : {std::uint64_t{0}, std::uint64_t{1}, ~std::uint64_t{0}}) {
+      Params overrides;
+      for (const SweepAxis& axis : axes) {
+        if (axis.kind != SweepAxis::Kind::kParameter) continue;
+        overrides.emplace_back(axis.parameter,
+                               format_number(axis.value(std::min(probe, axis.count - 1))));
+      }
+      probe_scene(overrides, "--vary-param");
+    }
   }
   std::unique_ptr<SweepGrid> grid;
   try {
@@ -236,6 +318,10 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
     sweep_request.directions.push_back(
         parse_vector(request.dx_texts[k], "--dx[" + std::to_string(k) + "]", d));
   }
+  // Every file the command writes, with the option that names it: none may be another, and
+  // none may be anything but a file it can replace.
+  std::vector<std::pair<fs::path, std::string>> files;
+  if (options.output) files.emplace_back(*options.output, "--output");
   if (options.atlas) {
     if (grid->axes().size() != 2) {
       fail("--atlas", "needs a grid of exactly two axes (--vary, --vary-param), got " +
@@ -244,11 +330,33 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
     if (sweep_request.directions.empty()) {
       fail("--atlas", "needs a --dx: the direction whose crossing orders it maps");
     }
-    const std::filesystem::path png(*options.atlas);
+    const fs::path png(*options.atlas);
+    if (!png.has_filename()) fail("--atlas", quote(*options.atlas, 200) + " names no file");
+    const fs::path dir = png.has_parent_path() ? png.parent_path() : ".";
     try {
-      prepare_output_directory(png.has_parent_path() ? png.parent_path() : ".", "sweep");
+      prepare_output_directory(dir, "sweep");
     } catch (const DemoError& e) {
       fail("--atlas", std::string(e.what()).substr(std::string("sweep: ").size()));
+    }
+    const std::string stem = png.stem().string();
+    files.emplace_back(png, "--atlas");
+    files.emplace_back(dir / (stem + ".dat"), "the atlas's data (--atlas)");
+    files.emplace_back(dir / (stem + ".gp"), "the atlas's gnuplot script (--atlas)");
+    for (std::size_t k = files.size() - 3; k < files.size(); ++k) {
+      try {
+        check_replaceable_file(files[k].first, "sweep");
+      } catch (const DemoError& e) {
+        fail("--atlas", std::string(e.what()).substr(std::string("sweep: ").size()));
+      }
+    }
+  }
+  for (std::size_t j = 1; j < files.size(); ++j) {
+    for (std::size_t i = 0; i < j; ++i) {
+      if (same_file(files[i].first, files[j].first)) {
+        fail(files[i].second == "--output" ? "--output" : "--atlas",
+             quote(files[i].first.string(), 200) + " is also " + files[j].second + " (" +
+                 quote(files[j].first.string(), 200) + "); name another file");
+      }
     }
   }
   bool varies_parameters = false;
@@ -256,37 +364,46 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
     varies_parameters |= axis.kind == SweepAxis::Kind::kParameter;
 
   if (options.resume && !options.output) fail("--resume", "needs --output FILE");
+  // The sweep's identity, the output's first line: what --resume checks.
+  OrderedJson identity = OrderedJson::object();
+  identity["bflow"] = version_string().substr(std::string("bflow ").size());
+  for (const auto& [key, value] : setup.head.items()) identity[key] = value;
+  identity["max_steps"] = request.flow.integrator.max_steps;
+  identity["x0"] = request.x0_text ? vector_json(x0) : OrderedJson(nullptr);
+  OrderedJson directions_json = OrderedJson::array();
+  for (const Eigen::VectorXd& dx : sweep_request.directions) {
+    directions_json.push_back(vector_json(dx));
+  }
+  identity["dx"] = std::move(directions_json);
+
   // Under MPI every rank computes and rank 0 alone writes; the others hear from it whether its
   // file checks passed.
   const bool ranks = g_mpi != nullptr && g_mpi->size() > 1;
   const bool writes = !ranks || g_mpi->rank() == 0;
-  std::ofstream file;
-  std::ostream& records = options.output ? file : out;
-  SweepWriter writer(records, format, *grid, d, static_cast<int>(sweep_request.directions.size()));
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(nullptr, &std::fclose);
+  std::unique_ptr<StdioOutputBuffer> file_buffer;
+  std::ostream file_stream(nullptr);
+  std::ostream& records = options.output ? file_stream : out;
+  SweepWriter writer(records, format, *grid, d, static_cast<int>(sweep_request.directions.size()),
+                     identity.dump());
   SweepResumePoint kept;
   if (writes) try {
       if (options.output) {
         const std::string& path = *options.output;
-        if (options.resume) {
-          std::ifstream earlier(path);
-          if (earlier) {
-            try {
-              kept = find_resume_point(earlier, writer);
-            } catch (const InvalidArgument& e) {
-              fail("--resume", quote(path) + ": " +
-                                   std::string(e.what()).substr(std::string("sweep: ").size()));
-            }
-          }
-        }
+        if (options.resume) kept = resume_point(path, writer);
         std::error_code code;
-        if (kept.bytes > 0) std::filesystem::resize_file(path, kept.bytes, code);
-        if (code) fail("--output", "cannot truncate " + quote(path) + ": " + code.message());
-        file.open(path,
-                  kept.bytes > 0 ? std::ios::out | std::ios::app : std::ios::out | std::ios::trunc);
-        if (!file) fail("--output", "cannot write " + quote(path) + ": " + std::strerror(errno));
+        if (kept.bytes > 0) fs::resize_file(path, kept.bytes, code);
+        if (code) fail("--output", "cannot truncate " + quote(path, 200) + ": " + code.message());
+        errno = 0;
+        file.reset(std::fopen(path.c_str(), kept.bytes > 0 ? "ab" : "wb"));
+        if (!file) {
+          fail("--output", "cannot write " + quote(path, 200) + ": " + std::strerror(errno));
+        }
+        file_buffer = std::make_unique<StdioOutputBuffer>(file.get());
+        file_stream.rdbuf(file_buffer.get());
         if (options.resume) {
           err << "sweep: " << kept.records << " of " << grid->samples() << " samples kept from "
-              << quote(path) << ", resuming at index " << kept.records << '\n';
+              << quote(path, 200) << ", resuming at index " << kept.records << '\n';
         }
       }
       if (kept.bytes == 0) writer.header();
@@ -295,6 +412,19 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
       throw;
     }
   if (ranks && !g_mpi->agree(true)) return kExitFailure;  // rank 0 reported why
+  // A record that cannot be written ends the sweep, with the reason (a full disk, a closed
+  // pipe) in the documented form.
+  const auto check_written = [&]() {
+    if (records) return;
+    int error_number = 0;
+    if (const auto* buffer = dynamic_cast<const StdioOutputBuffer*>(records.rdbuf())) {
+      error_number = buffer->error_number();
+    }
+    const std::string why = error_number != 0 ? std::strerror(error_number) : "an I/O error";
+    throw WriteError(options.output
+                         ? "--output: cannot write " + quote(*options.output, 200) + ": " + why
+                         : "stdout: write failed (" + why + ")");
+  };
   const std::uint64_t first = kept.records;
 
   // The start: --x0, or the scene's own for the sample's parameters; then the varied states.
@@ -322,6 +452,7 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
   };
   const auto run = [&](const std::function<FlowSampleRecord(std::uint64_t)>& evaluate) {
     std::map<std::string, std::uint64_t> counts;
+    std::vector<std::uint64_t> per_rank;
     SweepRunOptions o;
     o.threads = threads;
     if (!options.quiet) o.progress = [&err](const SweepProgress& p) { draw_progress(err, p); };
@@ -332,13 +463,13 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
       records << f.line;
       ++counts[f.status];
       if (options.atlas) atlas.push_back(std::move(f.point));
-      if (!records) throw std::runtime_error("writing the records failed");
+      check_written();
     };
     if (ranks) {
       // A record travels as status, structure, grouped, failed and line, separated by \x1f
       // (none of them holds it); rank 0 takes x and y of the atlas from the grid.
       std::uint64_t index = first;
-      run_ordered_mpi(
+      per_rank = run_ordered_mpi(
           *g_mpi, first, grid->samples(),
           [&](std::uint64_t i) {
             FlowSampleRecord r;
@@ -384,10 +515,20 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
     }
     if (!writes) return;
     records.flush();
-    if (!records) throw std::runtime_error("writing the records failed");
+    check_written();
+    if (file && std::fflush(file.get()) != 0) {
+      throw WriteError("--output: cannot write " + quote(*options.output, 200) + ": " +
+                       std::strerror(errno));
+    }
     std::string summary = "sweep: " + std::to_string(grid->samples() - first) + " samples";
     for (const auto& [status, count] : counts)
       summary += ", " + std::to_string(count) + " " + status;
+    if (ranks) {
+      summary += "; computed by ranks 0.." + std::to_string(per_rank.size() - 1) + ":";
+      for (std::size_t r = 0; r < per_rank.size(); ++r) {
+        summary += (r == 0 ? " " : ", ") + std::to_string(per_rank[r]);
+      }
+    }
     err << summary << '\n';
   };
   const auto finish_atlas = [&]() {
@@ -418,6 +559,10 @@ int sweep_command(const SweepCommandOptions& options, std::ostream& out, std::os
                         });
     });
   }
+  if (file && std::fclose(file.release()) != 0) {
+    throw WriteError("--output: cannot write " + quote(*options.output, 200) + ": " +
+                     std::strerror(errno));
+  }
   finish_atlas();
   return kExitOk;
 }
@@ -428,6 +573,9 @@ int run_sweep_on(const SweepCommandOptions& options, std::ostream& out, std::ost
   } catch (const InputError& e) {
     report_error(err, e.what());
     return kExitBadInput;
+  } catch (const WriteError& e) {
+    report_error(err, e.what());
+    return kExitFailure;
   } catch (const InvalidArgument& e) {
     report_error(err, std::string("sweep: ") + e.what());
     return kExitBadInput;

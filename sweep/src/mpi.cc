@@ -162,10 +162,11 @@ std::string receive_bytes(int from, int tag, int* source) {
 }  // namespace
 #endif
 
-void run_ordered_mpi(const MpiSession& mpi, std::uint64_t first, std::uint64_t end,
-                     const std::function<std::string(std::uint64_t)>& evaluate,
-                     const std::function<void(std::string&&)>& sink, const SweepRunOptions& options,
-                     std::uint64_t chunk) {
+std::vector<std::uint64_t> run_ordered_mpi(
+    const MpiSession& mpi, std::uint64_t first, std::uint64_t end,
+    const std::function<std::string(std::uint64_t)>& evaluate,
+    const std::function<void(std::string&&)>& sink, const SweepRunOptions& options,
+    std::uint64_t chunk) {
   if (first > end) {
     throw InvalidArgument("sweep: the first sample " + std::to_string(first) +
                           " is after the end " + std::to_string(end));
@@ -177,7 +178,7 @@ void run_ordered_mpi(const MpiSession& mpi, std::uint64_t first, std::uint64_t e
           throw std::runtime_error("sweep: sample " + std::to_string(i) + " threw: " + what);
         },
         sink, options);
-    return;
+    return {end - first};
   }
 #ifdef BFLOW_HAVE_MPI
   const std::uint64_t ranks = static_cast<std::uint64_t>(mpi.size());
@@ -192,7 +193,7 @@ void run_ordered_mpi(const MpiSession& mpi, std::uint64_t first, std::uint64_t e
       const std::string assign = receive_bytes(0, kTagAssign, nullptr);
       std::size_t at = 0;
       const std::uint64_t a = read_u64(assign, at), count = read_u64(assign, at);
-      if (count == 0) return;
+      if (count == 0) return {};
       const std::vector<std::string> records = compute_chunk(a, a + count, evaluate, options);
       message.clear();
       append_u64(message, a);
@@ -209,6 +210,7 @@ void run_ordered_mpi(const MpiSession& mpi, std::uint64_t first, std::uint64_t e
   std::mutex mutex;
   std::uint64_t next = first;  // the next index to hand out (guarded by mutex)
   std::map<std::uint64_t, std::vector<std::string>> done;  // by chunk start (guarded)
+  std::vector<std::uint64_t> computed(static_cast<std::size_t>(mpi.size()), 0);  // per rank
   const auto take = [&](std::uint64_t* a, std::uint64_t* count) {
     std::lock_guard<std::mutex> lock(mutex);
     *a = next;
@@ -225,6 +227,7 @@ void run_ordered_mpi(const MpiSession& mpi, std::uint64_t first, std::uint64_t e
         std::vector<std::string> records = compute_chunk(a, a + count, evaluate, options);
         std::lock_guard<std::mutex> lock(mutex);
         done.emplace(a, std::move(records));
+        computed[0] += count;
       }
     } catch (...) {
       std::lock_guard<std::mutex> lock(mutex);
@@ -261,6 +264,7 @@ void run_ordered_mpi(const MpiSession& mpi, std::uint64_t first, std::uint64_t e
           }
           std::lock_guard<std::mutex> lock(mutex);
           done.emplace(a, std::move(records));
+          computed[static_cast<std::size_t>(source)] += count;
         }
         std::uint64_t b = 0, n = 0;
         take(&b, &n);
@@ -301,14 +305,30 @@ void run_ordered_mpi(const MpiSession& mpi, std::uint64_t first, std::uint64_t e
     failure = std::current_exception();
   }
   if (failure) {
+    // No more chunks: every worker that asks is told to stop, so that all ranks end normally
+    // and the caller can report the failure (a sink that could not write, say).
     {
       std::lock_guard<std::mutex> lock(mutex);
       next = end;
     }
     local.join();
-    MPI_Abort(MPI_COMM_WORLD, 1);  // the workers wait for chunks that will never come
+    try {
+      while (running > 0) {
+        int source = 0;
+        receive_bytes(MPI_ANY_SOURCE, kTagResult, &source);
+        std::string assign;
+        append_u64(assign, end);
+        append_u64(assign, 0);
+        send_bytes(assign, source, kTagAssign);
+        --running;
+      }
+    } catch (...) {
+      MPI_Abort(MPI_COMM_WORLD, 1);
+    }
+    std::rethrow_exception(failure);
   }
   local.join();
+  return computed;
 #else
   (void)chunk;
   throw InvalidArgument("sweep: bflow was built without MPI");

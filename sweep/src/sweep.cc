@@ -1,11 +1,14 @@
 #include "bflow/sweep/sweep.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <exception>
 #include <limits>
 #include <sstream>
+#include <string>
 #include <utility>
 
 #include <nlohmann/json.hpp>
@@ -17,6 +20,7 @@ namespace bflow {
 namespace {
 
 constexpr std::uint64_t kMaxSamples = std::uint64_t{1} << 53;
+constexpr const char* kCsvIdentityPrefix = "# bflow sweep ";
 
 void check_axis(const SweepAxis& axis) {
   if (axis.count == 0) {
@@ -69,6 +73,102 @@ std::vector<double> csv_leading_numbers(const std::string& line, std::size_t cou
   return values.size() == count ? values : std::vector<double>{};
 }
 
+enum class LineEnd { kWhole, kCut, kNone, kTooLong };
+
+// The next line of `in` without its newline: whole, cut (the input ends without a newline),
+// none (the input has ended) or too long (more than `max` bytes; reading stops there).
+LineEnd read_line(std::istream& in, std::string& line, std::size_t max) {
+  line.clear();
+  std::streambuf* const buffer = in.rdbuf();
+  if (buffer == nullptr) return LineEnd::kNone;
+  while (true) {
+    const int c = buffer->sbumpc();
+    if (c == std::char_traits<char>::eof()) return line.empty() ? LineEnd::kNone : LineEnd::kCut;
+    if (c == '\n') return LineEnd::kWhole;
+    if (line.size() >= max) return LineEnd::kTooLong;
+    line.push_back(static_cast<char>(c));
+  }
+}
+
+// The fields of a CSV line (a quoted field may hold commas and doubled quotes); 0 when a quote
+// is left open.
+std::size_t csv_field_count(const std::string& line) {
+  std::size_t fields = 1;
+  bool quoted = false;
+  for (std::size_t i = 0; i < line.size(); ++i) {
+    const char c = line[i];
+    if (quoted) {
+      if (c == '"') {
+        if (i + 1 < line.size() && line[i + 1] == '"') {
+          ++i;
+        } else {
+          quoted = false;
+        }
+      }
+    } else if (c == '"') {
+      quoted = true;
+    } else if (c == ',') {
+      ++fields;
+    }
+  }
+  return quoted ? 0 : fields;
+}
+
+// A value of a file, quoted for a message: JSON-escaped, invalid UTF-8 replaced, at most about
+// `max` bytes.
+std::string shown(const std::string& text, std::size_t max = 60) {
+  const bool cut = text.size() > max;
+  std::string dumped = nlohmann::json(text.substr(0, max))
+                           .dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+  if (cut) dumped.insert(dumped.size() - 1, "...");
+  std::string escaped;  // JSON leaves DEL as it is; a message shows it
+  for (char c : dumped) escaped += c == '\x7f' ? std::string("\\u007f") : std::string(1, c);
+  return escaped;
+}
+
+// Why the first line of an output is not this sweep's identity line: "is not a bflow sweep
+// output (...)", "is a CSV output", or "is from another sweep: its "t" is 0.5, this sweep's 1".
+std::string identity_difference(const std::string& line, const SweepWriter& writer) {
+  const std::string json_prefix = "{\"sweep\":";
+  std::string object_text;
+  const bool json_line = line.compare(0, json_prefix.size(), json_prefix) == 0;
+  const bool csv_line = line.compare(0, std::strlen(kCsvIdentityPrefix), kCsvIdentityPrefix) == 0;
+  nlohmann::ordered_json found;
+  if (json_line) {
+    const nlohmann::ordered_json whole = nlohmann::ordered_json::parse(line, nullptr, false);
+    if (!whole.is_discarded() && whole.is_object() && whole.size() == 1 &&
+        whole.contains("sweep")) {
+      found = whole["sweep"];
+    }
+  } else if (csv_line) {
+    found =
+        nlohmann::ordered_json::parse(line.substr(std::strlen(kCsvIdentityPrefix)), nullptr, false);
+  }
+  if (!found.is_object()) {
+    return "is not a bflow sweep output (its first line is " + shown(line) + ")";
+  }
+  const nlohmann::ordered_json expected = nlohmann::ordered_json::parse(writer.identity());
+  const auto value = [](const nlohmann::ordered_json& v) {
+    const std::string text = v.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+    return text.size() > 80 ? text.substr(0, 77) + "..." : text;
+  };
+  for (const auto& [key, want] : expected.items()) {
+    if (!found.contains(key)) {
+      return "is from another sweep: it has no \"" + key + "\", this sweep's is " + value(want);
+    }
+    if (found[key] != want) {
+      return "is from another sweep: its \"" + key + "\" is " + value(found[key]) +
+             ", this sweep's is " + value(want);
+    }
+  }
+  for (const auto& [key, unused] : found.items()) {
+    if (!expected.contains(key)) {
+      return "is from another sweep: it has " + shown(key) + ", which this sweep has not";
+    }
+  }
+  return "is from another sweep: its first line is not byte for byte this sweep's identity";
+}
+
 nlohmann::ordered_json vector_json(const Eigen::Ref<const Eigen::VectorXd>& v) {
   nlohmann::ordered_json list = nlohmann::ordered_json::array();
   for (Eigen::Index k = 0; k < v.size(); ++k) {
@@ -107,7 +207,12 @@ SweepAxis SweepAxis::parameter_axis(std::string name, double lo, double hi, std:
 double SweepAxis::value(std::uint64_t k) const {
   if (count <= 1 || k == 0) return lo;
   if (k + 1 == count) return hi;
-  return lo + (hi - lo) * static_cast<double>(k) / static_cast<double>(count - 1);
+  const double scaled = (hi - lo) * static_cast<double>(k);
+  if (std::isfinite(scaled)) return lo + scaled / static_cast<double>(count - 1);
+  // hi - lo (or k times it) is beyond the double range: a convex combination of the ends, each
+  // term at most max(|lo|, |hi|) in magnitude, stays finite.
+  const double s = static_cast<double>(k) / static_cast<double>(count - 1);
+  return (1.0 - s) * lo + s * hi;
 }
 
 std::string SweepAxis::name() const {
@@ -173,14 +278,46 @@ FlowSampleRecord evaluate_flow_sample(const SegmentModel& model,
     r.x_t = trajectory.x;
     r.events = std::move(trajectory.events);
     for (const Eigen::VectorXd& dx : request.directions) {
-      r.images.push_back(derivative.apply(dx));
       std::vector<std::vector<int>> orders;
-      for (CrossingOrder& order : derivative.crossing_orders(dx))
-        orders.push_back(std::move(order.order));
+      try {
+        r.images.push_back(derivative.apply(dx));
+        for (CrossingOrder& order : derivative.crossing_orders(dx))
+          orders.push_back(std::move(order.order));
+      } catch (const InvalidArgument& e) {
+        // The direction has the state's size and finite entries (the caller checked them), so
+        // what apply() or crossing_orders() refuse now is a number beyond the double range.
+        r.images.resize(r.orders.size());
+        r.images.push_back(Eigen::VectorXd::Constant(dx.size(), INFINITY));
+        if (r.message.empty()) r.message = e.what();
+      }
       r.orders.push_back(std::move(orders));
     }
     for (const EventRecord& e : r.events) {
       for (int k = 2; k <= e.group_size(); ++k) r.pieces *= k;
+    }
+    // A finite start can still overflow (a huge direction, a field beyond the double range):
+    // such a record is not "ok", and keeps none of the numbers that are not finite.
+    std::string overflowed;
+    if (!std::isfinite(r.t_reached)) overflowed = "t_reached";
+    if (overflowed.empty() && !r.x_t.allFinite()) overflowed = "x_t";
+    for (std::size_t e = 0; overflowed.empty() && e < r.events.size(); ++e) {
+      if (!std::isfinite(r.events[e].t)) overflowed = "events[" + std::to_string(e) + "].t";
+    }
+    for (std::size_t k = 0; overflowed.empty() && k < r.images.size(); ++k) {
+      if (!r.images[k].allFinite()) overflowed = "images[" + std::to_string(k) + "]";
+    }
+    if (!overflowed.empty()) {
+      r.status = "overflow";
+      r.message = "the computation overflowed: " + overflowed + " is not finite" +
+                  (r.message.empty() ? "" : " (" + r.message + ")");
+      if (!std::isfinite(r.t_reached)) r.t_reached = 0.0;
+      r.x_t.resize(0);
+      r.images.clear();
+      r.orders.clear();
+      r.pieces = 0.0;
+      bool events_finite = true;
+      for (const EventRecord& e : r.events) events_finite = events_finite && std::isfinite(e.t);
+      if (!events_finite) r.events.clear();
     }
     return r;
   } catch (const InvalidArgument& e) {
@@ -235,12 +372,29 @@ SweepFormat parse_sweep_format(const std::string& text) {
 }
 
 SweepWriter::SweepWriter(std::ostream& out, SweepFormat format, const SweepGrid& grid, int states,
-                         int directions)
-    : out_(out), format_(format), grid_(grid), states_(states), directions_(directions) {}
+                         int directions, const std::string& identity)
+    : out_(out), format_(format), grid_(grid), states_(states), directions_(directions) {
+  nlohmann::ordered_json object = nlohmann::ordered_json::parse(identity, nullptr, false);
+  if (object.is_discarded() || !object.is_object()) {
+    throw InvalidArgument("sweep: the identity of a sweep must be a JSON object, got " +
+                          identity.substr(0, 80));
+  }
+  object["format"] = format == SweepFormat::kCsv ? "csv" : "jsonl";
+  object["states"] = states;
+  object["directions"] = directions;
+  nlohmann::ordered_json axes = nlohmann::ordered_json::array();
+  for (const SweepAxis& axis : grid.axes()) {
+    axes.push_back(nlohmann::ordered_json{
+        {"name", axis.name()}, {"lo", axis.lo}, {"hi", axis.hi}, {"count", axis.count}});
+  }
+  object["axes"] = std::move(axes);
+  identity_ = object.dump();  // one line: dump() escapes every control character
+}
 
 std::string SweepWriter::header_line() const {
-  if (format_ != SweepFormat::kCsv) return "";
+  if (format_ != SweepFormat::kCsv) return "{\"sweep\":" + identity_ + "}\n";
   std::ostringstream line;
+  line << kCsvIdentityPrefix << identity_ << '\n';
   line << "index";
   for (const SweepAxis& axis : grid_.axes()) line << ',' << csv_field(axis.name());
   line << ",status,message,t_reached";
@@ -315,29 +469,68 @@ std::string SweepWriter::line(const FlowSampleRecord& r) const {
   return line.str();
 }
 
-SweepResumePoint find_resume_point(std::istream& in, const SweepWriter& writer) {
+SweepResumePoint find_resume_point(std::istream& in, const SweepWriter& writer,
+                                   std::size_t max_line_bytes) {
   SweepResumePoint point;
   const SweepGrid& grid = writer.grid();
-  const std::string header = writer.header_line();
+  std::vector<std::string> header_lines;
+  {
+    const std::string header = writer.header_line();
+    std::size_t at = 0;
+    while (at < header.size()) {
+      const std::size_t newline = header.find('\n', at);
+      header_lines.push_back(header.substr(at, newline - at));
+      at = newline + 1;
+    }
+  }
   std::string line;
   std::uint64_t number = 0;  // line number, from 1
   std::uint64_t offset = 0;
-  while (std::getline(in, line)) {
+  for (const std::string& expected : header_lines) {
     ++number;
-    if (in.eof()) break;  // no newline: the line was cut
-    const std::uint64_t next_offset = offset + line.size() + 1;
-    if (number == 1 && !header.empty()) {
-      if (line + "\n" != header) not_this_sweep(number, "is not the CSV header of this sweep");
-      offset = point.bytes = next_offset;
+    const LineEnd end = read_line(in, line, std::max(max_line_bytes, expected.size()));
+    if (end == LineEnd::kNone) return point;  // only a start of the header: nothing to keep
+    const bool prefix =
+        line.size() <= expected.size() && expected.compare(0, line.size(), line) == 0;
+    if (end == LineEnd::kCut && prefix) return point;
+    if (end == LineEnd::kWhole && line == expected) {
+      offset += line.size() + 1;
       continue;
     }
+    if (number == 1) {
+      throw InvalidArgument("sweep: the output to resume " + identity_difference(line, writer));
+    }
+    not_this_sweep(number, "is not the CSV column header of this sweep");
+  }
+  point.bytes = offset;
+  const std::size_t columns =
+      writer.format() == SweepFormat::kCsv ? csv_field_count(header_lines.back()) : std::size_t{0};
+  while (true) {
+    ++number;
     const std::uint64_t index = point.records;
+    const LineEnd end = read_line(in, line, max_line_bytes);
+    if (end == LineEnd::kNone) break;
+    if (end == LineEnd::kTooLong) {
+      not_this_sweep(number, "is longer than " + std::to_string(max_line_bytes) +
+                                 " bytes, more than any record");
+    }
     if (index >= grid.samples()) not_this_sweep(number, "is a record beyond the grid's samples");
+    if (end == LineEnd::kCut) {
+      // The last line, without its newline: the start of record `index`, cut by the stop.
+      const std::string start = writer.format() == SweepFormat::kJsonLines
+                                    ? "{\"index\":" + std::to_string(index) + ","
+                                    : std::to_string(index) + ",";
+      const std::size_t n = std::min(line.size(), start.size());
+      if (line.compare(0, n, start, 0, n) == 0) break;
+      not_this_sweep(
+          number, "is an incomplete line that is not the start of record " + std::to_string(index));
+    }
     std::vector<double> found;
     if (writer.format() == SweepFormat::kJsonLines) {
       const nlohmann::json j = nlohmann::json::parse(line, nullptr, false);
       if (j.is_discarded() || !j.is_object() || !j.contains("index") ||
-          !j["index"].is_number_unsigned() || !j.contains("varied") || !j["varied"].is_array()) {
+          !j["index"].is_number_unsigned() || !j.contains("varied") || !j["varied"].is_array() ||
+          !j.contains("status") || !j["status"].is_string() || !j.contains("pieces")) {
         not_this_sweep(number, "is not a JSON-lines record");
       }
       found.push_back(static_cast<double>(j["index"].get<std::uint64_t>()));
@@ -346,6 +539,10 @@ SweepResumePoint find_resume_point(std::istream& in, const SweepWriter& writer) 
         found.push_back(v.get<double>());
       }
     } else {
+      if (csv_field_count(line) != columns) {
+        not_this_sweep(number, "is not a CSV record of this sweep (not " + std::to_string(columns) +
+                                   " fields)");
+      }
       found = csv_leading_numbers(line, 1 + grid.axes().size());
       if (found.empty()) not_this_sweep(number, "is not a CSV record of this sweep");
     }
@@ -360,7 +557,8 @@ SweepResumePoint find_resume_point(std::istream& in, const SweepWriter& writer) 
                      "has index and varied values " + text(found) + ", expected " + text(expected));
     }
     ++point.records;
-    offset = point.bytes = next_offset;
+    offset += line.size() + 1;
+    point.bytes = offset;
   }
   return point;
 }

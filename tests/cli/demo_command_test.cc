@@ -142,7 +142,8 @@ TEST(DemoCommandTest, PwconstDataFileHoldsTheCircleAndItsExactImage) {
   }
   const std::string gp = read(dir / "demo_circle.gp");
   EXPECT_THAT(gp, HasSubstr("set terminal pngcairo size 800,800"));
-  EXPECT_THAT(gp, HasSubstr("set output 'demo_circle.png'"));
+  EXPECT_THAT(gp,
+              HasSubstr("set output (exists('bflow_output') ? bflow_output : 'demo_circle.png')"));
   EXPECT_THAT(gp, HasSubstr("set size ratio -1"));
   EXPECT_THAT(gp, HasSubstr("data = 'demo_circle.dat'"));
 }
@@ -385,7 +386,8 @@ TEST(DemoCommandTest, BipedDataFileHoldsTheCircleAndItsExactImage) {
   }
   const std::string gp = read(dir / "demo_biped.gp");
   EXPECT_THAT(gp, HasSubstr("set terminal pngcairo size 800,800"));
-  EXPECT_THAT(gp, HasSubstr("set output 'demo_biped.png'"));
+  EXPECT_THAT(gp,
+              HasSubstr("set output (exists('bflow_output') ? bflow_output : 'demo_biped.png')"));
   EXPECT_THAT(gp, HasSubstr("set size ratio -1"));
   EXPECT_THAT(gp, HasSubstr("data = 'demo_biped.dat'"));
 }
@@ -414,6 +416,39 @@ TEST(DemoCommandTest, UnknownSceneIsBadInput) {
   EXPECT_EQ(o.err,
             "error: --scene: unknown demo scene \"pendulum\"; the demo scenes are biped and "
             "pwconst\n");
+}
+
+Outcome command_line(std::vector<std::string> args) {
+  args.insert(args.begin(), "bflow");
+  std::vector<const char*> argv;
+  for (const auto& a : args) argv.push_back(a.c_str());
+  std::istringstream in;
+  std::ostringstream out, err;
+  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
+  return {code, out.str(), err.str()};
+}
+
+// An option given '' is refused naming it (CLI11 would take the default scene or directory),
+// before any directory is made; a scene name is quoted short and printable.
+TEST(DemoCommandTest, EmptyValuesAndOddNamesAreRefusedOnOneLine) {
+  const fs::path dir = fresh_dir("demo_empty_values");
+  for (const auto& [args, error] :
+       std::vector<std::pair<std::vector<std::string>, std::string>>{
+           {{"--scene", "", "--output", dir.string()}, "--scene: the value is empty"},
+           {{"--output", ""}, "--output: the value is empty"},
+           {{"-o", ""}, "--output: the value is empty"},
+           {{"--scene", "\xff\x1b[31m" + std::string(100, 'p'), "--output", dir.string()},
+            "--scene: unknown demo scene \"\\xff\\u001b[31m" + std::string(54, 'p') +
+                "...\"; the demo scenes are biped and pwconst"}}) {
+    std::vector<std::string> all = {"demo", "--no-plot"};
+    all.insert(all.end(), args.begin(), args.end());
+    const Outcome o = command_line(all);
+    SCOPED_TRACE(error);
+    EXPECT_EQ(o.code, 2);
+    EXPECT_EQ(o.out, "");
+    EXPECT_EQ(o.err, "error: " + error + "\n");
+  }
+  EXPECT_FALSE(fs::exists(dir));
 }
 
 }  // namespace

@@ -1,8 +1,10 @@
 // `bflow sweep` in-process: its records hold the closed forms of the linear piecewise-constant
 // field, the same bytes whatever the number of threads, failed samples in place, and every
 // malformed option one precise error line with exit code 2 before anything is written.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -37,10 +39,14 @@ Outcome command_line(std::vector<std::string> args) {
   return {code, out.str(), err.str()};
 }
 
+// The records of a JSON-lines output, after its identity line {"sweep": {...}}.
 std::vector<Json> records(const std::string& text) {
   std::vector<Json> list;
   std::istringstream lines(text);
   std::string line;
+  if (!std::getline(lines, line)) return list;
+  const Json identity = Json::parse(line);
+  EXPECT_TRUE(identity.contains("sweep")) << line;
   while (std::getline(lines, line)) list.push_back(Json::parse(line));
   return list;
 }
@@ -122,7 +128,11 @@ TEST(SweepCommand, ProgressGoesToStderrAndRecordsToTheOutputFile) {
   EXPECT_THAT(r.err, HasSubstr("] 10/10 samples"));
   EXPECT_THAT(r.err, HasSubstr("sweep: 10 samples, 10 ok\n"));
   std::ifstream file(path);
-  std::string header, line;
+  std::string identity, header, line;
+  std::getline(file, identity);
+  EXPECT_EQ(identity.substr(0, 16), "# bflow sweep {\"");
+  EXPECT_THAT(identity, HasSubstr("\"scene\":\"pwconst\""));
+  EXPECT_THAT(identity, HasSubstr("\"format\":\"csv\""));
   std::getline(file, header);
   EXPECT_EQ(header, "index,x[0],status,message,t_reached,x_t[0],x_t[1],events,orders,pieces");
   int lines = 0;
@@ -161,7 +171,8 @@ TEST(SweepCommand, AnInterruptedOutputResumedIsTheUninterruptedOne) {
     resume_args.insert(resume_args.end(), {"--output", cut_path, "--resume", "--threads", "3"});
     const Outcome r = command_line(resume_args);
     ASSERT_EQ(r.code, 0) << r.err;
-    const int kept = std::string(format) == "csv" ? 16 : 17;  // the CSV header is a line
+    // The identity line, and for CSV the column header, come before the records.
+    const int kept = std::string(format) == "csv" ? 15 : 16;
     EXPECT_THAT(r.err, HasSubstr("sweep: " + std::to_string(kept) + " of 48 samples kept"));
     EXPECT_THAT(r.err, HasSubstr("sweep: " + std::to_string(48 - kept) + " samples, "));
     EXPECT_EQ(read_file(cut_path), whole) << format;
@@ -181,9 +192,10 @@ TEST(SweepCommand, AnotherSweepsOutputIsNotResumedAndNotTouched) {
   const Outcome r = command_line({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.2:4", "--quiet",
                                   "--output", path, "--resume"});
   EXPECT_EQ(r.code, 2);
-  EXPECT_THAT(r.err, HasSubstr("error: --resume: \"" + path +
-                               "\": the output to resume is not from this sweep: line 2 has "
-                               "index and varied values [1, -0.7], expected [1, -0.733"));
+  EXPECT_EQ(r.err, "error: --resume: \"" + path +
+                       "\": the output to resume is from another sweep: its \"axes\" is "
+                       "[{\"name\":\"x[0]\",\"lo\":-1.0,\"hi\":-0.1,\"count\":4}], this "
+                       "sweep's is [{\"name\":\"x[0]\",\"lo\":-1.0,\"hi\":-0.2,\"count\":4}]\n");
   EXPECT_EQ(read_file(path), before);
 }
 
@@ -254,6 +266,208 @@ TEST(SweepCommand, BadOptionsAreRefusedBeforeAnythingIsWritten) {
           "--atlas: needs a --dx: the direction whose crossing orders it maps");
   refused({"--vary", "0=0:1:3", "--output", "/nonexistent-dir/out.jsonl"},
           "--output: cannot write \"/nonexistent-dir/out.jsonl\": No such file or directory");
+}
+
+// --resume keeps only what an earlier run of the very same sweep wrote: anything else is
+// refused with exit code 2 and the file is left byte for byte as it was.
+TEST(SweepCommand, ResumeRefusesEverythingButThisSweepsOutputAndTouchesNothing) {
+  const std::string dir = ::testing::TempDir();
+  const std::vector<std::string> sweep = {"sweep",       "--scene", "pwconst", "--vary",
+                                          "0=-1:-0.1:4", "--dx",    "1,0",     "--quiet"};
+  const auto run = [&](std::vector<std::string> extra) {
+    std::vector<std::string> args = sweep;
+    args.insert(args.end(), extra.begin(), extra.end());
+    return command_line(args);
+  };
+  const std::string good = dir + "sweep_resume_good.jsonl";
+  ASSERT_EQ(run({"--output", good}).code, 0);
+  const std::string whole = read_file(good);
+  const std::string first_line = whole.substr(0, whole.find('\n') + 1);
+  // Other sweeps' outputs, from the same command with one option changed.
+  const auto other = [&](std::vector<std::string> args) {
+    const std::string path = dir + "sweep_resume_other.jsonl";
+    std::remove(path.c_str());
+    args.insert(args.end(), {"--output", path, "--quiet"});
+    EXPECT_EQ(command_line(args).code, 0);
+    return read_file(path);
+  };
+  struct Case {
+    std::string name, content, message;
+  };
+  const std::vector<Case> cases = {
+      {"text without a newline", "important notes",
+       "is not a bflow sweep output (its first line is \"important notes\")"},
+      {"binary",
+       std::string("\x7f"
+                   "ELF\x02\x01\x01\0\0\xff\xfe",
+                   12),
+       "is not a bflow sweep output (its first line is \"\\u007fELF"},
+      {"text with lines", "line one\nline two\n", "is not a bflow sweep output"},
+      {"another time",
+       other({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.1:4", "--dx", "1,0", "--t", "0.9"}),
+       "is from another sweep: its \"t\" is 0.9, this sweep's is 1.0"},
+      {"another parameter",
+       other({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.1:4", "--dx", "1,0", "--param",
+              "delta=0.5"}),
+       "is from another sweep: its \"params\" is {\"d\":2,\"delta\":0.5}, this sweep's is "
+       "{\"d\":2,\"delta\":0.25}"},
+      {"another direction",
+       other({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.1:4", "--dx", "0,1"}),
+       "is from another sweep: its \"dx\" is [[0.0,1.0]], this sweep's is [[1.0,0.0]]"},
+      {"another start",
+       other({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.1:4", "--dx", "1,0", "--x0=-1,-1"}),
+       "is from another sweep: its \"x0\" is [-1.0,-1.0], this sweep's is null"},
+      {"another tolerance",
+       other({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.1:4", "--dx", "1,0", "--rtol",
+              "1e-6"}),
+       "is from another sweep: its \"rtol\" is 1e-06, this sweep's is 1e-08"},
+      {"another grouping",
+       other({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.1:4", "--dx", "1,0", "--grouping",
+              "none"}),
+       "is from another sweep: its \"grouping\" is \"none\", this sweep's is \"auto\""},
+      {"another scene", other({"sweep", "--scene", "biped", "--vary", "0=-1:-0.1:4"}),
+       "is from another sweep: its \"scene\" is \"biped\", this sweep's is \"pwconst\""},
+      {"another format",
+       other({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.1:4", "--dx", "1,0", "--format",
+              "csv"}),
+       "is from another sweep: its \"format\" is \"csv\", this sweep's is \"jsonl\""},
+      {"a record that is not one", first_line + "{\"index\":0}\n",
+       "is not from this sweep: line 2 is not a JSON-lines record"},
+      {"a cut line that is not a record", first_line + "garbage",
+       "is not from this sweep: line 2 is an incomplete line that is not the start of record 0"},
+      {"records beyond the grid", whole + whole.substr(first_line.size()),
+       "is not from this sweep: line 6 is a record beyond the grid's samples"},
+  };
+  const std::string path = dir + "sweep_resume_case.jsonl";
+  for (const Case& c : cases) {
+    write_file(path, c.content);
+    const Outcome r = run({"--output", path, "--resume"});
+    EXPECT_EQ(r.code, 2) << c.name;
+    EXPECT_EQ(r.out, "") << c.name;
+    EXPECT_THAT(r.err,
+                HasSubstr("error: --resume: \"" + path + "\": the output to resume " + c.message))
+        << c.name;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << c.name << ": " << r.err;
+    EXPECT_EQ(read_file(path), c.content) << c.name;
+  }
+  // Not a regular file: an endless device and a directory.
+  for (const std::string& special : {std::string("/dev/zero"), dir}) {
+    const Outcome r = run({"--output", special, "--resume"});
+    EXPECT_EQ(r.code, 2);
+    EXPECT_EQ(r.err, "error: --resume: \"" + special +
+                         "\" is not a regular file; only a file an earlier run of this sweep "
+                         "wrote can be resumed\n");
+  }
+  // What may be resumed: nothing, the start of the identity line, whole records and a cut one.
+  for (const std::size_t cut : {std::size_t{0}, std::size_t{5}, first_line.size() - 1,
+                                first_line.size(), first_line.size() + 9, whole.size() - 1}) {
+    write_file(path, whole.substr(0, cut));
+    const Outcome r = run({"--output", path, "--resume"});
+    EXPECT_EQ(r.code, 0) << "cut at " << cut << ": " << r.err;
+    EXPECT_EQ(read_file(path), whole) << "cut at " << cut;
+  }
+}
+
+TEST(SweepCommand, NoOutputReplacesAnother) {
+  const std::string dir = ::testing::TempDir() + "sweep_collisions/";
+  std::filesystem::create_directories(dir);
+  const std::vector<std::string> sweep = {"sweep",       "--scene", "pwconst",     "--vary",
+                                          "0=-1:-0.1:3", "--vary",  "1=-1:-0.1:3", "--dx",
+                                          "1,0",         "--quiet"};
+  for (const char* name : {"A.dat", "A.gp", "A.png"}) {
+    const std::string output = dir + name;
+    write_file(output, "keep me");
+    std::vector<std::string> args = sweep;
+    args.insert(args.end(), {"--output", output, "--atlas", dir + "A.png"});
+    const Outcome r = command_line(args);
+    EXPECT_EQ(r.code, 2) << name;
+    EXPECT_THAT(r.err, HasSubstr("error: --output: \"" + output + "\" is also "));
+    EXPECT_EQ(read_file(output), "keep me") << name;
+  }
+  // An empty directory named like the atlas's PNG (or its data) is not replaced.
+  for (const char* name : {"B.png", "B.dat"}) {
+    std::filesystem::create_directories(dir + name);
+    std::vector<std::string> args = sweep;
+    args.insert(args.end(), {"--atlas", dir + "B.png"});
+    const Outcome r = command_line(args);
+    EXPECT_EQ(r.code, 2) << name;
+    EXPECT_EQ(r.err, "error: --atlas: \"" + dir + name +
+                         "\" exists and is not a regular file; it is not replaced (remove it or "
+                         "name another output)\n");
+    EXPECT_TRUE(std::filesystem::is_directory(dir + name)) << name;
+    std::filesystem::remove(dir + name);
+  }
+}
+
+TEST(SweepCommand, ARecordThatOverflowsIsNotOk) {
+  // delta = -0.5: B = (1 - delta)/(1 + delta) I = 3 I, so the image of dx = (1e308, 0) is 3e308,
+  // beyond the double range; `bflow flow` exits 1 on it, a sweep records the overflow.
+  for (const char* format : {"jsonl", "csv"}) {
+    const Outcome r =
+        command_line({"sweep", "--scene", "pwconst", "--param", "delta=-0.5", "--dx", "1e308,0",
+                      "--vary", "1=-0.5:-0.2:2", "--format", format, "--quiet"});
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_EQ(r.err, "sweep: 2 samples, 2 overflow\n");
+    EXPECT_EQ(r.out.find("null", r.out.find('\n')), std::string::npos) << r.out;
+    EXPECT_EQ(r.out.find("inf"), std::string::npos) << r.out;
+    EXPECT_THAT(r.out, HasSubstr("the computation overflowed: images[0] is not finite"));
+  }
+}
+
+TEST(SweepCommand, GridValuesStayFiniteAcrossTheWholeDoubleRange) {
+  const std::string path = ::testing::TempDir() + "sweep_wide.jsonl";
+  std::remove(path.c_str());
+  const std::vector<std::string> args = {
+      "sweep", "--scene", "pwconst", "--vary", "0=-1e308:1e308:3", "--quiet", "--output", path};
+  ASSERT_EQ(command_line(args).code, 0);
+  const std::string whole = read_file(path);
+  const std::vector<Json> list = records(whole);
+  ASSERT_EQ(list.size(), 3u);
+  EXPECT_EQ(list[0]["varied"][0].get<double>(), -1e308);
+  EXPECT_EQ(list[1]["varied"][0].get<double>(), 0.0);
+  EXPECT_EQ(list[2]["varied"][0].get<double>(), 1e308);
+  // Cut in the middle record and resumed.
+  write_file(path, whole.substr(0, whole.rfind('\n', whole.size() - 2) - 10));
+  std::vector<std::string> resume = args;
+  resume.push_back("--resume");
+  const Outcome r = command_line(resume);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(read_file(path), whole);
+}
+
+TEST(SweepCommand, AxesAndParametersGivenTwiceOrInvalidInsideTheirRangeAreRefused) {
+  const auto refused = [](std::vector<std::string> extra, const std::string& message) {
+    std::vector<std::string> args = {"sweep", "--scene", "pwconst", "--quiet"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    const Outcome r = command_line(args);
+    EXPECT_EQ(r.code, 2) << message;
+    EXPECT_EQ(r.out, "") << message;
+    EXPECT_EQ(r.err, "error: " + message + "\n");
+  };
+  refused({"--vary", "0=-1:-0.1:3", "--vary", "0=-2:-1:3"},
+          "--vary[1]: x[0] is already varied by --vary[0]; vary each once");
+  refused({"--vary-param", "delta=0:0.5:3", "--vary-param", "delta=-0.5:0:3"},
+          "--vary-param[1]: delta is already varied by --vary-param[0]; vary each once");
+  refused({"--param", "delta=0.1", "--vary-param", "delta=0:0.5:3"},
+          "--vary-param[0]: delta is also fixed by --param delta=\"0.1\"; give it either fixed or "
+          "varied");
+  refused({"--vary-param", "seed=0:1:3"},
+          "--vary-param[0]: pwconst parameter \"seed\" must be an integer in [0, 2^64), got "
+          "\"0.5\"");
+  refused({"--param", "seed=3", "--vary-param", "delta=0:0.5:3"},
+          "--vary-param[0]: give delta (the linear case) or seed (a random Delta), not both");
+  // Whole seeds vary.
+  const Outcome r =
+      command_line({"sweep", "--scene", "pwconst", "--vary-param", "seed=0:4:5", "--quiet"});
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(records(r.out).size(), 5u);
+}
+
+TEST(SweepCommand, AWriteThatFailsSaysWhy) {
+  const Outcome r = command_line({"sweep", "--scene", "pwconst", "--vary", "0=-1:-0.1:2000",
+                                  "--quiet", "--output", "/dev/full"});
+  EXPECT_EQ(r.code, 1);
+  EXPECT_EQ(r.err, "error: --output: cannot write \"/dev/full\": No space left on device\n");
 }
 
 }  // namespace

@@ -122,8 +122,16 @@ TEST_F(PwconstSweep, EverySampleAgreesWithTheExactFlowAndItsOneSidedDifferences)
       EXPECT_LT((r.images[k] - fd).norm(), 1e-8) << r.index << " dx " << k;
     }
     // x_1 moves at 1.5 while negative, so it reaches its plane before t = 0.6; x_0 always does.
+    // Plane j is crossed where the constant speed 1.5 (Delta = -0.5 b on both sides' words
+    // before it) takes x0[j] to 0: t_j = -x0[j] / 1.5. Event location by the integrator's
+    // interpolant is exact up to rounding here (at most 1.1e-16 measured).
     int crossed = 0;
-    for (const EventRecord& e : r.events) crossed += e.group_size();
+    for (const EventRecord& e : r.events) {
+      for (const int j : e.surfaces) {
+        EXPECT_NEAR(e.t, -x0[j] / 1.5, 1e-15) << r.index << " surface " << j;
+      }
+      crossed += e.group_size();
+    }
     EXPECT_EQ(crossed, x0[1] < 0.0 ? 2 : 1) << r.index;
     // Both planes at once where F_-- = (1.5, 1.5) takes x0 to the origin: x0[0] = x0[1].
     const bool together = std::abs(x0[0] - x0[1]) < 1e-12;
@@ -175,6 +183,50 @@ TEST_F(PwconstSweep, ASimultaneousCrossingHasTwoPiecesAndTheOrderOfTheDirection)
   EXPECT_EQ(r.orders[1], (std::vector<std::vector<int>>{{1, 0}}));
 }
 
+TEST(FlowSample, AGroupOfThreeSurfacesHasThreeFactorialPiecesTimesTheOtherGroups) {
+  // d = 5, delta = 0.25: every coordinate moves at 1.25 while negative. From
+  // (-0.5, -0.5, -0.5, -0.75, -0.75) planes 0, 1, 2 are crossed together at t = 0.4 and planes
+  // 3, 4 together at t = 0.6: 3! 2! = 12 pieces (the product of the groups' sizes would be 6).
+  const examples::PiecewiseConstantField field = examples::PiecewiseConstantField::linear(5, 0.25);
+  const auto model = adapt(field);
+  Eigen::VectorXd x0(5);
+  x0 << -0.5, -0.5, -0.5, -0.75, -0.75;
+  Eigen::VectorXd dx(5);
+  dx << 1.0, 0.5, 0.0, 0.0, -1.0;
+  const FlowSweepRequest request{1.0, {dx}, {}};
+  const FlowSampleRecord r = evaluate_flow_sample(model, x0, request, 0, {});
+  ASSERT_EQ(r.status, "ok") << r.message;
+  ASSERT_EQ(r.events.size(), 2u);
+  EXPECT_EQ(r.events[0].surfaces, (std::vector<int>{0, 1, 2}));
+  EXPECT_EQ(r.events[1].surfaces, (std::vector<int>{3, 4}));
+  EXPECT_NEAR(r.events[0].t, 0.4, 1e-15);
+  EXPECT_NEAR(r.events[1].t, 0.6, 1e-15);
+  EXPECT_EQ(r.pieces, 12.0);
+  // A larger push reaches its plane sooner: 0 (by 1), 1 (by 0.5), 2; then 3 before 4 (held
+  // back by -1).
+  EXPECT_EQ(r.orders[0], (std::vector<std::vector<int>>{{0, 1, 2}, {3, 4}}));
+  // Linear Delta: B = (1 - delta)/(1 + delta) I = 0.6 I whatever the order ([B] (3.2)).
+  EXPECT_LT((r.images[0] - 0.6 * dx).norm(), 1e-15);
+}
+
+TEST(SweepAxis, ValuesStayFiniteWhenTheRangeExceedsTheDoubles) {
+  const SweepAxis wide = SweepAxis::state_axis(0, -1e308, 1e308, 3);
+  EXPECT_EQ(wide.value(0), -1e308);
+  EXPECT_EQ(wide.value(1), 0.0);
+  EXPECT_EQ(wide.value(2), 1e308);
+  const SweepAxis five = SweepAxis::state_axis(0, 1.7e308, -1.7e308, 5);
+  EXPECT_DOUBLE_EQ(five.value(1), 0.85e308);
+  EXPECT_EQ(five.value(2), 0.0);
+  EXPECT_DOUBLE_EQ(five.value(3), -0.85e308);
+  // (hi - lo) k overflows though hi - lo does not: 1e308 * 2.
+  const SweepAxis steps = SweepAxis::state_axis(0, 0.0, 1e308, 4);
+  EXPECT_DOUBLE_EQ(steps.value(2), 1e308 * (2.0 / 3.0));
+  EXPECT_TRUE(std::isfinite(steps.value(2)));
+  // Ordinary ranges keep lo + k (hi - lo) / (count - 1), bit for bit.
+  const SweepAxis usual = SweepAxis::state_axis(0, -0.01, 0.01, 5);
+  EXPECT_EQ(usual.value(3), -0.01 + 0.02 * 3.0 / 4.0);
+}
+
 TEST_F(PwconstSweep, AnIntegrationThatStopsEarlyIsRecordedWithItsStatus) {
   request_.flow.integrator.max_steps = 3;
   const FlowSampleRecord r =
@@ -199,17 +251,30 @@ TEST_F(PwconstSweep, AnOutputCutAnywhereResumesAtItsFirstIncompleteRecord) {
     for (std::size_t k = 0; k < text.size(); ++k) {
       if (text[k] == '\n') ends.push_back(k + 1);
     }
-    const std::size_t header_lines = format == SweepFormat::kCsv ? 1 : 0;
+    // The identity line, and for CSV the column header.
+    const std::size_t header_lines = format == SweepFormat::kCsv ? 2 : 1;
     ASSERT_EQ(ends.size(), 48 + header_lines);
-    for (const std::size_t cut : {std::size_t{0}, ends[0] - 1, ends[0], ends[0] + 3, ends[10] - 1,
-                                  ends[10], ends[30] + 7, text.size() - 1, text.size()}) {
+    for (const std::size_t cut :
+         {std::size_t{0}, std::size_t{7}, ends[0] - 1, ends[0], ends[0] + 3, ends[1] - 1, ends[1],
+          ends[1] + 1, ends[10] - 1, ends[10], ends[30] + 7, text.size() - 1, text.size()}) {
       std::istringstream in(text.substr(0, cut));
       const SweepResumePoint point = find_resume_point(in, writer);
       std::size_t whole_lines = 0;
       while (whole_lines < ends.size() && ends[whole_lines] <= cut) ++whole_lines;
       const std::size_t kept = whole_lines < header_lines ? 0 : whole_lines - header_lines;
       EXPECT_EQ(point.records, kept) << "cut at " << cut;
-      EXPECT_EQ(point.bytes, whole_lines == 0 ? 0 : ends[whole_lines - 1]) << "cut at " << cut;
+      // A cut header is rewritten whole: nothing of it is kept.
+      EXPECT_EQ(point.bytes, whole_lines < header_lines ? 0 : ends[whole_lines - 1])
+          << "cut at " << cut;
+    }
+    // Reads are bounded: a line longer than the limit ends the reading with an error.
+    std::istringstream endless(text.substr(0, ends[header_lines - 1]) + std::string(5000, 'x'));
+    try {
+      find_resume_point(endless, writer, 4096);
+      ADD_FAILURE() << "a 5000-byte line was read";
+    } catch (const InvalidArgument& e) {
+      EXPECT_NE(std::string(e.what()).find("is longer than 4096 bytes"), std::string::npos)
+          << e.what();
     }
   }
 }
@@ -217,6 +282,7 @@ TEST_F(PwconstSweep, AnOutputCutAnywhereResumesAtItsFirstIncompleteRecord) {
 TEST_F(PwconstSweep, AnOutputOfAnotherSweepIsNotResumed) {
   std::ostringstream whole;
   SweepWriter writer(whole, SweepFormat::kJsonLines, grid_, 2, 2);
+  writer.header();
   for (const FlowSampleRecord& r : sweep(2)) writer.write(r);
   // The same records read as those of a grid whose second axis has 13 values.
   const SweepGrid other(
@@ -228,7 +294,19 @@ TEST_F(PwconstSweep, AnOutputOfAnotherSweepIsNotResumed) {
     find_resume_point(in, other_writer);
     FAIL() << "resumed another sweep's output";
   } catch (const InvalidArgument& e) {
-    EXPECT_NE(std::string(e.what()).find("line 2 has index and varied values [1, -1, -0.8"),
+    EXPECT_NE(std::string(e.what()).find("is from another sweep: its \"axes\" is "),
+              std::string::npos)
+        << e.what();
+  }
+  // The identity line alone does not make records of another grid this sweep's.
+  const std::string text = whole.str();
+  const std::string forged = other_writer.header_line() + text.substr(text.find('\n') + 1);
+  std::istringstream forged_in(forged);
+  try {
+    find_resume_point(forged_in, other_writer);
+    FAIL() << "resumed records of another grid";
+  } catch (const InvalidArgument& e) {
+    EXPECT_NE(std::string(e.what()).find("line 3 has index and varied values [1, -1, -0.8"),
               std::string::npos)
         << e.what();
   }
@@ -281,6 +359,8 @@ TEST(SweepWriter, CsvHasTheAxesAsColumnsAndQuotesMessages) {
   writer.write(ok);
   writer.write(FlowSampleRecord::error(1, {1.0}, "bad, \"really\"\nworse"));
   EXPECT_EQ(out.str(),
+            "# bflow sweep {\"format\":\"csv\",\"states\":2,\"directions\":1,\"axes\":[{\"name\":"
+            "\"x[0]\",\"lo\":0.0,\"hi\":1.0,\"count\":2}]}\n"
             "index,x[0],status,message,t_reached,x_t[0],x_t[1],image0[0],image0[1],events,orders,"
             "pieces\n"
             "0,0,ok,,1,0.1,2,1,-1,0.5:0+1,1>0,2\n"

@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "bflow/sweep/parallel.h"
 
@@ -52,11 +53,16 @@ class MpiSession {
     record as bytes (a worker sends it to rank 0 as is) and must not throw (wrap failures into a
     record). On rank 0 the sink receives the records of [first, end) in index order and
     options.progress is called as by run_ordered; other ranks only compute. Every rank calls it
-    with the same first and end. */
-void run_ordered_mpi(const MpiSession& mpi, std::uint64_t first, std::uint64_t end,
-                     const std::function<std::string(std::uint64_t)>& evaluate,
-                     const std::function<void(std::string&&)>& sink,
-                     const SweepRunOptions& options = {}, std::uint64_t chunk = 0);
+    with the same end (and rank 0 alone decides `first`: the workers compute what it hands out).
+    Returns, on rank 0, the samples each rank computed (rank 0's thread included; one entry for
+    a single process) and an empty vector on the other ranks. When the sink (or a worker) throws,
+    rank 0 stops handing out chunks, tells every worker to stop, and rethrows: all ranks end
+    normally. */
+std::vector<std::uint64_t> run_ordered_mpi(
+    const MpiSession& mpi, std::uint64_t first, std::uint64_t end,
+    const std::function<std::string(std::uint64_t)>& evaluate,
+    const std::function<void(std::string&&)>& sink, const SweepRunOptions& options = {},
+    std::uint64_t chunk = 0);
 
 }  // namespace bflow
 

@@ -19,6 +19,7 @@
 #ifndef BFLOW_SWEEP_SWEEP_H_
 #define BFLOW_SWEEP_SWEEP_H_
 
+#include <cstddef>
 #include <cstdint>
 #include <ostream>
 #include <string>
@@ -44,7 +45,8 @@ struct SweepAxis {
   static SweepAxis state_axis(int index, double lo, double hi, std::uint64_t count);
   static SweepAxis parameter_axis(std::string name, double lo, double hi, std::uint64_t count);
   /** The k-th value, lo + k (hi - lo) / (count - 1) (lo when count = 1); hi exactly at the
-      end. */
+      end. When hi - lo exceeds the double range (ends near +-1.8e308) the value is computed as
+      (1 - s) lo + s hi with s = k / (count - 1) instead, which stays finite. */
   double value(std::uint64_t k) const;
   /** "x[1]" or the parameter's name. */
   std::string name() const;
@@ -78,9 +80,11 @@ struct FlowSweepRequest {
 };
 
 /** One sample's outcome. status is "ok"; an integration status that stopped the run early
-    (to_string(IntegrationStatus), e.g. "step_size_underflow"); "rejected" when the library
-    refused the run as bad input for the engine (grazing, sliding, Zeno; the message says
-    which); or "error" for any other failure. Only "ok" has x_t, images, orders and pieces. */
+    (to_string(IntegrationStatus), e.g. "step_size_underflow"); "overflow" when a number of the
+    result (x_t, an event time, an image) is not finite, the message naming it; "rejected" when
+    the library refused the run as bad input for the engine (grazing, sliding, Zeno; the
+    message says which); or "error" for any other failure. Only "ok" has x_t, images, orders and
+    pieces, and every number of an "ok" record is finite. */
 struct FlowSampleRecord {
   std::uint64_t index = 0;
   std::vector<double> varied;
@@ -122,11 +126,16 @@ enum class SweepFormat { kJsonLines, kCsv };
 /** "jsonl" or "csv". @throws InvalidArgument naming the formats for anything else. */
 SweepFormat parse_sweep_format(const std::string& text);
 
-/** Writes records, one line each, as they come.
+/** Writes records, one line each, as they come, after a first line that identifies the sweep.
+    The identity line: JSON lines {"sweep": IDENTITY}, CSV "# bflow sweep IDENTITY" followed by
+    the column header. IDENTITY is the caller's JSON object (the command puts bflow's version,
+    the scene, its parameters, t, x0, the directions and the integrator and grouping options
+    there) with "format", "states", "directions" and "axes" ([{"name", "lo", "hi", "count"}])
+    added by the writer; it lets find_resume_point() continue only the same sweep.
     JSON lines: {"index", "varied", "status", "message" (failures only), "t_reached", "x_t",
     "events": [{"t", "surfaces"}], "images", "orders", "pieces"}; failed samples have x_t,
     images and orders empty and pieces 0.
-    CSV: a header line, then index, varied values (columns named after the axes), status,
+    CSV: the header lines, then index, varied values (columns named after the axes), status,
     message, t_reached, x_t[0..d), image<k>[0..d) per direction, events (t:s1+s2;... ), orders
     (per direction: events separated by ';', surfaces by '>' and directions by '|'), pieces;
     failed samples leave the numbers empty; line breaks in a message become spaces, so a record
@@ -134,13 +143,16 @@ SweepFormat parse_sweep_format(const std::string& text);
     (format_number). */
 class SweepWriter {
  public:
+  /** @throws InvalidArgument when `identity` is not the text of a JSON object. */
   SweepWriter(std::ostream& out, SweepFormat format, const SweepGrid& grid, int states,
-              int directions);
-  /** The CSV header (nothing for JSON lines); call once before the first record of a new
-      output. */
+              int directions, const std::string& identity = "{}");
+  /** The identity line (and for CSV the column header); call once before the first record of
+      a new output. */
   void header() { out_ << header_line(); }
-  /** The CSV header line with its newline ("" for JSON lines). */
+  /** The identity line, and for CSV the column header, each with its newline. */
   std::string header_line() const;
+  /** The identity object as written in the first line (compact JSON). */
+  const std::string& identity() const { return identity_; }
   SweepFormat format() const { return format_; }
   const SweepGrid& grid() const { return grid_; }
   /** The record's line (with its newline), for writing later: thread-safe, so that workers can
@@ -153,6 +165,7 @@ class SweepWriter {
   SweepFormat format_;
   const SweepGrid& grid_;
   int states_, directions_;
+  std::string identity_;
 };
 
 /** How much of an earlier output of the same sweep can be kept. */
@@ -161,13 +174,22 @@ struct SweepResumePoint {
   std::uint64_t bytes = 0;    ///< the length of the output that holds them (and the CSV header)
 };
 
-/** Reads an output that `writer`'s sweep wrote and stopped (a killed process, a lost node):
-    its CSV header, then records 0, 1, 2, ..., each a whole line whose index and varied values
-    are those of the grid. A last line without its newline is not whole and is left out; so is
-    anything after it. An empty output has nothing to keep.
-    @throws InvalidArgument naming the line when the output is not from this sweep (another
-    format, header, index order or varied values), so that it is never overwritten by mistake. */
-SweepResumePoint find_resume_point(std::istream& in, const SweepWriter& writer);
+/** The longest line find_resume_point() reads by default: 64 MiB. */
+inline constexpr std::size_t kResumeMaxLineBytes = std::size_t{64} << 20;
+
+/** Reads an output that `writer`'s sweep wrote and stopped (a killed process, a lost node): its
+    identity line (and CSV header), byte for byte the writer's header_line(), then records
+    0, 1, 2, ..., each a whole line that parses as a record of this format (CSV: as many fields
+    as the header) whose index and varied values are those of the grid. The last line may be
+    cut (no newline) if it is the start of the next record; it is left out. An empty output, or
+    one holding only the start of the identity line, has nothing to keep (bytes = 0).
+    Reads at most max_line_bytes + 1 bytes per line, so an endless or binary input ends early.
+    @throws InvalidArgument naming the line and the problem for anything else: not a sweep
+    output, the output of another sweep (the message names the first identity field that
+    differs), another format, a record that is not whole, out of order or beyond the grid, a
+    line longer than max_line_bytes. The caller then leaves the output as it was. */
+SweepResumePoint find_resume_point(std::istream& in, const SweepWriter& writer,
+                                   std::size_t max_line_bytes = kResumeMaxLineBytes);
 
 }  // namespace bflow
 
