@@ -274,8 +274,16 @@ Evaluation evaluate_watched(const SegmentModel& model, const OverflowWatch& watc
   for (std::size_t k = 0; k < directions.size(); ++k) {
     const std::string name = "directions[" + std::to_string(k) + "]";
     const Eigen::VectorXd& dx = directions[k];
-    const Eigen::VectorXd image = derivative.apply(dx);
-    const Eigen::MatrixXd jacobian = derivative.active_jacobian(dx);
+    Eigen::VectorXd image;
+    Eigen::MatrixXd jacobian;
+    try {
+      image = derivative.apply(dx);
+      jacobian = derivative.active_jacobian(dx);
+    } catch (const InvalidArgument& e) {
+      // dx has d finite entries (checked with the options), so what the derivative refuses
+      // now is an image or a crossing time beyond the double range.
+      throw OverflowError(name + ": " + e.what());
+    }
     check_finite(image, name + ".image");
     check_finite(jacobian, name + ".jacobian");
     OrderedJson item = OrderedJson::object();

@@ -412,6 +412,11 @@ TEST(SweepCommand, ARecordThatOverflowsIsNotOk) {
     EXPECT_EQ(r.out.find("inf"), std::string::npos) << r.out;
     EXPECT_THAT(r.out, HasSubstr("the computation overflowed: images[0] is not finite"));
   }
+  // bflow flow on the first sample's start: exit code 1, "status": "overflow".
+  const Outcome flow = command_line({"flow", "--scene", "pwconst", "--param", "delta=-0.5", "--dx",
+                                     "1e308,0", "--x0=-0.25,-0.5", "--compact"});
+  EXPECT_EQ(flow.code, 1) << flow.err;
+  EXPECT_THAT(flow.out, HasSubstr("\"status\":\"overflow\""));
 }
 
 TEST(SweepCommand, GridValuesStayFiniteAcrossTheWholeDoubleRange) {
