@@ -370,6 +370,7 @@ TEST(SweepCommand, ResumeRefusesEverythingButThisSweepsOutputAndTouchesNothing) 
 
 TEST(SweepCommand, NoOutputReplacesAnother) {
   const std::string dir = ::testing::TempDir() + "sweep_collisions/";
+  std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   const std::vector<std::string> sweep = {"sweep",       "--scene", "pwconst",     "--vary",
                                           "0=-1:-0.1:3", "--vary",  "1=-1:-0.1:3", "--dx",
@@ -383,6 +384,20 @@ TEST(SweepCommand, NoOutputReplacesAnother) {
     EXPECT_EQ(r.code, 2) << name;
     EXPECT_THAT(r.err, HasSubstr("error: --output: \"" + output + "\" is also "));
     EXPECT_EQ(read_file(output), "keep me") << name;
+  }
+  // Through a link whose target does not exist yet: the records would go where the atlas's
+  // data goes.
+  std::filesystem::remove(dir + "C.dat");
+  std::filesystem::create_symlink("C.dat", dir + "link.jsonl");
+  {
+    std::vector<std::string> args = sweep;
+    args.insert(args.end(), {"--output", dir + "link.jsonl", "--atlas", dir + "C.png"});
+    const Outcome r = command_line(args);
+    EXPECT_EQ(r.code, 2);
+    EXPECT_THAT(r.err, HasSubstr("error: --output: \"" + dir +
+                                 "link.jsonl\" is also the atlas's "
+                                 "data (--atlas)"));
+    EXPECT_FALSE(std::filesystem::exists(dir + "C.dat"));
   }
   // An empty directory named like the atlas's PNG (or its data) is not replaced.
   for (const char* name : {"B.png", "B.dat"}) {
