@@ -15,6 +15,7 @@
 
 #include "bflow/core/errors.h"
 #include "bflow/core/flow_derivative.h"
+#include "bflow/integrators/overflow_watch.h"
 
 namespace bflow {
 namespace {
@@ -270,10 +271,13 @@ FlowSampleRecord evaluate_flow_sample(const SegmentModel& model,
   FlowSampleRecord r;
   r.index = index;
   r.varied = std::move(varied);
+  // A rejection that follows an overflow in the model's evaluations is an overflow, as in
+  // `bflow flow` (overflow_watch.h).
+  const OverflowWatch watched(model);
   try {
     FlowResult trajectory;
     const FlowDerivative derivative =
-        flow_derivative(model, x0, request.t, request.flow, &trajectory);
+        flow_derivative(watched, x0, request.t, request.flow, &trajectory);
     r.t_reached = trajectory.t;
     r.x_t = trajectory.x;
     r.events = std::move(trajectory.events);
@@ -326,7 +330,7 @@ FlowSampleRecord evaluate_flow_sample(const SegmentModel& model,
   // Not a whole run: was it an integration outcome (the library quotes it in the exception)?
   r.pieces = 0.0;
   try {
-    const FlowResult plain = simulate(model, x0, request.t, request.flow);
+    const FlowResult plain = simulate(watched, x0, request.t, request.flow);
     r.t_reached = plain.t;
     r.events = plain.events;
     if (!plain.ok()) {
@@ -336,6 +340,13 @@ FlowSampleRecord evaluate_flow_sample(const SegmentModel& model,
     }
   } catch (const InvalidArgument& e) {
     r.message = e.what();
+  }
+  const std::string overflow = watched.overflow();
+  if (!overflow.empty()) {
+    r.status = "overflow";
+    r.message =
+        "the computation overflowed: " + overflow + "; the library then reported: " + r.message;
+    return r;
   }
   r.status = "rejected";
   return r;

@@ -434,6 +434,27 @@ TEST(SweepCommand, ARecordThatOverflowsIsNotOk) {
   EXPECT_THAT(flow.out, HasSubstr("\"status\":\"overflow\""));
 }
 
+TEST(SweepCommand, ARejectionThatFollowsAnOverflowIsAnOverflowAsInFlow) {
+  // A downward speed of 1e100: the state stays finite through the touchdown, the tangents do
+  // not, and the library then ends flow_derivative with an InvalidArgument.
+  const std::vector<std::string> start = {"--scene", "biped", "--x0", "0,1,0,0,-1e100,0"};
+  std::vector<std::string> args = {"sweep", "--vary", "2=0:0:1", "--dx", "1,0,0,0,0,0", "--quiet"};
+  args.insert(args.end(), start.begin(), start.end());
+  const Outcome r = command_line(args);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::vector<Json> list = records(r.out);
+  ASSERT_EQ(list.size(), 1u);
+  EXPECT_EQ(list[0]["status"], "overflow");
+  EXPECT_THAT(list[0]["message"].get<std::string>(),
+              ::testing::StartsWith("the computation overflowed: F_++ or its derivative on the "
+                                    "tangents is not finite"));
+  std::vector<std::string> flow = {"flow", "--compact"};
+  flow.insert(flow.end(), start.begin(), start.end());
+  const Outcome f = command_line(flow);
+  EXPECT_EQ(f.code, 1);
+  EXPECT_EQ(Json::parse(f.out)["status"], "overflow");
+}
+
 TEST(SweepCommand, GridValuesStayFiniteAcrossTheWholeDoubleRange) {
   const std::string path = ::testing::TempDir() + "sweep_wide.jsonl";
   std::remove(path.c_str());
