@@ -20,6 +20,7 @@
 #include <cstdint>
 #include <cstdlib>
 #include <ostream>
+#include <sstream>
 #include <streambuf>
 #include <string>
 #include <utility>
@@ -153,8 +154,50 @@ BENCHMARK_CAPTURE(BM_SweepCommand, mpi2, true)
     ->Unit(benchmark::kMillisecond);
 #endif
 
+// find_resume_point over a whole output of 4000 biped samples (what `bflow sweep --resume`
+// reads before it goes on): bytes per second, each line checked as a record of the sweep.
+void BM_FindResumePoint(benchmark::State& state) {
+  const auto format =
+      state.range(0) == 0 ? bflow::SweepFormat::kJsonLines : bflow::SweepFormat::kCsv;
+  const bflow::BipedParams params;
+  std::string text;
+  const bflow::SweepGrid grid({bflow::SweepAxis::state_axis(2, -0.05, 0.05, 4000)});
+  std::ostringstream out;
+  bflow::SweepWriter writer(out, format, grid, 6, 1, R"({"scene":"biped"})");
+  bflow::visit_biped(params, [&](const auto& scene) {
+    const auto model = bflow::adapt(scene);
+    bflow::FlowSweepRequest request;
+    request.t = 0.6;
+    request.directions = {Eigen::VectorXd::Unit(6, 2)};
+    writer.header();
+    for (std::uint64_t i = 0; i < grid.samples(); ++i) {
+      Eigen::VectorXd start = bflow::biped_initial_state();
+      grid.apply_states(i, start);
+      writer.write(bflow::evaluate_flow_sample(model, start, request, i, grid.values(i)));
+    }
+  });
+  text = out.str();
+  std::uint64_t kept = 0;
+  for (auto _ : state) {
+    std::istringstream in(text);
+    kept = bflow::find_resume_point(in, writer).records;
+    benchmark::DoNotOptimize(kept);
+  }
+  if (kept != grid.samples()) state.SkipWithError("not every record was kept");
+  state.SetBytesProcessed(static_cast<std::int64_t>(state.iterations() * text.size()));
+  state.SetItemsProcessed(static_cast<std::int64_t>(state.iterations() * grid.samples()));
+}
+
 }  // namespace
 
+BENCHMARK(BM_FindResumePoint)
+    ->Name("BM_FindResumePoint/jsonl")
+    ->Arg(0)
+    ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_FindResumePoint)
+    ->Name("BM_FindResumePoint/csv")
+    ->Arg(1)
+    ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_SweepBiped)
     ->Name("BM_Sweep/biped")
     ->Arg(1)

@@ -115,6 +115,27 @@ std::size_t csv_field_count(const std::string& line) {
   return quoted ? 0 : fields;
 }
 
+// Whether `line` is a whole JSON-lines record of sample `index`: valid JSON that starts
+// {"index":INDEX,"varied":[v...],"status":" with the grid's values, read back exactly.
+bool json_record_matches(const std::string& line, std::uint64_t index, const SweepGrid& grid) {
+  const std::string start = "{\"index\":" + std::to_string(index) + ",\"varied\":[";
+  if (line.compare(0, start.size(), start) != 0) return false;
+  const char* at = line.c_str() + start.size();
+  const std::vector<double> values = grid.values(index);
+  for (std::size_t k = 0; k < values.size(); ++k) {
+    if (k > 0 && *at++ != ',') return false;
+    char* end = nullptr;
+    const double v = std::strtod(at, &end);
+    if (end == at || v != values[k]) return false;
+    at = end;
+  }
+  static const std::string status = "],\"status\":\"";
+  if (line.compare(static_cast<std::size_t>(at - line.c_str()), status.size(), status) != 0) {
+    return false;
+  }
+  return nlohmann::json::accept(line);
+}
+
 // A value of a file, quoted for a message: JSON-escaped, invalid UTF-8 replaced, at most about
 // `max` bytes.
 std::string shown(const std::string& text, std::size_t max = 60) {
@@ -537,7 +558,10 @@ SweepResumePoint find_resume_point(std::istream& in, const SweepWriter& writer,
           number, "is an incomplete line that is not the start of record " + std::to_string(index));
     }
     std::vector<double> found;
-    if (writer.format() == SweepFormat::kJsonLines) {
+    if (writer.format() == SweepFormat::kJsonLines && json_record_matches(line, index, grid)) {
+      // The usual case, checked without building the document (a resumed output can hold
+      // gigabytes).
+    } else if (writer.format() == SweepFormat::kJsonLines) {
       const nlohmann::json j = nlohmann::json::parse(line, nullptr, false);
       if (j.is_discarded() || !j.is_object() || !j.contains("index") ||
           !j["index"].is_number_unsigned() || !j.contains("varied") || !j["varied"].is_array() ||
@@ -559,7 +583,7 @@ SweepResumePoint find_resume_point(std::istream& in, const SweepWriter& writer,
     }
     std::vector<double> expected{static_cast<double>(index)};
     for (double v : grid.values(index)) expected.push_back(v);
-    if (found != expected) {
+    if (!found.empty() && found != expected) {
       const auto text = [](const std::vector<double>& v) {
         return format_vector(
             Eigen::Map<const Eigen::VectorXd>(v.data(), static_cast<Eigen::Index>(v.size())));
