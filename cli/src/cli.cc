@@ -460,7 +460,8 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
       if (e.get_exit_code() == static_cast<int>(CLI::ExitCodes::Success)) {
         return finish_output(out, err, app.exit(e, out, err));  // --help, --version
       }
-      std::string message = e.what();
+      // CLI11 quotes what it did not expect as given: keep a bounded, printable prefix.
+      std::string message = escaped(e.what(), 200, false);
       if (message.empty()) message = e.get_name();
       std::string name;
       for (const CLI::App* sub : {jump, flow, demo, fesd, ocp, sweep}) {

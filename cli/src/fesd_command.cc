@@ -136,14 +136,16 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
     CollocationScheme scheme = CollocationScheme::kRadauIIA;
     try {
       formulation = parse_dcs_formulation(options.formulation);
-    } catch (const InvalidArgument& e) {
-      report_error(err, std::string("--formulation: ") + e.what());
+    } catch (const InvalidArgument&) {
+      report_error(err, "--formulation: unknown formulation " + quote(options.formulation) +
+                            ": use step or stewart");
       return kExitBadInput;
     }
     try {
       scheme = parse_collocation_scheme(options.scheme);
-    } catch (const InvalidArgument& e) {
-      report_error(err, std::string("--scheme: ") + e.what());
+    } catch (const InvalidArgument&) {
+      report_error(err, "--scheme: unknown collocation scheme " + quote(options.scheme) +
+                            ": use radau or gauss");
       return kExitBadInput;
     }
     check_ranges(options, formulation);

@@ -163,13 +163,23 @@ class DuplicateCheckingParser {
     return true;
   }
 
+  // A key as it appears in a path: as is when it is short and plain ("field_limits", "+-"),
+  // else quoted at a bounded length.
+  static std::string path_key(const std::string& key) {
+    const bool plain = !key.empty() && key.size() <= 40 &&
+                       key.find_first_not_of(
+                           "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
+                           "0123456789_+-") == std::string::npos;
+    return plain ? key : quote(key, 40);
+  }
+
   // The innermost container's place in the document: "input", "field_limits", "tangents[2]".
   std::string path() const {
     std::string text;
     for (std::size_t i = 0; i + 1 < frames_.size(); ++i) {
       const Frame& f = frames_[i];
       if (f.object) {
-        text += (text.empty() ? "" : ".") + f.key;
+        text += (text.empty() ? "" : ".") + path_key(f.key);
       } else {
         text += "[" + std::to_string(f.count - 1) + "]";
       }
@@ -180,6 +190,23 @@ class DuplicateCheckingParser {
   nlohmann::detail::json_sax_dom_parser<Json> dom_;
   std::vector<Frame> frames_;
 };
+
+// nlohmann's message with the input it quotes ("last read: '...'", which holds as much of the
+// input as the failing token, a whole string up to its bad byte; "number overflow parsing
+// '...'") cut to a short printable prefix.
+std::string bounded_parse_message(const std::string& message) {
+  for (const std::string marker : {"last read: '", "number overflow parsing '"}) {
+    const auto start = message.find(marker);
+    if (start == std::string::npos) continue;
+    const auto first = start + marker.size();
+    auto last = message.find("'; expected ", first);
+    if (last == std::string::npos) last = message.size() - (message.back() == '\'' ? 1 : 0);
+    if (last < first) return message;
+    return message.substr(0, first) + escaped(message.substr(first, last - first), 40, false) +
+           message.substr(last);
+  }
+  return message;
+}
 
 Json parse_document(const std::string& text) {
   Json root;
@@ -194,7 +221,7 @@ Json parse_document(const std::string& text) {
     if (message.rfind("[json.exception.", 0) == 0 && tag_end != std::string::npos) {
       message.erase(0, tag_end + 2);
     }
-    throw InputError("input: not valid JSON: " + message);
+    throw InputError("input: not valid JSON: " + bounded_parse_message(message));
   }
   return root;
 }
@@ -260,6 +287,34 @@ Eigen::MatrixXd read_normals(const Json& v) {
   return eta;
 }
 
+// A sign word of n characters '-' and '+', checked here rather than by the core so that the
+// message counts characters (code points: "−" is one, not its three bytes) and quotes the one
+// that is wrong.
+void check_sign_word(const std::string& word, int n) {
+  std::size_t characters = 0;
+  std::string wrong;
+  std::size_t wrong_position = 0;
+  for (std::size_t i = 0; i < word.size(); ++characters) {
+    std::size_t length = 1;
+    if (word[i] != '-' && word[i] != '+') {
+      const std::string character = quote_character(word, i, length);
+      if (wrong.empty()) {
+        wrong = character;
+        wrong_position = characters;
+      }
+    }
+    i += length;
+  }
+  if (characters != static_cast<std::size_t>(n)) {
+    fail("field_limits", "word " + quote(word, 40) + " has " + std::to_string(characters) +
+                             " characters, expected " + std::to_string(n) + " (one per surface)");
+  }
+  if (!wrong.empty()) {
+    fail("field_limits", "sign word " + quote(word, 40) + " has " + wrong + " at position " +
+                             std::to_string(wrong_position) + "; only '-' and '+' are allowed");
+  }
+}
+
 Eigen::MatrixXd read_field_limits(const Json& v, int n, int d) {
   if (!v.is_object()) {
     fail(
@@ -269,6 +324,7 @@ Eigen::MatrixXd read_field_limits(const Json& v, int n, int d) {
   }
   std::map<std::string, Eigen::VectorXd> words;
   for (const auto& item : v.items()) {
+    check_sign_word(item.key(), n);
     words.emplace(item.key(),
                   read_vector(item.value(), "field_limits[" + quote(item.key()) + "]", d));
   }

@@ -416,14 +416,16 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
                                                 : OcpOptions{};
     try {
       o.formulation = parse_dcs_formulation(options.formulation);
-    } catch (const InvalidArgument& e) {
-      report_error(err, std::string("--formulation: ") + e.what());
+    } catch (const InvalidArgument&) {
+      report_error(err, "--formulation: unknown formulation " + quote(options.formulation) +
+                            ": use step or stewart");
       return kExitBadInput;
     }
     try {
       o.scheme = parse_collocation_scheme(options.scheme);
-    } catch (const InvalidArgument& e) {
-      report_error(err, std::string("--scheme: ") + e.what());
+    } catch (const InvalidArgument&) {
+      report_error(err, "--scheme: unknown collocation scheme " + quote(options.scheme) +
+                            ": use radau or gauss");
       return kExitBadInput;
     }
     o.relaxation = parse_relaxation(options.relaxation);

@@ -501,6 +501,31 @@ TEST(FlowCommandTest, ZeroTimeIsTheIdentity) {
   }
 }
 
+// quote(): code points, not bytes, are counted and never cut; what is not printable is escaped.
+TEST(QuoteTest, CountsCodePointsAndEscapesWhatIsNotPrintable) {
+  EXPECT_EQ(quote("\xe2\x88\x92+"), "\"\xe2\x88\x92+\"");
+  EXPECT_EQ(quote("\xe2\x88\x92\xe2\x88\x92\xe2\x88\x92", 2), "\"\xe2\x88\x92\xe2\x88\x92...\"");
+  EXPECT_EQ(quote("ab", 2), "\"ab\"");
+  EXPECT_EQ(quote("abc", 2), "\"ab...\"");
+  EXPECT_EQ(quote("\xf0\x9f\x98\x80", 1), "\"\xf0\x9f\x98\x80\"");  // U+1F600, four bytes
+  EXPECT_EQ(quote("a\"b\\c"), "\"a\\\"b\\\\c\"");
+  EXPECT_EQ(quote("\n\x7f\xc2\x85"), "\"\\u000a\\u007f\\u0085\"");  // C0, DEL, C1 (NEL)
+  EXPECT_EQ(quote("\xe2\x80\xa8"), "\"\\u2028\"");
+  // Not UTF-8: a stray continuation byte, a cut sequence, an overlong '/', a surrogate, a code
+  // point above U+10FFFF; each byte escaped and counted as one character.
+  EXPECT_EQ(quote("\x80"), "\"\\x80\"");
+  EXPECT_EQ(quote("\xe2\x88"), "\"\\xe2\\x88\"");
+  EXPECT_EQ(quote("\xc0\xaf"), "\"\\xc0\\xaf\"");
+  EXPECT_EQ(quote("\xed\xa0\x80"), "\"\\xed\\xa0\\x80\"");
+  EXPECT_EQ(quote("\xf4\x90\x80\x80", 2), "\"\\xf4\\x90...\"");
+  EXPECT_EQ(one_line("a\nb\xff"), "a b\\xff");
+  std::size_t length = 0;
+  EXPECT_EQ(quote_character("x\xe2\x88\x92", 1, length), "\"\xe2\x88\x92\" (U+2212)");
+  EXPECT_EQ(length, 3u);
+  EXPECT_EQ(quote_character("\xff", 0, length), "\"\\xff\"");
+  EXPECT_EQ(length, 1u);
+}
+
 // ---------------------------------------------------------------------------------------------
 // Overflow: finite options, a computation that leaves the double range. Exit code 1 with the
 // record computed so far, "status": "overflow"; never exit code 2 (the input is well-formed).

@@ -18,6 +18,7 @@
 #include "bflow/core/signs.h"
 #include "bflow/core/triangulation.h"
 #include "cli_commands.h"
+#include "cli_util.h"
 
 namespace bflow::cli {
 namespace {
@@ -540,7 +541,8 @@ INSTANTIATE_TEST_SUITE_P(
                  with(kNormals,
                       R"("field_limits": {"--": [1, 1], "+-": [1, 1], "-x": [1, 1], "++": [1, 1]})",
                       kTangents),
-                 "field_limits: sign word \"-x\" has 'x' at position 1"},
+                 "field_limits: sign word \"-x\" has \"x\" at position 1; only '-' and '+' are "
+                 "allowed"},
         BadInput{
             "LimitsWordTooLong",
             with(kNormals,
@@ -694,6 +696,61 @@ TEST(CommandLineTest, UsageErrorsAreOneLineWithCodeTwo) {
       "error: a command is required: jump, flow, demo, fesd, ocp or sweep (see 'bflow --help')\n");
   EXPECT_EQ(command_line({"jump"}).err,
             "error: jump: --input is required (see 'bflow jump --help')\n");
+}
+
+// ---------------------------------------------------------------------------------------------
+// The command's edges: bytes after the document, the byte limits as options, quoting.
+
+// "−" (U+2212, three bytes) is one character: the word "−+" has the right length for n = 2 and
+// its first character is named, not a byte of it.
+TEST(JumpCommandTest, SignWordsCountAndQuoteCharactersNotBytes) {
+  const std::string limits =
+      "\"field_limits\": {\"--\": [1, 1], \"+-\": [1, 1], \"-+\": [1, 1], \"\u2212+\": [1, 1]}";
+  const Outcome minus = jump(with(kNormals, limits, kTangents));
+  EXPECT_EQ(minus.code, 2);
+  EXPECT_EQ(minus.out, "");
+  EXPECT_EQ(
+      minus.err,
+      "error: field_limits: sign word \"\u2212+\" has \"\u2212\" (U+2212) at position 0; only "
+      "'-' and '+' are allowed\n");
+  const std::string long_word =
+      "\"field_limits\": {\"--\": [1, 1], \"+-\": [1, 1], \"-+\": [1, 1], \"\u2212\u2212+\": [1, "
+      "1]}";
+  EXPECT_EQ(jump(with(kNormals, long_word, kTangents)).err,
+            "error: field_limits: word \"\u2212\u2212+\" has 3 characters, expected 2 (one per "
+            "surface)\n");
+}
+
+// What the user typed is quoted at a bounded length and printable: a key of 131 KB, a string
+// whose bad byte ends 131 KB in, bytes that are not UTF-8 (which JSON refuses).
+TEST(JumpCommandTest, OffendingTextIsQuotedShortAndPrintable) {
+  const std::string huge(131072, 'k');
+  const Outcome key = jump(with(kNormals, kLimits, kTangents, "\"" + huge + "\": 1"));
+  EXPECT_EQ(key.code, 2);
+  EXPECT_EQ(key.err, "error: input: unknown key \"" + std::string(60, 'k') +
+                         "...\"; the keys are normals, field_limits, tangents, pieces, "
+                         "triangulation\n");
+  const Outcome duplicate =
+      jump("{\"" + huge + "\": {\"a\": 1, \"a\": 2}}");  // the path names the outer key
+  EXPECT_EQ(duplicate.code, 2);
+  EXPECT_EQ(duplicate.err, "error: " + quote(huge, 40) + ": key \"a\" appears twice\n");
+  const Outcome control = jump("{\"" + huge + "\n\": 1}");
+  EXPECT_EQ(control.code, 2);
+  EXPECT_THAT(control.err, StartsWith("error: input: not valid JSON: parse error at line 2, "
+                                      "column 0: syntax error while parsing object key - invalid "
+                                      "string: control character U+000A (LF) must be escaped"));
+  EXPECT_THAT(control.err, HasSubstr("last read: '\"" + std::string(39, 'k') + "...'"));
+  EXPECT_LT(control.err.size(), 300u);
+  const Outcome overflow = jump(
+      with("\"normals\": [[1, 0], [0, 1e" + std::string(131072, '9') + "]]", kLimits, kTangents));
+  EXPECT_EQ(overflow.code, 2);
+  EXPECT_EQ(overflow.err, "error: input: not valid JSON: number overflow parsing '1e" +
+                              std::string(38, '9') + "...'\n");
+  const Outcome bytes = jump("{\"normals\xff\xfe\": 1}");
+  EXPECT_EQ(bytes.code, 2);
+  EXPECT_THAT(bytes.err, HasSubstr("last read: '\"normals\\xff'"));
+  EXPECT_EQ(bytes.err.find('\xff'), std::string::npos);
+  EXPECT_EQ(std::count(bytes.err.begin(), bytes.err.end(), '\n'), 1);
 }
 
 }  // namespace
