@@ -1,6 +1,9 @@
 // Command-line parsing for `bflow` (CLI11) and dispatch to the commands.
+#include <algorithm>
 #include <exception>
 #include <istream>
+#include <limits>
+#include <optional>
 #include <ostream>
 #include <string>
 #include <vector>
@@ -9,6 +12,7 @@
 
 #include "cli_commands.h"
 #include "cli_util.h"
+#include "scene_setup.h"
 
 #ifndef BFLOW_VERSION
 #error "BFLOW_VERSION must be defined (the CMake project version)"
@@ -171,6 +175,56 @@ While the homotopy runs, one progress line per NLP goes to stderr (not with --qu
 Exit code 1 when the status is not "solved": the JSON is still printed, and stderr ends with
 one line "error: ocp: <status>: <message>".)";
 
+// The numeric options of jump, fesd and ocp as typed, before read_numbers() checks them.
+struct NumericTexts {
+  std::optional<std::string> max_input_bytes, max_output_bytes;
+  std::optional<std::string> fesd_stages, fesd_nfe, fesd_nsim, fesd_t, fesd_lifting;
+  std::optional<std::string> ocp_n, ocp_nfe, ocp_stages, ocp_sigma0, ocp_sigma_final, ocp_tol;
+};
+
+int read_int(const std::string& text, const char* option) {
+  return static_cast<int>(parse_integer(text, option, std::numeric_limits<int>::min(),
+                                        std::numeric_limits<int>::max()));
+}
+
+// The options given into the commands' structs. The ranges fesd and ocp accept are their own
+// checks (run_fesd, run_ocp), so that the in-process API refuses the same values with the same
+// words; the byte limits are whole numbers from 1 to 2^63 - 1.
+// @throws InputError naming the option.
+void read_numbers(const NumericTexts& t, JumpOptions& jump, FesdCommandOptions& fesd,
+                  OcpCommandOptions& ocp) {
+  constexpr long long kMax = std::numeric_limits<long long>::max();
+  if (t.max_input_bytes) {
+    jump.max_input_bytes = parse_integer(*t.max_input_bytes, "--max-input-bytes", 1, kMax);
+  }
+  if (t.max_output_bytes) {
+    jump.max_output_bytes = parse_integer(*t.max_output_bytes, "--max-output-bytes", 1, kMax);
+  }
+  if (t.fesd_stages) fesd.stages = read_int(*t.fesd_stages, "--stages");
+  if (t.fesd_nfe) fesd.nfe = read_int(*t.fesd_nfe, "--nfe");
+  if (t.fesd_nsim) fesd.nsim = read_int(*t.fesd_nsim, "--nsim");
+  if (t.fesd_t) fesd.t = read_double(*t.fesd_t, "--T");
+  if (t.fesd_lifting) fesd.lifting = read_int(*t.fesd_lifting, "--lifting");
+  if (t.ocp_n) ocp.n = read_int(*t.ocp_n, "--N");
+  if (t.ocp_nfe) ocp.nfe = read_int(*t.ocp_nfe, "--nfe");
+  if (t.ocp_stages) ocp.stages = read_int(*t.ocp_stages, "--stages");
+  if (t.ocp_sigma0) ocp.sigma0 = read_double(*t.ocp_sigma0, "--sigma0");
+  if (t.ocp_sigma_final) ocp.sigma_final = read_double(*t.ocp_sigma_final, "--sigma-final");
+  if (t.ocp_tol) ocp.tol = read_double(*t.ocp_tol, "--tol");
+}
+
+// Refuses an option of `command` given with an empty value ("--N ''"), which CLI11 would take
+// as the option's default; with `only`, just the options named there.
+// @throws InputError naming the option.
+void refuse_empty_values(const CLI::App& command, const std::vector<std::string>& only = {}) {
+  for (const CLI::Option* option : command.get_options()) {
+    if (option->get_type_size_max() == 0 || option->count() == 0) continue;  // a flag, or not given
+    const std::string name = option->get_name();
+    if (!only.empty() && std::find(only.begin(), only.end(), name) == only.end()) continue;
+    for (const std::string& value : option->results()) refuse_empty(value, name);
+  }
+}
+
 }  // namespace
 
 std::string version_string() { return std::string("bflow ") + BFLOW_VERSION; }
@@ -186,6 +240,11 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     app.require_subcommand(1);
     app.footer(kMainFooter);
 
+    // Numeric options are kept as text and read after parsing by one checked reader
+    // (read_numbers() below), which refuses what CLI11's conversions let through: an empty
+    // value (which they take as the default), a value beyond the type (which they clamp) and a
+    // number that underflows.
+    NumericTexts numbers;
     std::string input;
     JumpOptions jump_options;
     CLI::App* jump = app.add_subcommand(
@@ -196,12 +255,12 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->required()
         ->type_name("FILE|-");
     jump->add_flag("--compact", jump_options.compact, "Print the result on one line");
-    jump->add_option("--max-input-bytes", jump_options.max_input_bytes,
-                     "Refuse an input longer than this (default 64 MiB)")
+    jump->add_option("--max-input-bytes", numbers.max_input_bytes,
+                     "Refuse an input longer than this, 1 .. 2^63 - 1 (default 64 MiB)")
         ->type_name("BYTES");
-    jump->add_option("--max-output-bytes", jump_options.max_output_bytes,
+    jump->add_option("--max-output-bytes", numbers.max_output_bytes,
                      "Refuse a request whose output is estimated above this, e.g. all n! pieces "
-                     "for large n (default 1 GiB)")
+                     "for large n, 1 .. 2^63 - 1 (default 1 GiB)")
         ->type_name("BYTES");
     jump->footer(kJumpFooter);
 
@@ -279,18 +338,18 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     fesd->add_option("--scheme", fesd_options.scheme, "radau (Radau IIA) or gauss (Gauss-Legendre)")
         ->type_name("NAME")
         ->capture_default_str();
-    fesd->add_option("--stages", fesd_options.stages, "Runge-Kutta stages n_s, 1..9")
+    fesd->add_option("--stages", numbers.fesd_stages, "Runge-Kutta stages n_s, 1..9")
         ->type_name("S")
-        ->capture_default_str();
-    fesd->add_option("--nfe", fesd_options.nfe,
+        ->default_str(std::to_string(fesd_options.stages));
+    fesd->add_option("--nfe", numbers.fesd_nfe,
                      "Finite elements per integration step, >= 1 (at most what the size limits "
                      "of docs/fesd.md allow)")
         ->type_name("N")
-        ->capture_default_str();
-    fesd->add_option("--nsim", fesd_options.nsim,
+        ->default_str(std::to_string(fesd_options.nfe));
+    fesd->add_option("--nsim", numbers.fesd_nsim,
                      "Integration steps over [0, T], >= 1 (default: irma 20, the others 4)")
         ->type_name("M");
-    fesd->add_option("--T", fesd_options.t,
+    fesd->add_option("--T", numbers.fesd_t,
                      "Horizon, finite and > 0 (default: irma 100, sliding-leave 2, the others 1)")
         ->type_name("T");
     fesd->add_flag("--exact-hessian", fesd_options.exact_hessian,
@@ -302,7 +361,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     fesd->add_flag("--sizes", fesd_options.sizes,
                    "Print the problem sizes of Stewart's and the step reformulation ([F] Table 4) "
                    "and of one integration step's NLP");
-    fesd->add_option("--lifting", fesd_options.lifting,
+    fesd->add_option("--lifting", numbers.fesd_lifting,
                      "Step formulation: lifting depth n_d of Algorithm 1, 2..max(2, n_c) (theta "
                      "and beta as unknowns; 0: none)")
         ->type_name("ND");
@@ -316,14 +375,14 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     ocp->add_option("--example", ocp_options.example,
                     "turbo-car, braking-block or monoped (required)")
         ->type_name("NAME");
-    ocp->add_option("--N", ocp_options.n, "Control stages N, >= 1 (default 10; 30 for the monoped)")
+    ocp->add_option("--N", numbers.ocp_n, "Control stages N, >= 1 (default 10; 30 for the monoped)")
         ->type_name("N");
-    ocp->add_option("--nfe", ocp_options.nfe, "Finite elements per control stage, >= 1")
+    ocp->add_option("--nfe", numbers.ocp_nfe, "Finite elements per control stage, >= 1")
         ->type_name("N_FE")
-        ->capture_default_str();
-    ocp->add_option("--stages", ocp_options.stages, "Runge-Kutta stages n_s, 1..9")
+        ->default_str(std::to_string(ocp_options.nfe));
+    ocp->add_option("--stages", numbers.ocp_stages, "Runge-Kutta stages n_s, 1..9")
         ->type_name("S")
-        ->capture_default_str();
+        ->default_str(std::to_string(ocp_options.stages));
     ocp->add_option("--scheme", ocp_options.scheme, "radau (Radau IIA) or gauss (Gauss-Legendre)")
         ->type_name("NAME")
         ->capture_default_str();
@@ -336,15 +395,16 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                     "scholtes (products <= sigma) or l1 (penalty 1/sigma times the products)")
         ->type_name("NAME")
         ->capture_default_str();
-    ocp->add_option("--sigma0", ocp_options.sigma0,
+    ocp->add_option("--sigma0", numbers.ocp_sigma0,
                     "Initial relaxation sigma, > 0 (default 100; 1 for the monoped)")
         ->type_name("X");
     ocp->add_option(
-           "--sigma-final", ocp_options.sigma_final,
+           "--sigma-final", numbers.ocp_sigma_final,
            "Final relaxation sigma, > 0 and <= --sigma0 (default 1e-10; 1e-7 for the monoped)")
         ->type_name("X");
-    ocp->add_option("--tol", ocp_options.tol,
-                    "IPOPT's tolerance for the last NLP (default 1e-10; 1e-6 for the monoped)")
+    ocp->add_option("--tol", numbers.ocp_tol,
+                    "IPOPT's tolerance for the last NLP, >= 1e-14 (default 1e-10; 1e-6 for the "
+                    "monoped)")
         ->type_name("X");
     ocp->add_flag("--trajectory", ocp_options.trajectory,
                   "Add every element boundary, the states there, the step sizes and active sets");
@@ -470,6 +530,23 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
       const std::string where = name.empty() ? "" : name + ": ";
       const std::string help = name.empty() ? "bflow --help" : "bflow " + name + " --help";
       report_error(err, where + message + " (see '" + help + "')");
+      return kExitBadInput;
+    }
+    try {
+      for (const CLI::App* sub : {jump, flow, demo, fesd, ocp}) {
+        if (sub->parsed()) refuse_empty_values(*sub);
+      }
+      // The sweep checks its own options; those it shares with flow are checked as flow's.
+      if (sweep->parsed()) {
+        std::vector<std::string> scene_options;
+        for (const CLI::Option* option : flow->get_options()) {
+          scene_options.push_back(option->get_name());
+        }
+        refuse_empty_values(*sweep, scene_options);
+      }
+      read_numbers(numbers, jump_options, fesd_options, ocp_options);
+    } catch (const InputError& e) {
+      report_error(err, e.what());
       return kExitBadInput;
     }
     // Every command ends here: a result that could not be written is a failure (exit code 1).

@@ -717,11 +717,12 @@ int run_jump(std::istream& in, std::ostream& out, std::ostream& err, const JumpO
 
 int run_jump_file(const std::string& path, std::istream& stdin_stream, std::ostream& out,
                   std::ostream& err, const JumpOptions& options) {
-  if (options.max_input_bytes < 1 || options.max_output_bytes < 1) {
-    report_error(err, "--max-input-bytes and --max-output-bytes must be positive, got " +
-                          std::to_string(options.max_input_bytes) + " and " +
-                          std::to_string(options.max_output_bytes));
-    return kExitBadInput;
+  for (const auto& [value, option] : {std::pair{options.max_input_bytes, "--max-input-bytes"},
+                                      std::pair{options.max_output_bytes, "--max-output-bytes"}}) {
+    if (value < 1) {
+      report_error(err, std::string(option) + ": must be >= 1, got " + std::to_string(value));
+      return kExitBadInput;
+    }
   }
   if (path == "-") return run_jump(stdin_stream, out, err, options);
   std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"), std::fclose);

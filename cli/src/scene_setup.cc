@@ -1,6 +1,7 @@
 #include "scene_setup.h"
 
 #include <cerrno>
+#include <cfloat>
 #include <cmath>
 #include <cstdlib>
 
@@ -20,18 +21,83 @@ std::string trimmed(const std::string& text) {
   return text.substr(first, last - first + 1);
 }
 
-// A whole string read by strtod, finite.
-double parse_number(const std::string& raw, const std::string& option) {
-  const std::string text = trimmed(raw);
-  if (text.empty()) fail(option, "expected a number, got an empty string");
+void refuse_empty(const std::string& value, const std::string& option) {
+  if (value.empty()) fail(option, "the value is empty");
+}
+
+namespace {
+
+// Whether the significand of a number's text (before its exponent) has a nonzero digit: the
+// text then names a nonzero number, whatever strtod made of it.
+bool names_nonzero(const std::string& text) {
+  std::size_t i = text.find_first_not_of("+-");
+  if (i == std::string::npos) return false;
+  const bool hex = text.compare(i, 2, "0x") == 0 || text.compare(i, 2, "0X") == 0;
+  if (hex) i += 2;
+  const std::string digits = hex ? "123456789abcdefABCDEF" : "123456789";
+  const char exponent = hex ? 'p' : 'e';
+  for (; i < text.size(); ++i) {
+    const char c = text[i];
+    if (c == exponent || c == exponent - 'a' + 'A') break;
+    if (digits.find(c) != std::string::npos) return true;
+  }
+  return false;
+}
+
+// What is wrong with `text` (already trimmed, not empty) as a double: "is not a number", "is out
+// of the range of a double", "underflows: ..."; "" when it is one, then in `value`. inf and nan
+// are numbers here.
+std::string number_problem(const std::string& text, double& value) {
   char* end = nullptr;
   errno = 0;
-  const double value = std::strtod(text.c_str(), &end);
-  if (end != text.c_str() + text.size()) fail(option, quote(text) + " is not a number");
-  if (errno == ERANGE && std::fabs(value) > 1.0) {
-    fail(option, quote(text) + " is out of the range of a double");
+  value = std::strtod(text.c_str(), &end);
+  const bool range_error = errno == ERANGE;
+  if (text.empty() || end != text.c_str() + text.size()) return "is not a number";
+  if (range_error && std::fabs(value) > 1.0) return "is out of the range of a double";
+  // Underflow: a nonzero number read as 0 or as a subnormal (which keeps fewer than 53 bits).
+  const bool subnormal = value != 0.0 && std::fabs(value) < DBL_MIN;
+  if (subnormal || (value == 0.0 && (range_error || names_nonzero(text)))) {
+    return "underflows: a nonzero number must be at least " + format_number(DBL_MIN) +
+           " (the smallest normal double) in magnitude";
   }
-  if (!std::isfinite(value)) fail(option, quote(text) + " is not a finite number");
+  return "";
+}
+
+}  // namespace
+
+double read_double(const std::string& raw, const std::string& option) {
+  const std::string text = trimmed(raw);
+  if (text.empty()) fail(option, "expected a number, got an empty string");
+  double value = 0.0;
+  if (const std::string problem = number_problem(text, value); !problem.empty()) {
+    fail(option, quote(text) + " " + problem);
+  }
+  return value;
+}
+
+// A whole string read by strtod, finite.
+double parse_number(const std::string& raw, const std::string& option) {
+  const double value = read_double(raw, option);
+  if (!std::isfinite(value)) fail(option, quote(trimmed(raw)) + " is not a finite number");
+  return value;
+}
+
+long long parse_integer(const std::string& raw, const std::string& option, long long min,
+                        long long max) {
+  refuse_empty(raw, option);
+  const std::string text = trimmed(raw);
+  const std::size_t digits = text.find_first_not_of("+-") == 1 ? 1 : 0;
+  if (text.size() <= digits || text.find_first_not_of("0123456789", digits) != std::string::npos) {
+    fail(option, quote(raw) + " is not an integer");
+  }
+  errno = 0;
+  const long long value = std::strtoll(text.c_str(), nullptr, 10);
+  if ((errno == ERANGE && value > 0) || value > max) {
+    fail(option, quote(raw) + " is too large (at most " + std::to_string(max) + ")");
+  }
+  if ((errno == ERANGE && value < 0) || value < min) {
+    fail(option, quote(raw) + " is too small (at least " + std::to_string(min) + ")");
+  }
   return value;
 }
 
@@ -87,10 +153,9 @@ PwconstParams pwconst_params(const Params& params) {
       }
       p.d = static_cast<int>(d);
     } else if (key == "delta") {
-      char* end = nullptr;
-      const double delta = std::strtod(value.c_str(), &end);
-      if (value.empty() || end != value.c_str() + value.size()) {
-        fail("--param", name + " = " + quote(raw) + " is not a number");
+      double delta = 0.0;
+      if (const std::string problem = number_problem(value, delta); !problem.empty()) {
+        fail("--param", name + " = " + quote(raw) + " " + problem);
       }
       if (!(std::fabs(delta) < 1.0)) {
         fail("--param", name +
@@ -121,9 +186,30 @@ examples::PiecewiseConstantField make_pwconst(const PwconstParams& p) {
   return examples::PiecewiseConstantField::linear(p.d, p.delta.value_or(kDefaultDelta));
 }
 
+// Messages in the style of bflow::set_param, with the key and the value quoted (at a bounded
+// length); set_param itself sets the value and judges its range.
 BipedParams biped_params(const Params& params) {
+  const std::string known = kBipedParamKeys;
   BipedParams p;
-  for (const auto& [key, value] : params) {
+  for (const auto& [key, raw] : params) {
+    if (key == "variant") {
+      try {
+        p.variant = parse_biped_variant(raw);
+      } catch (const InvalidArgument&) {
+        fail("--param", "biped variant " + quote(raw) +
+                            " is not one of conservative, dissipative, mode-damping");
+      }
+      continue;
+    }
+    if (key.empty() || key.find_first_of(", ") != std::string::npos ||
+        (", " + known + ",").find(", " + key + ",") == std::string::npos) {
+      fail("--param", "unknown biped parameter " + quote(key) + " (known: " + known + ")");
+    }
+    const std::string value = trimmed(raw);
+    double number = 0.0;
+    if (const std::string problem = number_problem(value, number); !problem.empty()) {
+      fail("--param", "biped parameter " + quote(key) + " = " + quote(raw) + " " + problem);
+    }
     try {
       set_param(p, key, value);
     } catch (const InvalidArgument& e) {
@@ -142,6 +228,17 @@ SceneSetup parse_scene_setup(const FlowCommandOptions& options) {
   if (options.scene != "pwconst" && options.scene != "biped") {
     fail("--scene", "unknown scene " + quote(options.scene) + "; the scenes are pwconst and biped");
   }
+  // An option given with an empty value ("--t ''") is refused, not taken as its default.
+  for (const std::string& text : options.params) refuse_empty(text, "--param");
+  for (const auto& [value, option] :
+       {std::pair{&options.t, "--t"}, std::pair{&options.x0, "--x0"},
+        std::pair{&options.rtol, "--rtol"}, std::pair{&options.atol, "--atol"},
+        std::pair{&options.grouping, "--grouping"}, std::pair{&options.window, "--window"},
+        std::pair{&options.max_steps, "--max-steps"}}) {
+    if (*value) refuse_empty(**value, option);
+  }
+  for (const std::string& text : options.dx) refuse_empty(text, "--dx");
+  refuse_empty(options.integrator, "--integrator");
   std::vector<std::pair<std::string, std::string>> params;
   for (const std::string& text : options.params) {
     const auto equals = text.find('=');
@@ -186,14 +283,16 @@ SceneSetup parse_scene_setup(const FlowCommandOptions& options) {
   }
   try {
     request.flow.backend = parse_backend(options.integrator);
-  } catch (const InvalidArgument& e) {
-    fail("--integrator", e.what());
+  } catch (const InvalidArgument&) {
+    fail("--integrator", "integrator " + quote(options.integrator) +
+                             " is unknown; choose dopri5, cvodes-bdf or cvodes-adams");
   }
   if (options.grouping) {
     try {
       request.flow.grouping = parse_grouping(*options.grouping);
-    } catch (const InvalidArgument& e) {
-      fail("--grouping", e.what());
+    } catch (const InvalidArgument&) {
+      fail("--grouping",
+           "grouping " + quote(*options.grouping) + " is unknown; choose auto, window or none");
     }
   }
   if (options.window) {

@@ -1,7 +1,8 @@
 // The scene options shared by `bflow flow` and `bflow sweep`: the scene and its parameters, the
 // final time, the integrator and the grouping policy, validated into a SceneSetup; and the
 // scene's model built from it (with_scene). A rejection is an InputError whose message starts
-// with the option ("--param: pwconst parameter \"d\" must be ...").
+// with the option ("--param: pwconst parameter \"d\" must be ..."). The readers of numbers
+// (read_double, parse_number, parse_integer) serve the numeric options of every command.
 #ifndef BFLOW_CLI_SRC_SCENE_SETUP_H_
 #define BFLOW_CLI_SRC_SCENE_SETUP_H_
 
@@ -31,10 +32,19 @@ class InputError : public std::runtime_error {
 
 [[noreturn]] void fail(const std::string& option, const std::string& problem);
 std::string trimmed(const std::string& text);
-// A whole string read by strtod, finite.
+// Refuses an option given with an empty value ("--t ''"): "<option>: the value is empty".
+void refuse_empty(const std::string& value, const std::string& option);
+// A whole string read by strtod (spaces around it allowed), within the range of a double: text
+// that overflows, or that names a nonzero number but underflows to 0 or to a subnormal, is
+// refused. inf and nan pass, for the caller's range check to name.
+double read_double(const std::string& raw, const std::string& option);
+// As read_double, and finite.
 double parse_number(const std::string& raw, const std::string& option);
 // A whole string of decimal digits, at most `max`.
 std::uint64_t parse_unsigned(const std::string& raw, const std::string& option, std::uint64_t max);
+// A whole string of decimal digits with an optional sign, in [min, max]; not empty.
+long long parse_integer(const std::string& raw, const std::string& option, long long min,
+                        long long max);
 // "a,b,c" with exactly `dim` numbers.
 Eigen::VectorXd parse_vector(const std::string& text, const std::string& option, int dim);
 

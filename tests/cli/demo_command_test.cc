@@ -432,8 +432,7 @@ Outcome command_line(std::vector<std::string> args) {
 // before any directory is made; a scene name is quoted short and printable.
 TEST(DemoCommandTest, EmptyValuesAndOddNamesAreRefusedOnOneLine) {
   const fs::path dir = fresh_dir("demo_empty_values");
-  for (const auto& [args, error] :
-       std::vector<std::pair<std::vector<std::string>, std::string>>{
+  for (const auto& [args, error] : std::vector<std::pair<std::vector<std::string>, std::string>>{
            {{"--scene", "", "--output", dir.string()}, "--scene: the value is empty"},
            {{"--output", ""}, "--output: the value is empty"},
            {{"-o", ""}, "--output: the value is empty"},

@@ -3,6 +3,7 @@
 #include <limits>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -230,6 +231,82 @@ TEST(FesdCommandTest, AFailedStepPrintsThePartialRecordAndOneErrorLine) {
   EXPECT_GT(j["t_reached"].get<double>(), 0.0);
   EXPECT_LT(j["t_reached"].get<double>(), 100.0);
   EXPECT_EQ(j["x_T"].size(), 5u);
+}
+
+struct Outcome {
+  int code;
+  std::string out;
+  std::string err;
+};
+
+Outcome command_line(std::vector<std::string> args) {
+  args.insert(args.begin(), "bflow");
+  std::vector<const char*> argv;
+  for (const auto& a : args) argv.push_back(a.c_str());
+  std::istringstream in;
+  std::ostringstream out, err;
+  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
+  return {code, out.str(), err.str()};
+}
+
+// The options as typed: an empty value (which CLI11 took as the default), a number beyond its
+// type or one that underflows is refused naming the option and the text; every range check of
+// run_fesd still applies to what is read. --sizes makes every accepted case cheap.
+TEST(FesdCommandTest, OptionTextIsReadWholeAndChecked) {
+  const std::string underflow =
+      " underflows: a nonzero number must be at least 2.2250738585072014e-308 (the smallest "
+      "normal double) in magnitude";
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"--example", ""}, "--example: the value is empty"},
+      {{"--formulation", ""}, "--formulation: the value is empty"},
+      {{"--scheme", ""}, "--scheme: the value is empty"},
+      {{"--stages", ""}, "--stages: the value is empty"},
+      {{"--nfe", ""}, "--nfe: the value is empty"},
+      {{"--nsim", ""}, "--nsim: the value is empty"},
+      {{"--T", ""}, "--T: the value is empty"},
+      {{"--lifting", ""}, "--lifting: the value is empty"},
+      {{"--T", "1e-400"}, "--T: \"1e-400\"" + underflow},
+      {{"--T", "4e-320"}, "--T: \"4e-320\"" + underflow},
+      {{"--T", "1e999"}, "--T: \"1e999\" is out of the range of a double"},
+      {{"--T", "soon"}, "--T: \"soon\" is not a number"},
+      {{"--T", "inf"}, "--T: the horizon must be finite and > 0, got inf"},
+      {{"--nsim", "3000000000"}, "--nsim: \"3000000000\" is too large (at most 2147483647)"},
+      {{"--nsim=-3000000000"}, "--nsim: \"-3000000000\" is too small (at least -2147483648)"},
+      {{"--nsim", "2.5"}, "--nsim: \"2.5\" is not an integer"},
+      {{"--nsim=-5"}, "--nsim: the number of integration steps must be >= 1, got -5"},
+      {{"--nfe", "1e3"}, "--nfe: \"1e3\" is not an integer"},
+      {{"--stages", "ten"}, "--stages: \"ten\" is not an integer"},
+      {{"--lifting", "99999999999999999999"},
+       "--lifting: \"99999999999999999999\" is too large (at most 2147483647)"},
+      {{"--formulation", "\xe2\x88\x92step\x07"},
+       "--formulation: unknown formulation \"\xe2\x88\x92step\\u0007\": use step or stewart"},
+      {{"--scheme", std::string(131072, 'r')},
+       "--scheme: unknown collocation scheme \"" + std::string(60, 'r') +
+           "...\": use radau or gauss"},
+  };
+  for (const auto& [args, error] : cases) {
+    std::vector<std::string> all = {"fesd", "--example", "crossing", "--sizes"};
+    if (args[0] == "--example") all = {"fesd", "--sizes"};
+    all.insert(all.end(), args.begin(), args.end());
+    const Outcome o = command_line(all);
+    SCOPED_TRACE(error.substr(0, 40));
+    EXPECT_EQ(o.code, kExitBadInput);
+    EXPECT_EQ(o.out, "");
+    EXPECT_EQ(o.err, "error: " + error + "\n");
+  }
+  // The defaults, and values given in full.
+  const Outcome defaults = command_line({"fesd", "--example", "crossing", "--compact"});
+  ASSERT_EQ(defaults.code, kExitOk) << defaults.err;
+  auto j = nlohmann::json::parse(defaults.out);
+  EXPECT_EQ(j["T"].get<double>(), 1.0);
+  EXPECT_EQ(j["nsim"].get<int>(), 4);
+  const Outcome given = command_line({"fesd", "--example", "crossing", "--T", " 0.5 ", "--nsim",
+                                      "+2", "--stages", "3", "--nfe", "2", "--compact"});
+  ASSERT_EQ(given.code, kExitOk) << given.err;
+  j = nlohmann::json::parse(given.out);
+  EXPECT_EQ(j["T"].get<double>(), 0.5);
+  EXPECT_EQ(j["nsim"].get<int>(), 2);
+  EXPECT_NEAR(j["x_T"][0].get<double>(), 1.0 / 6.0, 1e-14);
 }
 
 }  // namespace

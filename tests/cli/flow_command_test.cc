@@ -501,6 +501,151 @@ TEST(FlowCommandTest, ZeroTimeIsTheIdentity) {
   }
 }
 
+// ---------------------------------------------------------------------------------------------
+// The options' edges: empty values, numbers that underflow, offending text quoted short.
+
+const std::string kUnderflow =
+    " underflows: a nonzero number must be at least 2.2250738585072014e-308 (the smallest normal "
+    "double) in magnitude";
+
+// Every option of flow that takes a value, given '' (CLI11 took it as the default), is refused
+// naming it; so are the same scene options of sweep, which go through the same checks.
+TEST(FlowCommandTest, EmptyValuesAreRefusedNamingTheOption) {
+  const std::vector<std::vector<std::string>> options = {
+      {"--scene"},      {"--param"},    {"--t"},
+      {"--x0"},         {"--dx"},       {"--rtol"},
+      {"--atol"},       {"--grouping"}, {"--grouping", "window", "--window"},
+      {"--integrator"}, {"--max-steps"}};
+  for (const char* command : {"flow", "sweep"}) {
+    for (const std::vector<std::string>& option : options) {
+      std::vector<std::string> args = {command};
+      if (option[0] != "--scene") args.insert(args.end(), {"--scene", "pwconst"});
+      if (std::string(command) == "sweep") args.insert(args.end(), {"--vary", "0=-1:-0.5:2"});
+      args.insert(args.end(), option.begin(), option.end());
+      args.push_back("");
+      const Outcome o = command_line(args);
+      SCOPED_TRACE(::testing::PrintToString(args));
+      EXPECT_EQ(o.code, 2);
+      EXPECT_EQ(o.out, "");
+      EXPECT_EQ(o.err, "error: " + option.back() + ": the value is empty\n");
+    }
+  }
+  // In-process, the same check (an empty optional is "not given", an empty string is not).
+  FlowCommandOptions given = pwconst({});
+  given.t = "";
+  EXPECT_EQ(flow(given).err, "error: --t: the value is empty\n");
+  given = pwconst({""});
+  EXPECT_EQ(flow(given).err, "error: --param: the value is empty\n");
+  given = pwconst({});
+  given.integrator = "";
+  EXPECT_EQ(flow(given).err, "error: --integrator: the value is empty\n");
+}
+
+// A number that underflows (strtod's ERANGE with 0 or a subnormal, or nonzero text read as 0)
+// is refused as one that overflows is, naming the option and the text: --t 1e-400 used to run
+// to t = 0.
+TEST(FlowCommandTest, NumbersThatUnderflowAreRefused) {
+  const std::vector<BadOption> cases = {
+      {{"--scene", "pwconst", "--t", "1e-400"}, "--t: \"1e-400\"" + kUnderflow},
+      {{"--scene", "pwconst", "--t", "5e-324"}, "--t: \"5e-324\"" + kUnderflow},
+      {{"--scene", "pwconst", "--t", "0x1p-1074"}, "--t: \"0x1p-1074\"" + kUnderflow},
+      {{"--scene", "pwconst", "--t", "2e-308"}, "--t: \"2e-308\"" + kUnderflow},
+      {{"--scene", "pwconst", "--t", "0.0000e-999"}, ""},  // zero, written so: not refused
+      {{"--scene", "pwconst", "--x0", "-0.5, 1e-330"}, "--x0[1]: \"1e-330\"" + kUnderflow},
+      {{"--scene", "pwconst", "--dx", "1e-400,0"}, "--dx[0][0]: \"1e-400\"" + kUnderflow},
+      {{"--scene", "pwconst", "--rtol", "1e-400"}, "--rtol: \"1e-400\"" + kUnderflow},
+      {{"--scene", "pwconst", "--atol", "-1e-310"}, "--atol: \"-1e-310\"" + kUnderflow},
+      {{"--scene", "pwconst", "--grouping", "window", "--window", "1e-320"},
+       "--window: \"1e-320\"" + kUnderflow},
+      {{"--scene", "pwconst", "--param", "delta=1e-400"},
+       "--param: pwconst parameter \"delta\" = \"1e-400\"" + kUnderflow},
+      {{"--scene", "pwconst", "--param", "delta=1e999"},
+       "--param: pwconst parameter \"delta\" = \"1e999\" is out of the range of a double"},
+      {{"--scene", "biped", "--param", "kappa=1e-320"},
+       "--param: biped parameter \"kappa\" = \"1e-320\"" + kUnderflow},
+      {{"--scene", "biped", "--param", "beta=-3e-400"},
+       "--param: biped parameter \"beta\" = \"-3e-400\"" + kUnderflow},
+      {{"--scene", "biped", "--param", "m=1e999"},
+       "--param: biped parameter \"m\" = \"1e999\" is out of the range of a double"},
+  };
+  for (const BadOption& c : cases) {
+    std::vector<std::string> args = {"flow"};
+    args.insert(args.end(), c.args.begin(), c.args.end());
+    const Outcome o = command_line(args);
+    SCOPED_TRACE(::testing::PrintToString(args));
+    if (c.error.empty()) {
+      EXPECT_EQ(o.code, 0) << o.err;
+      continue;
+    }
+    EXPECT_EQ(o.code, 2);
+    EXPECT_EQ(o.out, "");
+    EXPECT_EQ(o.err, "error: " + c.error + "\n");
+  }
+  // The smallest normal double is a time like any other, and so is a spaced biped value.
+  EXPECT_EQ(command_line({"flow", "--scene", "pwconst", "--t", "2.2250738585072014e-308"}).code, 0);
+  EXPECT_EQ(command_line({"flow", "--scene", "biped", "--param", "kappa= 2 ", "--t", "0"}).code, 0);
+}
+
+// What the user typed reaches the error line as a bounded, printable prefix: a 131 KB value or
+// key, an unknown option of 131 KB (CLI11's message), bytes that are not UTF-8 and control
+// characters, in whichever option they come.
+TEST(FlowCommandTest, OffendingTextIsQuotedShortAndPrintable) {
+  const std::string huge(131072, '7');
+  const std::string cut = std::string(60, '7') + "...";
+  const std::vector<BadOption> cases = {
+      {{"--scene", "biped", "--param", "kappa=x" + huge},
+       "--param: biped parameter \"kappa\" = \"x" + std::string(59, '7') + "...\" is not a number"},
+      {{"--scene", "biped", "--param", huge + "=1"},
+       "--param: unknown biped parameter \"" + cut +
+           "\" (known: m, J, g, leg_length, psi, kappa, beta, variant)"},
+      {{"--scene", "biped", "--param", "variant=" + huge},
+       "--param: biped variant \"" + cut +
+           "\" is not one of conservative, dissipative, mode-damping"},
+      {{"--scene", "pwconst", "--param", "d=" + huge},
+       "--param: pwconst parameter \"d\" must be an integer in [1, 16], got \"" + cut + "\""},
+      {{"--scene", "pwconst", "--param", "delta=" + huge},
+       "--param: pwconst parameter \"delta\" = \"" + cut + "\" is out of the range of a double"},
+      {{"--scene", "pwconst", "--param", huge}, "--param: \"" + cut + "\" is not key=value"},
+      {{"--scene", "pwconst", "--t", "x" + huge},
+       "--t: \"x" + std::string(59, '7') + "...\" is not a number"},
+      {{"--scene", "pwconst", "--integrator", huge},
+       "--integrator: integrator \"" + cut +
+           "\" is unknown; choose dopri5, cvodes-bdf or cvodes-adams"},
+      {{"--scene", "pwconst", "--grouping", huge},
+       "--grouping: grouping \"" + cut + "\" is unknown; choose auto, window or none"},
+      {{"--scene", "pwconst", "--max-steps", huge},
+       "--max-steps: \"" + cut + "\" is too large (at most 1000000000)"},
+      {{"--scene", huge},
+       "--scene: unknown scene \"" + cut + "\"; the scenes are pwconst and biped"},
+      // Bytes that are not UTF-8 as \xNN, control characters as \u00NN, UTF-8 kept.
+      {{"--scene", "\xff\xfe\x01x\xc3\xa9"},
+       "--scene: unknown scene \"\\xff\\xfe\\u0001x\xc3\xa9\"; the scenes are pwconst and biped"},
+      {{"--scene", "pwconst", "--param", "d=\xe2\x88\x92\x31"},
+       "--param: pwconst parameter \"d\" must be an integer in [1, 16], got \"\xe2\x88\x92\x31\""},
+      {{"--scene", "pwconst", "--param", "delta=\xe2\x88"},
+       "--param: pwconst parameter \"delta\" = \"\\xe2\\x88\" is not a number"},
+  };
+  for (const BadOption& c : cases) {
+    std::vector<std::string> args = {"flow"};
+    args.insert(args.end(), c.args.begin(), c.args.end());
+    const Outcome o = command_line(args);
+    SCOPED_TRACE(c.error.substr(0, 40));
+    EXPECT_EQ(o.code, 2);
+    EXPECT_EQ(o.out, "");
+    EXPECT_EQ(o.err, "error: " + c.error + "\n");
+    EXPECT_LT(o.err.size(), 300u);
+  }
+  const Outcome unknown = command_line({"flow", "--scene", "pwconst", "--" + huge});
+  EXPECT_EQ(unknown.code, 2);
+  EXPECT_THAT(unknown.err, StartsWith("error: flow: "));
+  EXPECT_THAT(unknown.err, HasSubstr("--7777"));
+  EXPECT_LT(unknown.err.size(), 300u);
+  EXPECT_EQ(std::count(unknown.err.begin(), unknown.err.end(), '\n'), 1);
+  const Outcome stray = command_line({"flow", "--scene", "pwconst", "\xff\x02"});
+  EXPECT_EQ(stray.code, 2);
+  EXPECT_THAT(stray.err, HasSubstr("\\xff\\u0002"));
+}
+
 // quote(): code points, not bytes, are counted and never cut; what is not printable is escaped.
 TEST(QuoteTest, CountsCodePointsAndEscapesWhatIsNotPrintable) {
   EXPECT_EQ(quote("\xe2\x88\x92+"), "\"\xe2\x88\x92+\"");

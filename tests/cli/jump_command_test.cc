@@ -701,6 +701,51 @@ TEST(CommandLineTest, UsageErrorsAreOneLineWithCodeTwo) {
 // ---------------------------------------------------------------------------------------------
 // The command's edges: bytes after the document, the byte limits as options, quoting.
 
+TEST(CommandLineTest, ByteLimitsAreWholePositiveNumbersWithinSixtyFourBits) {
+  const std::string document = with(kNormals, kLimits, kTangents);
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"--max-input-bytes", ""}, "--max-input-bytes: the value is empty"},
+      {{"--max-output-bytes", ""}, "--max-output-bytes: the value is empty"},
+      // 2^63 and 2^64 used to be clamped to 2^63 - 1 without a word.
+      {{"--max-input-bytes", "9223372036854775808"},
+       "--max-input-bytes: \"9223372036854775808\" is too large (at most 9223372036854775807)"},
+      {{"--max-output-bytes", "18446744073709551616"},
+       "--max-output-bytes: \"18446744073709551616\" is too large (at most "
+       "9223372036854775807)"},
+      {{"--max-input-bytes=-5"}, "--max-input-bytes: \"-5\" is too small (at least 1)"},
+      {{"--max-output-bytes", "0"}, "--max-output-bytes: \"0\" is too small (at least 1)"},
+      {{"--max-input-bytes", "1e6"}, "--max-input-bytes: \"1e6\" is not an integer"},
+      {{"--max-output-bytes", "64MiB"}, "--max-output-bytes: \"64MiB\" is not an integer"},
+  };
+  for (const auto& [args, error] : cases) {
+    std::vector<std::string> all = {"jump", "--input", "-"};
+    all.insert(all.end(), args.begin(), args.end());
+    const Outcome o = command_line(all, document);
+    SCOPED_TRACE(::testing::PrintToString(all));
+    EXPECT_EQ(o.code, 2);
+    EXPECT_EQ(o.out, "");
+    EXPECT_EQ(o.err, "error: " + error + "\n");
+  }
+  EXPECT_EQ(command_line({"jump", "-i", ""}).err, "error: --input: the value is empty\n");
+  EXPECT_EQ(command_line({"jump", "--input", ""}).err, "error: --input: the value is empty\n");
+  // The largest accepted, and the defaults.
+  EXPECT_EQ(command_line({"jump", "--input", "-", "--max-input-bytes", "9223372036854775807",
+                          "--max-output-bytes", "9223372036854775807"},
+                         document)
+                .code,
+            0);
+  const Outcome defaults = command_line({"jump", "--input", "-"}, document);
+  EXPECT_EQ(defaults.code, 0) << defaults.err;
+  EXPECT_EQ(Json::parse(defaults.out)["results"][0]["order"], Json({0, 1}));
+  // In-process, the limits are checked where the file is read, naming the option.
+  std::istringstream in(document);
+  std::ostringstream out, err;
+  JumpOptions negative;
+  negative.max_output_bytes = -5;
+  EXPECT_EQ(run_jump_file("-", in, out, err, negative), 2);
+  EXPECT_EQ(err.str(), "error: --max-output-bytes: must be >= 1, got -5\n");
+}
+
 // "−" (U+2212, three bytes) is one character: the word "−+" has the right length for n = 2 and
 // its first character is named, not a byte of it.
 TEST(JumpCommandTest, SignWordsCountAndQuoteCharactersNotBytes) {

@@ -424,5 +424,87 @@ TEST(OcpCommandTest, AnUnwritableDirectoryIsRefusedBeforeTheSolve) {
   EXPECT_EQ(err.str(), "error: ocp: cannot create directory \"/dev/null/x\": Not a directory\n");
 }
 
+Outcome command_line(std::vector<std::string> args) {
+  args.insert(args.begin(), "bflow");
+  std::vector<const char*> argv;
+  for (const auto& a : args) argv.push_back(a.c_str());
+  std::istringstream in;
+  std::ostringstream out, err;
+  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
+  nlohmann::json j;
+  if (!out.str().empty()) j = nlohmann::json::parse(out.str());
+  return {code, j, err.str()};
+}
+
+// The options as typed: an empty value (which CLI11 took as the default), a number beyond its
+// type or one that underflows, and a tolerance no solve meets in double precision (1e-300 ran
+// into IPOPT's iteration limits) are refused naming the option, before anything is solved.
+TEST(OcpCommandTest, OptionTextIsReadWholeAndChecked) {
+  const std::string underflow =
+      " underflows: a nonzero number must be at least 2.2250738585072014e-308 (the smallest "
+      "normal double) in magnitude";
+  const std::string tol_bound =
+      "--tol: must be >= 1e-14 (below that IPOPT cannot meet it in double precision), got ";
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"--N", ""}, "--N: the value is empty"},
+      {{"--nfe", ""}, "--nfe: the value is empty"},
+      {{"--stages", ""}, "--stages: the value is empty"},
+      {{"--scheme", ""}, "--scheme: the value is empty"},
+      {{"--formulation", ""}, "--formulation: the value is empty"},
+      {{"--relaxation", ""}, "--relaxation: the value is empty"},
+      {{"--sigma0", ""}, "--sigma0: the value is empty"},
+      {{"--sigma-final", ""}, "--sigma-final: the value is empty"},
+      {{"--tol", ""}, "--tol: the value is empty"},
+      {{"--plot", ""}, "--plot: the value is empty"},
+      {{"--N", "ten"}, "--N: \"ten\" is not an integer"},
+      {{"--N", "3000000000"}, "--N: \"3000000000\" is too large (at most 2147483647)"},
+      {{"--nfe", "2.0"}, "--nfe: \"2.0\" is not an integer"},
+      {{"--stages=-99999999999"}, "--stages: \"-99999999999\" is too small (at least -2147483648)"},
+      {{"--tol", "1e-300"}, tol_bound + "1e-300"},
+      {{"--tol", "9.9e-15"}, tol_bound + "9.9e-15"},
+      {{"--tol", "5e-324"}, "--tol: \"5e-324\"" + underflow},
+      {{"--tol", "1e-400"}, "--tol: \"1e-400\"" + underflow},
+      {{"--sigma0", "1e-400", "--sigma-final", "1e-400"}, "--sigma0: \"1e-400\"" + underflow},
+      {{"--sigma-final", "4.9e-324"}, "--sigma-final: \"4.9e-324\"" + underflow},
+      {{"--sigma0", "1e999"}, "--sigma0: \"1e999\" is out of the range of a double"},
+      {{"--sigma0", "inf"},
+       "--sigma0: the initial relaxation parameter must be finite and > 0, got inf"},
+      {{"--scheme", "\xc3\xa9\xff"},
+       "--scheme: unknown collocation scheme \"\xc3\xa9\\xff\": use radau or gauss"},
+      {{"--example", "\xe2\x88\x92" + std::string(100, 'x')},
+       "--example: unknown example \"\xe2\x88\x92" + std::string(59, 'x') +
+           "...\"; use turbo-car, braking-block, monoped"},
+  };
+  for (const auto& [args, error] : cases) {
+    std::vector<std::string> all = {"ocp", "--example", "turbo-car", "--quiet"};
+    if (args[0] == "--example") all.resize(1);
+    all.insert(all.end(), args.begin(), args.end());
+    const Outcome o = command_line(all);
+    SCOPED_TRACE(error.substr(0, 40));
+    EXPECT_EQ(o.code, kExitBadInput);
+    EXPECT_TRUE(o.json.is_null());
+    EXPECT_EQ(o.err, "error: " + error + "\n");
+  }
+  // In-process too.
+  OcpCommandOptions o;
+  o.example = "turbo-car";
+  o.tol = 1e-15;
+  const Outcome in_process = solve(o);
+  EXPECT_EQ(in_process.code, kExitBadInput);
+  EXPECT_EQ(in_process.err, "error: " + tol_bound + "1e-15\n");
+  // The bound itself is a tolerance like any other (the cheapest solve, 0.1 s), and so are the
+  // defaults given in full.
+  const Outcome at_bound = command_line(
+      {"ocp", "--example", "braking-block", "--N", "2", "--nfe", "1", "--tol", "1e-14", "--quiet"});
+  ASSERT_EQ(at_bound.code, kExitOk) << at_bound.err;
+  EXPECT_EQ(at_bound.json["status"], "solved");
+  EXPECT_NEAR(at_bound.json["objective"].get<double>(), 13.0 / 6.0, 1e-12);
+  const Outcome defaults =
+      command_line({"ocp", "--example", "braking-block", "--N", "2", "--nfe", "1", "--stages", "2",
+                    "--sigma0", "100", "--sigma-final", "1e-10", "--tol", "1e-10", "--quiet"});
+  ASSERT_EQ(defaults.code, kExitOk) << defaults.err;
+  EXPECT_NEAR(defaults.json["objective"].get<double>(), 13.0 / 6.0, 1e-12);
+}
+
 }  // namespace
 }  // namespace bflow::cli
