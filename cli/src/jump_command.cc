@@ -208,6 +208,18 @@ std::string bounded_parse_message(const std::string& message) {
   return message;
 }
 
+// "line L, column C" of byte `offset` (both from 1, columns in bytes, as nlohmann counts).
+std::string position_of(const std::string& text, std::size_t offset) {
+  std::size_t line = 1, line_start = 0;
+  for (std::size_t i = 0; i < offset && i < text.size(); ++i) {
+    if (text[i] == '\n') {
+      ++line;
+      line_start = i + 1;
+    }
+  }
+  return "line " + std::to_string(line) + ", column " + std::to_string(offset - line_start + 1);
+}
+
 Json parse_document(const std::string& text) {
   Json root;
   DuplicateCheckingParser parser(root);
@@ -222,6 +234,14 @@ Json parse_document(const std::string& text) {
       message.erase(0, tag_end + 2);
     }
     throw InputError("input: not valid JSON: " + bounded_parse_message(message));
+  }
+  // nlohmann reads a NUL byte as the end of the input: a document followed by one parses, and
+  // whatever comes after it would be ignored. A NUL cannot be inside the document (not even in
+  // a string, where control characters must be escaped), so any NUL is a trailing byte.
+  if (const auto nul = text.find('\0'); nul != std::string::npos) {
+    throw InputError("input: not valid JSON: a NUL byte follows the document at " +
+                     position_of(text, nul) + " (" + std::to_string(text.size() - nul) +
+                     " trailing bytes); only whitespace may follow the document");
   }
   return root;
 }

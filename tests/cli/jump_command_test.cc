@@ -701,6 +701,41 @@ TEST(CommandLineTest, UsageErrorsAreOneLineWithCodeTwo) {
 // ---------------------------------------------------------------------------------------------
 // The command's edges: bytes after the document, the byte limits as options, quoting.
 
+// nlohmann reads a NUL as the end of the input; whatever follows the document is refused all the
+// same, from the standard input and from a file (printf '{...}\0junk' > file).
+TEST(JumpCommandTest, BytesAfterTheDocumentAreRefused) {
+  const std::string document = with(kNormals, kLimits, kTangents);
+  const std::string column = std::to_string(document.size() + 1);
+  const Outcome junk = jump(document + std::string("\0junk", 5));
+  EXPECT_EQ(junk.code, 2);
+  EXPECT_EQ(junk.out, "");
+  EXPECT_EQ(junk.err,
+            "error: input: not valid JSON: a NUL byte follows the document at line 1, "
+            "column " +
+                column + " (5 trailing bytes); only whitespace may follow the document\n");
+  const Outcome nul = jump(document + "\n" + std::string(1, '\0'));
+  EXPECT_EQ(nul.code, 2);
+  EXPECT_EQ(nul.err,
+            "error: input: not valid JSON: a NUL byte follows the document at line 2, "
+            "column 1 (1 trailing bytes); only whitespace may follow the document\n");
+
+  const std::filesystem::path dir = std::filesystem::path(::testing::TempDir()) / "jump_nul";
+  std::filesystem::create_directories(dir);
+  const std::string file = (dir / "nul.json").string();
+  std::ofstream(file, std::ios::binary) << document << std::string("\0junk", 5);
+  const Outcome from_file = command_line({"jump", "--input", file});
+  EXPECT_EQ(from_file.code, 2);
+  EXPECT_EQ(from_file.out, "");
+  EXPECT_EQ(from_file.err, junk.err);
+
+  // Whitespace after the document is not a trailing byte; anything else is a syntax error.
+  EXPECT_EQ(jump(document + " \n\t\r\n").code, 0);
+  const Outcome text = jump(document + " junk");
+  EXPECT_EQ(text.code, 2);
+  EXPECT_THAT(text.err, StartsWith("error: input: not valid JSON: parse error at line 1, column " +
+                                   std::to_string(document.size() + 2) + ": syntax error"));
+}
+
 TEST(CommandLineTest, ByteLimitsAreWholePositiveNumbersWithinSixtyFourBits) {
   const std::string document = with(kNormals, kLimits, kTangents);
   const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
