@@ -617,8 +617,13 @@ Evaluation evaluate(const Json& document, const JumpOptions& options) {
   return result;
 }
 
+// Thrown out of the pieces' loop once `out` has failed (a closed pipe, a full disk): the pieces
+// left would go nowhere.
+struct WriteFailed {};
+
 // Writes the top-level object key by key, the pieces one at a time in between: the same text
 // as formatting the whole document at once, without ever holding the n! pieces.
+// @throws WriteFailed when `out` fails while the pieces are written.
 void write_evaluation(std::ostream& out, const Evaluation& e, bool compact) {
   bool first = true;
   const auto key = [&](const char* name) {
@@ -637,6 +642,7 @@ void write_evaluation(std::ostream& out, const Evaluation& e, bool compact) {
     bool first_piece = true;
     e.jump->for_each_piece(
         [&](const std::vector<int>& sigma, const Eigen::Ref<const Eigen::MatrixXd>& matrix) {
+          if (!out) throw WriteFailed{};
           OrderedJson item = OrderedJson::object();
           item["order"] = sigma;
           item["matrix"] = rows_json(matrix);
@@ -666,14 +672,14 @@ int run_jump_text(const std::string& text, std::ostream& out, std::ostream& err,
       write_evaluation(buffer, evaluation, options.compact);
       out << buffer.str();
     } else {
-      write_evaluation(out, evaluation, options.compact);
+      try {
+        write_evaluation(out, evaluation, options.compact);
+      } catch (const WriteFailed&) {
+        // Reported below, as every failed write is.
+      }
     }
-    out << std::flush;
-    if (!out) {
-      report_error(err, "output: cannot write the result");
-      return kExitFailure;
-    }
-    return kExitOk;
+    // A failed write: "stdout: write failed (<reason>)", exit code 1.
+    return finish_output(out, err, kExitOk);
   } catch (const InputError& e) {
     report_error(err, e.what());
     return kExitBadInput;

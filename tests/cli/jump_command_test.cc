@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <streambuf>
 #include <string>
 #include <vector>
 
@@ -831,6 +832,40 @@ TEST(JumpCommandTest, OffendingTextIsQuotedShortAndPrintable) {
   EXPECT_THAT(bytes.err, HasSubstr("last read: '\"normals\\xff'"));
   EXPECT_EQ(bytes.err.find('\xff'), std::string::npos);
   EXPECT_EQ(std::count(bytes.err.begin(), bytes.err.end(), '\n'), 1);
+}
+
+// A stream that takes `capacity` bytes and then fails, as a closed pipe does.
+class ClosingBuffer : public std::streambuf {
+ public:
+  explicit ClosingBuffer(std::size_t capacity) : capacity_(capacity) {}
+
+ protected:
+  int_type overflow(int_type c) override {
+    if (traits_type::eq_int_type(c, traits_type::eof())) return traits_type::not_eof(c);
+    const char ch = traits_type::to_char_type(c);
+    return xsputn(&ch, 1) == 1 ? c : traits_type::eof();
+  }
+  std::streamsize xsputn(const char*, std::streamsize n) override {
+    const auto taken = std::min<std::streamsize>(n, static_cast<std::streamsize>(capacity_));
+    capacity_ -= static_cast<std::size_t>(taken);
+    return taken;
+  }
+
+ private:
+  std::size_t capacity_;
+};
+
+// Output that stops being written (8! pieces, streamed, into a reader that goes away after 1000
+// bytes, or a small result buffered first) is a failed write: exit code 1, one line.
+TEST(JumpCommandTest, OutputThatCannotBeWrittenIsOneLine) {
+  for (const Json& input : {identity_document(8, true), identity_document(3, true)}) {
+    ClosingBuffer closing(1000);
+    std::ostream out(&closing);
+    std::istringstream in(input.dump());
+    std::ostringstream err;
+    EXPECT_EQ(run_jump(in, out, err), 1);
+    EXPECT_EQ(err.str(), "error: stdout: write failed\n");
+  }
 }
 
 }  // namespace
