@@ -72,6 +72,9 @@ of the --vary and --vary-param values, in grid order (index 0 first; the first a
 varies slowest); the records come out in that order whatever the number of threads, as soon as
 each is ready, and a progress bar on stderr shows the samples done, the rate and the time left.
 
+The first line identifies the sweep: {"sweep": {"bflow", "scene", "params", "integrator",
+"rtol", "atol", "grouping", "t", "max_steps", "x0", "dx", "format", "states", "directions",
+"axes"}} (CSV: "# bflow sweep {...}" before the column header).
 A JSON-lines record (one line per sample):
   {"index", "varied" (the values, in the order of the options), "status", "message" (when not
    ok), "t_reached", "x_t", "events": [{"t", "surfaces"}], "images" (one per --dx),
@@ -79,16 +82,19 @@ A JSON-lines record (one line per sample):
    number of linear pieces: the product over events of (surfaces crossed together)!)}
 CSV has the same columns: index, one per axis, status, message, t_reached, x_t[i],
 image<k>[i], events (t:s1+s2;...), orders (events ';', surfaces '>', directions '|'), pieces.
-status is "ok", an integration status that stopped the sample early ("too many steps",
-"step-size underflow", ...), "rejected" (the engine refused the start: on a surface, grazing,
+status is "ok" (every number finite), an integration status that stopped the sample early
+("too many steps", "step-size underflow", ...), "overflow" (a number beyond the double range),
+"rejected" (the engine refused the start: on a surface, grazing,
 sliding; the message says which) or "error". A failed sample never stops the sweep; the exit
 code is 0 and the last stderr line counts the samples by status. --atlas PNG (two axes and a
 --dx) maps the event structure of every sample: the surfaces of each event in time order, and
 for surfaces crossed together the order the first --dx takes, e.g. 0+1 (1>0). With
 --output FILE --resume,
-the whole records an interrupted run left in FILE are kept (after checking that their indices
-and varied values are this sweep's) and the sweep goes on from the first missing sample; the
-file then holds exactly what an uninterrupted run writes.
+the whole records an interrupted run of the same sweep left in FILE are kept (its first line
+must be this sweep's identity, its records this grid's) and the sweep goes on from the first
+missing sample; the file then holds exactly what an uninterrupted run writes. Anything else
+(another sweep's output, a file that is not one, a device) is refused with exit code 2 and left
+as it was.
 
 Example: the piecewise-constant field over a line of starts through the origin's cone
   $ bflow sweep --scene pwconst --vary 1=-0.9:-0.1:9 --x0=-0.5,0 --dx 1,0 --quiet

@@ -316,7 +316,7 @@ void write_plots(const fs::path& dir, const OcpModel& model, const OcpResult& r)
     gp << "# Written by `bflow ocp`; run in this directory: gnuplot " << name << ".gp\n"
        << "set encoding utf8\n"
           "set terminal pngcairo size 900,600 enhanced font 'Sans,12'\n"
-       << "set output '" << name << ".png'\n"
+       << "set output (exists('bflow_output') ? bflow_output : '" << name << ".png')\n"
        << "set title \"" << title << "\"\n"
        << "set xlabel 't'\nset ylabel '" << ylabel << "'\n"
        << "set grid lc rgb '#dddddd'\nset key outside right top\n"
@@ -400,7 +400,7 @@ void write_monoped_plots(const fs::path& dir, const OcpResult& r) {
   };
   script("monoped_frames",
          "set terminal pngcairo size 1400,420 enhanced font 'Sans,12'\n"
-         "set output 'monoped_frames.png'\n"
+         "set output (exists('bflow_output') ? bflow_output : 'monoped_frames.png')\n"
          "set title 'The monoped every 0.25 s (body, thigh, shank); colour: physical time'\n"
          "set size ratio -1\nset xlabel 'x [m]'\nset ylabel 'z [m]'\n"
          "set xrange [-0.35:3.45]\nset yrange [-0.05:0.85]\n"
@@ -410,7 +410,7 @@ void write_monoped_plots(const fs::path& dir, const OcpResult& r) {
          "notitle\n");
   script("monoped_states",
          "set terminal pngcairo size 1000,800 enhanced font 'Sans,12'\n"
-         "set output 'monoped_states.png'\n"
+         "set output (exists('bflow_output') ? bflow_output : 'monoped_states.png')\n"
          "set multiplot layout 2,1 title 'The monoped against physical time'\n"
          "set grid lc rgb '#dddddd'\nset key outside right top\nset xlabel 't [s]'\n"
          "set ylabel 'position'\n"
@@ -426,7 +426,7 @@ void write_monoped_plots(const fs::path& dir, const OcpResult& r) {
          "unset multiplot\n");
   script("monoped_controls",
          "set terminal pngcairo size 1000,500 enhanced font 'Sans,12'\n"
-         "set output 'monoped_controls.png'\n"
+         "set output (exists('bflow_output') ? bflow_output : 'monoped_controls.png')\n"
          "set title 'Torques and speed of time, constant on each stage'\n"
          "set grid lc rgb '#dddddd'\nset key outside right top\nset xlabel 't [s]'\n"
          "set ylabel 'torque [N m]'\nset y2label 'speed of time s'\nset ytics nomirror\n"
@@ -489,8 +489,24 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
       check_size(model, options, o);
       return 0;
     });
-    // A directory that cannot take the plots is refused before the solve.
-    if (options.plot) prepare_output_directory(*options.plot, "ocp");
+    // A directory that cannot take the plots, or holds something other than a file where a
+    // plot's file goes, is refused before the solve.
+    if (options.plot) {
+      prepare_output_directory(*options.plot, "ocp");
+      std::vector<std::string> files = {"ocp_grid.dat", "ocp_controls.dat", "ocp_switch_times.dat"};
+      for (const char* plot : {"ocp_states", "ocp_controls", "ocp_switching"}) {
+        files.insert(files.end(), {std::string(plot) + ".gp", std::string(plot) + ".png"});
+      }
+      if (options.example == "monoped") {
+        files.insert(files.end(), {"monoped_frames.dat", "monoped_states.dat"});
+        for (const char* plot : {"monoped_frames", "monoped_states", "monoped_controls"}) {
+          files.insert(files.end(), {std::string(plot) + ".gp", std::string(plot) + ".png"});
+        }
+      }
+      for (const std::string& file : files) {
+        check_replaceable_file(std::filesystem::path(*options.plot) / file, "ocp");
+      }
+    }
 
     return with_example(
         options.example, o.formulation, [&](const OcpModel& model, const OcpProblem& problem) {

@@ -453,6 +453,59 @@ TEST(OcpCommandTest, MissingGnuplotIsOneErrorLine) {
   fs::remove_all(dir);
 }
 
+TEST(OcpCommandTest, AnEmptyDirectoryNamedLikeAPlotIsNotReplaced) {
+  const fs::path dir = fs::path(::testing::TempDir()) / "bflow_ocp_plot_dir";
+  fs::remove_all(dir);
+  fs::create_directories(dir / "ocp_controls.png");
+  std::ostringstream out, err;
+  EXPECT_EQ(run_ocp(plot_options(dir), out, err), kExitFailure);
+  EXPECT_EQ(out.str(), "");  // refused before the solve
+  EXPECT_EQ(err.str(), "error: ocp: \"" + (dir / "ocp_controls.png").string() +
+                           "\" exists and is not a regular file; it is not replaced (remove it or "
+                           "name another output)\n");
+  EXPECT_TRUE(fs::is_directory(dir / "ocp_controls.png"));
+  fs::remove_all(dir);
+}
+
+// gnuplot draws into a temporary file renamed onto the PNG once it has succeeded, and the data
+// and scripts are renamed into place whole: a plot that fails leaves the earlier files as they
+// were and no temporary file behind.
+TEST(OcpCommandTest, AFailedPlotLeavesTheEarlierFilesAsTheyWere) {
+  if (!gnuplot_on_path()) GTEST_SKIP() << "gnuplot is not installed";
+  const fs::path dir = fs::path(::testing::TempDir()) / "bflow_ocp_plot_again";
+  fs::remove_all(dir);
+  ASSERT_EQ(solve(plot_options(dir)).code, kExitOk);
+  const auto read = [](const fs::path& file) {
+    std::ifstream in(file, std::ios::binary);
+    std::ostringstream text;
+    text << in.rdbuf();
+    return text.str();
+  };
+  const std::string png = read(dir / "ocp_states.png");
+  ASSERT_GT(png.size(), 1000u);
+  // A gnuplot that writes half a picture and fails.
+  const fs::path bin = dir / "bin";
+  fs::create_directories(bin);
+  {
+    std::ofstream fake(bin / "gnuplot");
+    fake << "#!/bin/sh\nfor a in \"$@\"; do case $a in bflow_output=*) f=${a#bflow_output=}; "
+            "f=${f#\\'}; f=${f%\\'}; printf 'half a png' > \"$f\";; esac; done\nexit 3\n";
+  }
+  fs::permissions(bin / "gnuplot", fs::perms::owner_all);
+  const char* old = std::getenv("PATH");
+  const std::string saved = old ? old : "";
+  ::setenv("PATH", bin.c_str(), 1);
+  const Outcome r = solve(plot_options(dir));
+  ::setenv("PATH", saved.c_str(), 1);
+  EXPECT_EQ(r.code, kExitFailure);
+  EXPECT_THAT(r.err, ::testing::HasSubstr("failed with exit status 3"));
+  EXPECT_EQ(read(dir / "ocp_states.png"), png);
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    EXPECT_NE(entry.path().filename().string().rfind(".bflow-", 0), 0u) << entry.path();
+  }
+  fs::remove_all(dir);
+}
+
 TEST(OcpCommandTest, AnUnwritableDirectoryIsRefusedBeforeTheSolve) {
   OcpCommandOptions o = plot_options("/dev/null/x");
   std::ostringstream out, err;
