@@ -26,6 +26,8 @@ const char* to_string(IntegrationStatus status) {
       return "solver failure";
     case IntegrationStatus::kTooManyEvents:
       return "too many events";
+    case IntegrationStatus::kOverflow:
+      return "overflow";
   }
   return "unknown";
 }

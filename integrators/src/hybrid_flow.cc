@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <string>
 
@@ -88,9 +89,129 @@ Signs starting_sides(const SegmentModel& model, const Eigen::VectorXd& x0,
 // Normal speeds below this fraction of |eta| |F| count as this fast in the grouping window.
 constexpr double kMinGroupingMargin = 1e-2;
 
+// A real number m 2^e (0.5 <= |m| < 1, or m = 0) with an exponent of its own, for the quantities
+// of the grouping rule: products and quotients of norms, speeds and tolerances that are huge or
+// tiny never leave its range, so every decision compares the true magnitudes and only a number
+// that is reported (to_double()) can overflow. m = NaN is "undefined" (a non-finite input, a
+// division by zero): it stays undefined through every operation, and every comparison with it is
+// false, so nothing is grouped on it.
+class Wide {
+ public:
+  Wide() = default;
+  /** x exactly; undefined unless x is finite. */
+  explicit Wide(double x) {
+    if (std::isfinite(x)) {
+      m_ = std::frexp(x, &e_);
+    } else {
+      m_ = std::numeric_limits<double>::quiet_NaN();
+    }
+  }
+  static Wide undefined() { return Wide(std::numeric_limits<double>::quiet_NaN()); }
+  /** m 2^e, renormalised; undefined unless m is finite. */
+  static Wide from_parts(double m, long e) {
+    Wide w(m);
+    if (w.defined() && w.m_ != 0.0) {
+      w.e_ = static_cast<int>(std::clamp<long>(e + w.e_, -kExponentLimit, kExponentLimit));
+    }
+    return w;
+  }
+
+  bool defined() const { return !std::isnan(m_); }
+  double mantissa() const { return m_; }
+  int exponent() const { return e_; }
+  Wide abs() const { return from_parts(std::abs(m_), e_); }
+  /** The nearest double: +-inf beyond the double range, subnormal or 0 below it; NaN if
+      undefined. */
+  double to_double() const { return std::ldexp(m_, e_); }
+  /** Decimal: format_number() within the double range, four digits beyond it (2^1100 as
+      "1.359e+331"). */
+  std::string text() const {
+    const double value = to_double();
+    if (std::isfinite(value) || !defined()) return format_number(value);
+    const double decimal = std::log10(std::abs(m_)) + e_ * std::log10(2.0);
+    double exponent = std::floor(decimal);
+    double digits = std::round(std::pow(10.0, decimal - exponent) * 1000.0) / 1000.0;
+    if (digits >= 10.0) {
+      digits /= 10.0;
+      exponent += 1.0;
+    }
+    char buffer[48];
+    std::snprintf(buffer, sizeof buffer, "%s%.3fe%+.0f", m_ < 0.0 ? "-" : "", digits, exponent);
+    return buffer;
+  }
+
+  friend Wide operator-(const Wide& a) { return from_parts(-a.m_, a.e_); }
+  friend Wide operator*(const Wide& a, const Wide& b) {
+    return from_parts(a.m_ * b.m_, static_cast<long>(a.e_) + b.e_);
+  }
+  /** Undefined when b is 0. */
+  friend Wide operator/(const Wide& a, const Wide& b) {
+    return from_parts(a.m_ / b.m_, static_cast<long>(a.e_) - b.e_);
+  }
+  friend Wide operator+(const Wide& a, const Wide& b) {
+    if (!a.defined() || !b.defined()) return undefined();
+    if (a.m_ == 0.0) return b;
+    if (b.m_ == 0.0) return a;
+    const Wide& big = a.e_ >= b.e_ ? a : b;
+    const Wide& small = a.e_ >= b.e_ ? b : a;
+    const long shift = static_cast<long>(big.e_) - small.e_;
+    if (shift > 1100) return big;  // below half an ulp of big, even as a subnormal
+    return from_parts(big.m_ + std::ldexp(small.m_, static_cast<int>(-shift)), big.e_);
+  }
+  friend Wide operator-(const Wide& a, const Wide& b) { return a + (-b); }
+  // False when either side is undefined.
+  friend bool operator<(const Wide& a, const Wide& b) { return (a - b).m_ < 0.0; }
+  friend bool operator<=(const Wide& a, const Wide& b) { return (a - b).m_ <= 0.0; }
+  /** The larger; undefined when either is. */
+  friend Wide max(const Wide& a, const Wide& b) {
+    if (!a.defined() || !b.defined()) return undefined();
+    return a < b ? b : a;
+  }
+
+ private:
+  // Exponents stay far inside int; the clamp only guards against pathological chains.
+  static constexpr long kExponentLimit = 1L << 20;
+  double m_ = 0.0;
+  int e_ = 0;
+};
+
+// The Euclidean norm, each entry scaled by the power of two of the largest first: neither the
+// squares overflow nor the entries far below the largest underflow. Undefined if an entry is.
+Wide euclidean_norm(const std::vector<Wide>& v) {
+  int top = std::numeric_limits<int>::min();
+  for (const Wide& x : v) {
+    if (!x.defined()) return Wide::undefined();
+    if (x.mantissa() != 0.0) top = std::max(top, x.exponent());
+  }
+  if (top == std::numeric_limits<int>::min()) return Wide(0.0);
+  double sum = 0.0;
+  for (const Wide& x : v) {
+    const double scaled = std::ldexp(x.mantissa(), x.exponent() - top);  // |scaled| < 1
+    sum += scaled * scaled;
+  }
+  return Wide::from_parts(std::sqrt(sum), top);
+}
+
+std::vector<Wide> wide_vector(const Eigen::Ref<const Eigen::RowVectorXd>& v) {
+  std::vector<Wide> out;
+  out.reserve(static_cast<std::size_t>(v.size()));
+  for (Eigen::Index i = 0; i < v.size(); ++i) out.emplace_back(v[i]);
+  return out;
+}
+
+// a . b, each product and partial sum with its own exponent. Undefined if an entry is.
+Wide wide_dot(const std::vector<Wide>& a, const std::vector<Wide>& b) {
+  Wide sum(0.0);
+  for (std::size_t i = 0; i < a.size(); ++i) sum = sum + a[i] * b[i];
+  return sum;
+}
+
 struct Event {
   EventRecord record;
   std::optional<JumpMap> jump;
+  /** Non-empty when a number of the record is beyond the double range: the run ends with
+      kOverflow and this message (no jump is built). */
+  std::string overflow;
 };
 
 Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs sides,
@@ -112,72 +233,90 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
   model.field(rho.data(), sides, f_before.data());
 
   // The crossing-time uncertainty of each surface: the integrator's tolerance on the state,
-  // seen through the surface's normal and normal speed (header comment, "Grouping").
-  const double rtol = options.integrator.rtol;
-  const double atol = options.integrator.absolute_tolerance();
-  const double tol_norm = (atol + rtol * rho.array().abs()).matrix().norm();
-  const double time_floor = 16.0 * std::numeric_limits<double>::epsilon() * std::abs(t1);
+  // seen through the surface's normal and normal speed (header comment, "Grouping"). Every
+  // quantity is a Wide: |tol| of a state of 1e200 or |F| of 1e200 has no finite square, and a
+  // normal of 1e200 times such a tolerance no finite product, while the window they give is an
+  // ordinary number.
+  const Wide rtol(options.integrator.rtol);
+  const Wide atol(options.integrator.absolute_tolerance());
+  std::vector<Wide> tolerance;
+  for (Eigen::Index i = 0; i < d; ++i) tolerance.push_back(atol + rtol * Wide(std::abs(rho[i])));
+  const Wide tol_norm = euclidean_norm(tolerance);
+  const Wide time_floor(16.0 * std::numeric_limits<double>::epsilon() * std::abs(t1));
+  const std::vector<Wide> field = wide_vector(f_before.transpose());
+  const Wide f_norm = euclidean_norm(field);
+  const Wide min_margin(kMinGroupingMargin);
+  const Wide safety(options.grouping_safety);
   // A crossing slower than kMinGroupingMargin (eta . F below that fraction of |eta| |F|) counts
   // as that fast: its window stays below 2 grouping_safety / kMinGroupingMargin times the time
   // the trajectory takes to move by one tolerance, so grouping never flips a side by more than
-  // a bounded number of tolerances early.
-  const double f_norm = f_before.norm();
+  // a bounded number of tolerances early. A vanishing normal or field leaves sigma undefined.
   const auto sigma = [&](int j) {
-    const double normal = dh.row(j).norm();
-    const double speed =
-        std::max(std::abs(dh.row(j).dot(f_before)), kMinGroupingMargin * normal * f_norm);
+    const std::vector<Wide> normal_row = wide_vector(dh.row(j));
+    const Wide normal = euclidean_norm(normal_row);
+    const Wide speed = max(wide_dot(normal_row, field).abs(), min_margin * normal * f_norm);
     return normal * tol_norm / speed + time_floor;
   };
-  // Located crossing times: the backend's roots in the step; else, for a surface approaching,
-  // the linearised time to reach it from rho (a tiny extrapolation: only windows are compared).
-  std::vector<double> located(static_cast<std::size_t>(n_model), INFINITY);
+  // How long after t1 each surface is located to cross: 0 for the first crossing; the backend's
+  // root in the same step; else, for a surface approaching, the linearised time to reach it from
+  // rho (a tiny extrapolation: only windows are compared). Undefined for the others (receding,
+  // or a value that is not finite), which never join.
+  std::vector<Wide> delay(static_cast<std::size_t>(n_model), Wide::undefined());
+  std::vector<double> located(static_cast<std::size_t>(n_model), t1);
   for (int j = 0; j < n_model; ++j) {
     const std::size_t uj = static_cast<std::size_t>(j);
     const bool crossed =
         std::find(segment.crossed.begin(), segment.crossed.end(), j) != segment.crossed.end();
     if (crossed) {
-      located[uj] = t1;
+      delay[uj] = Wide(0.0);
     } else if (uj < segment.crossing_times.size() && std::isfinite(segment.crossing_times[uj])) {
       located[uj] = segment.crossing_times[uj];
+      delay[uj] = Wide(located[uj]) - Wide(t1);
     } else {
       const double s = sides.plus(j) ? 1.0 : -1.0;
-      const double rate = s * dh.row(j).dot(f_before);
-      if (rate < 0.0) located[uj] = t1 + s * h[j] / -rate;
+      const Wide rate = Wide(s) * wide_dot(wide_vector(dh.row(j)), field);
+      if (rate < Wide(0.0)) {
+        delay[uj] = Wide(s * h[j]) / -rate;
+        located[uj] = (Wide(t1) + delay[uj]).to_double();
+      }
     }
   }
-  double sigma_first = 0.0;
-  for (int j : segment.crossed) sigma_first = std::max(sigma_first, sigma(j));
-  record.automatic_window = 2.0 * options.grouping_safety * sigma_first;
+  Wide sigma_first(0.0);
+  for (int j : segment.crossed) sigma_first = max(sigma_first, sigma(j));
+  const Wide automatic_window = Wide(2.0) * safety * sigma_first;
 
   std::vector<int> group = segment.crossed;
-  double window_used = options.grouping == Grouping::kAutomatic     ? record.automatic_window
-                       : options.grouping == Grouping::kFixedWindow ? options.simultaneity_window
-                                                                    : 0.0;
+  Wide window_used = options.grouping == Grouping::kAutomatic ? automatic_window
+                     : options.grouping == Grouping::kFixedWindow
+                         ? Wide(options.simultaneity_window)
+                         : Wide(0.0);
   for (int j = 0; j < n_model; ++j) {
     const std::size_t uj = static_cast<std::size_t>(j);
-    if (std::find(group.begin(), group.end(), j) != group.end() || !std::isfinite(located[uj])) {
+    if (std::find(group.begin(), group.end(), j) != group.end() || !delay[uj].defined()) {
       continue;
     }
-    double window = 0.0;
+    Wide window(0.0);
     switch (options.grouping) {
       case Grouping::kAutomatic:
-        window = options.grouping_safety * (sigma(j) + sigma_first);
+        window = safety * (sigma(j) + sigma_first);
         break;
       case Grouping::kFixedWindow:
-        window = options.simultaneity_window;
+        window = Wide(options.simultaneity_window);
         break;
       case Grouping::kNone:
-        window = 0.0;
+        window = Wide(0.0);
         break;
     }
-    if (located[uj] - t1 <= window) {
+    // False for an undefined delay or window: a surface joins only on a defined comparison.
+    if (delay[uj] <= window) {
       group.push_back(j);
-      window_used = std::max(window_used, window);
+      window_used = max(window_used, window);
     }
   }
   std::sort(group.begin(), group.end());
   record.surfaces = group;
-  record.window = window_used;
+  record.automatic_window = automatic_window.to_double();
+  record.window = window_used.to_double();
   for (int j : group) record.crossing_times.push_back(located[static_cast<std::size_t>(j)]);
   record.spread = *std::max_element(record.crossing_times.begin(), record.crossing_times.end()) -
                   *std::min_element(record.crossing_times.begin(), record.crossing_times.end());
@@ -226,6 +365,42 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
     }
   }
 
+  // After the transversality checks (a vanishing field or normal is grazing, not overflow): every
+  // number of the record must be finite. One that is not ends the run: no window is reported as
+  // infinite, and no surface is grouped on one.
+  const auto overflow = [&]() -> std::string {
+    std::string what;
+    if (!std::isfinite(record.automatic_window)) {
+      what = "the automatic grouping window = " + automatic_window.text();
+    } else if (!std::isfinite(record.window)) {
+      what = "the grouping window = " + window_used.text();
+    } else if (!std::isfinite(record.spread)) {
+      // A crossing time first, then the spread of finite ones.
+      for (int j : group) {
+        const std::size_t uj = static_cast<std::size_t>(j);
+        if (!std::isfinite(located[uj])) {
+          what = "the located crossing time of surface " + std::to_string(j) + " = " +
+                 (Wide(t1) + delay[uj]).text();
+          break;
+        }
+      }
+      if (what.empty()) {
+        const auto [low, high] =
+            std::minmax_element(record.crossing_times.begin(), record.crossing_times.end());
+        what = "the spread of the crossing times = " + (Wide(*high) - Wide(*low)).text();
+      }
+    }
+    if (what.empty()) return what;
+    return "the event at t = " + format_number(t1) + ", surfaces " + indices_text(group) + ": " +
+           what + " is beyond the double range (|atol + rtol |rho|| = " + tol_norm.text() +
+           ", |F(rho)| = " + f_norm.text() +
+           "); its grouping cannot be reported. Tighten rtol or rescale the model";
+  }();
+  if (!overflow.empty()) {
+    event.overflow = overflow;
+    return event;
+  }
+
   // Limits F_w(rho) for the words w of the group, placed into the model's sides.
   auto full_sides = [sides, group](Signs w) {
     std::uint64_t mask = 0;
@@ -271,26 +446,45 @@ FlowNotice near_grazing(const NearMiss& miss) {
 }
 
 // The newest event and the one before it: their gaps, and a notice when crossings of different
-// surfaces were resolved as separate events closer than the near-simultaneity band.
-void note_neighbours(FlowResult& result, const FlowOptions& options) {
-  if (result.events.size() < 2) return;
+// surfaces were resolved as separate events closer than the near-simultaneity band. The times
+// and windows are finite (make_event); a gap or a band they give beyond the double range is
+// returned as a message (the run then ends with kOverflow), and nothing is recorded.
+std::string note_neighbours(FlowResult& result, const FlowOptions& options) {
+  if (result.events.size() < 2) return {};
   EventRecord& before = result.events[result.events.size() - 2];
   EventRecord& after = result.events.back();
   const double last_before =
       *std::max_element(before.crossing_times.begin(), before.crossing_times.end());
   const double first_after =
       *std::min_element(after.crossing_times.begin(), after.crossing_times.end());
+  const auto between = [&] {
+    return "between the events at t = " + format_number(before.t) +
+           " and t = " + format_number(after.t) + ": ";
+  };
+  // Finite operands: the difference is exact to one rounding or +-infinity, never NaN.
   const double gap = first_after - last_before;
-  before.gap = std::min(before.gap, gap);
-  after.gap = std::min(after.gap, gap);
+  if (!std::isfinite(gap)) {
+    return between() + "the gap " + format_number(first_after) + " - " +
+           format_number(last_before) + " is beyond the double range";
+  }
   bool other_surface = false;
   for (int j : after.surfaces) {
     other_surface |=
         std::find(before.surfaces.begin(), before.surfaces.end(), j) == before.surfaces.end();
   }
+  // Nonnegative finite operands: the product is +infinity at worst, never NaN.
   const double band =
       options.near_simultaneity_band * std::max(before.automatic_window, after.automatic_window);
-  if (!other_surface || !(gap < band)) return;
+  if (other_surface && gap < band && !std::isfinite(band)) {
+    return between() + "the near-simultaneity band " +
+           format_number(options.near_simultaneity_band) + " x " +
+           format_number(std::max(before.automatic_window, after.automatic_window)) +
+           " is beyond the double range; the notice for a gap of " + format_number(gap) +
+           " cannot be reported. Lower near_simultaneity_band or tighten rtol";
+  }
+  before.gap = std::min(before.gap, gap);
+  after.gap = std::min(after.gap, gap);
+  if (!other_surface || !(gap < band)) return {};
   FlowNotice notice;
   notice.kind = FlowNotice::Kind::kNearSimultaneous;
   notice.surfaces = before.surfaces;
@@ -306,6 +500,7 @@ void note_neighbours(FlowResult& result, const FlowOptions& options) {
       "); the derivative holds only for perturbations that keep this order. "
       "Tighten rtol to confirm, or group them (FlowOptions::grouping)";
   result.notices.push_back(std::move(notice));
+  return {};
 }
 
 FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
@@ -348,13 +543,32 @@ FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd
   }
   while (true) {
     const SegmentResult segment = integrator->integrate(model, request, options.integrator);
-    for (const NearMiss& miss : segment.near_misses) result.notices.push_back(near_grazing(miss));
     result.steps += segment.steps;
     result.field_evaluations += segment.field_evaluations;
     result.t = segment.t;
     result.x = segment.x;
+    // A band beyond the double range (huge tolerances or normals): every passage is inside it,
+    // but the notice could not report it.
+    const auto unbounded = std::find_if(segment.near_misses.begin(), segment.near_misses.end(),
+                                        [](const NearMiss& m) { return !std::isfinite(m.band); });
+    if (unbounded != segment.near_misses.end()) {
+      result.status = IntegrationStatus::kOverflow;
+      result.message = "near grazing of surface " + std::to_string(unbounded->surface) +
+                       " at t = " + format_number(unbounded->t) +
+                       " at distance g = " + format_number(unbounded->g_min) +
+                       ": the band where the integration error could hide a crossing, 8 sum_i "
+                       "|dh/dx_i| (atol + rtol |x_i|), is beyond the double range; tighten the "
+                       "tolerances or rescale the model";
+      break;
+    }
+    for (const NearMiss& miss : segment.near_misses) result.notices.push_back(near_grazing(miss));
     if (segment.status == IntegrationStatus::kCrossing) {
       Event event = make_event(model, segment, request.sides, options);
+      if (!event.overflow.empty()) {
+        result.status = IntegrationStatus::kOverflow;
+        result.message = std::move(event.overflow);
+        break;
+      }
       if (derivative != nullptr) {
         derivative->append_transition(segment.v);
         derivative->append_jump(std::move(*event.jump), segment.t, event.record.surfaces);
@@ -367,7 +581,13 @@ FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd
       request.t0 = segment.t;
       request.x0 = segment.x;
       result.events.push_back(std::move(event.record));
-      note_neighbours(result, options);
+      std::string overflow = note_neighbours(result, options);
+      if (!overflow.empty()) {
+        result.events.pop_back();  // its gap is unknown: events keeps the complete records
+        result.status = IntegrationStatus::kOverflow;
+        result.message = std::move(overflow);
+        break;
+      }
       if (static_cast<int>(result.events.size()) > options.max_events) {
         result.status = IntegrationStatus::kTooManyEvents;
         result.message = std::to_string(result.events.size()) +

@@ -35,6 +35,18 @@
 // evaluations (the normals and the field at rho are needed anyway). kFixedWindow groups by a
 // window in time given by the user; kNone groups only crossings located at the same time.
 //
+// Range. Every quantity of the rule (|tol(rho)|, |Dh_j|, |F|, Dh_j . F, sigma_j, the linearised
+// times, the windows) is computed with a binary exponent of its own, so none overflows or
+// underflows on the way: from x0 = (-1e200, -0.625), whose |tol| has no finite square, surface 0,
+// 8e199 ahead, stays out of a window of 1.6e193. A quantity that is undefined (a normal, field or
+// surface value that is not finite, a vanishing normal or field) makes no surface join, since
+// every comparison with it is false; a crossed surface with a vanishing normal or field is then
+// reported as grazing. No surface is grouped on an infinite window: the numbers an EventRecord
+// reports (window, automatic_window, crossing_times, spread, gap) and a notice's gap and band are
+// finite, and when one of them is beyond the double range (an automatic window above 1.8e308,
+// from tolerances huge against the flow's speed, under any grouping policy) the run ends with
+// status kOverflow and a message naming it, with the events completed before it.
+//
 // Every decision is reported: each EventRecord has the located times of its crossings, their
 // spread, the window and the gap to the nearest crossing not grouped with it; crossings of
 // different surfaces not grouped but closer than near_simultaneity_band windows give a FlowNotice
@@ -43,8 +55,8 @@
 // Errors. Bad input, grazing (eta . F below grazing_threshold |eta||F| before the crossing) and
 // sliding (after the crossing the field points back into the surface; use FESD) throw
 // bflow::InvalidArgument with the time, the surface and the values. Outcomes a caller may
-// handle (step-size underflow, too many steps, the event limit, a non-finite state) come back
-// as FlowResult::status with a message.
+// handle (step-size underflow, too many steps, the event limit, a non-finite state, a reported
+// number beyond the double range) come back as FlowResult::status with a message.
 #ifndef BFLOW_INTEGRATORS_HYBRID_FLOW_H_
 #define BFLOW_INTEGRATORS_HYBRID_FLOW_H_
 
@@ -112,7 +124,8 @@ struct EventRecord {
   std::vector<double> crossing_times;
   /** max - min of crossing_times: how far apart the grouped crossings were located. */
   double spread = 0.0;
-  /** The grouping window used at this event (time; 0 for Grouping::kNone). */
+  /** The grouping window used at this event (time; 0 for Grouping::kNone). Finite, like every
+      number here (see "Range" in the header comment). */
   double window = 0.0;
   /** Time to the nearest crossing not grouped with this event (an earlier or a later event),
       +infinity when there is none. */

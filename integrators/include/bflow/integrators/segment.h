@@ -86,6 +86,8 @@ enum class IntegrationStatus {
   kNonFinite,          // the state, the field or a tangent became NaN or infinite
   kSolverFailure,      // a backend failure (CVODES return code), see message
   kTooManyEvents,      // the hybrid driver's event limit (a Zeno trajectory?), never a backend's
+  kOverflow,           // a number the hybrid driver reports (a grouping window, a crossing time,
+                       // a gap, a band) is beyond the double range; never a backend's
 };
 
 /** Name of a status, e.g. "step-size underflow". */
