@@ -42,10 +42,11 @@
 // surface value that is not finite, a vanishing normal or field) makes no surface join, since
 // every comparison with it is false; a crossed surface with a vanishing normal or field is then
 // reported as grazing. No surface is grouped on an infinite window: the numbers an EventRecord
-// reports (window, automatic_window, crossing_times, spread, gap) and a notice's gap and band are
-// finite, and when one of them is beyond the double range (an automatic window above 1.8e308,
-// from tolerances huge against the flow's speed, under any grouping policy) the run ends with
-// status kOverflow and a message naming it, with the events completed before it.
+// reports (window, automatic_window, crossing_times, spread, gap unless +infinity for "none") and
+// a notice's gap and band are finite, and when one of them is beyond the double range (an
+// automatic window above 1.8e308, from tolerances huge against the flow's speed, under any
+// grouping policy) the run ends with status kOverflow and a message naming it, with the events
+// completed before it.
 //
 // Every decision is reported: each EventRecord has the located times of its crossings, their
 // spread, the window and the gap to the nearest crossing not grouped with it; crossings of
