@@ -80,7 +80,7 @@ struct FlowSweepRequest {
 };
 
 /** One sample's outcome. status is "ok"; an integration status that stopped the run early
-    (to_string(IntegrationStatus), e.g. "step_size_underflow"); "overflow" when a number of the
+    (to_string(IntegrationStatus), e.g. "step-size underflow"); "overflow" when a number of the
     result (x_t, an event time, an image) is not finite, the message naming it; "rejected" when
     the library refused the run as bad input for the engine (grazing, sliding, Zeno; the
     message says which); or "error" for any other failure. Only "ok" has x_t, images, orders and
