@@ -233,30 +233,39 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
   model.field(rho.data(), sides, f_before.data());
 
   // The crossing-time uncertainty of each surface: the integrator's tolerance on the state,
-  // seen through the surface's normal and normal speed (header comment, "Grouping"). Every
-  // quantity is a Wide: |tol| of a state of 1e200 or |F| of 1e200 has no finite square, and a
-  // normal of 1e200 times such a tolerance no finite product, while the window they give is an
-  // ordinary number.
+  // seen through the surface's normal and normal speed (header comment, "Grouping"). A state
+  // error e with |e_i| <= tol_i moves h_j by at most sum_i |dh_j/dx_i| tol_i, so a coordinate the
+  // surface does not depend on does not widen its window. Every quantity is a Wide: a tolerance
+  // of 1e200 times a normal of 1e200, or |F| of 1e200, has no finite double (square), while the
+  // window they give is an ordinary number.
   const Wide rtol(options.integrator.rtol);
   const Wide atol(options.integrator.absolute_tolerance());
   std::vector<Wide> tolerance;
   for (Eigen::Index i = 0; i < d; ++i) tolerance.push_back(atol + rtol * Wide(std::abs(rho[i])));
-  const Wide tol_norm = euclidean_norm(tolerance);
   const Wide time_floor(16.0 * std::numeric_limits<double>::epsilon() * std::abs(t1));
   const std::vector<Wide> field = wide_vector(f_before.transpose());
   const Wide f_norm = euclidean_norm(field);
   const Wide min_margin(kMinGroupingMargin);
   const Wide safety(options.grouping_safety);
-  // A crossing slower than kMinGroupingMargin (eta . F below that fraction of |eta| |F|) counts
-  // as that fast: its window stays below 2 grouping_safety / kMinGroupingMargin times the time
-  // the trajectory takes to move by one tolerance, so grouping never flips a side by more than
-  // a bounded number of tolerances early. A vanishing normal or field leaves sigma undefined.
-  const auto sigma = [&](int j) {
+  // sum_i |dh_j/dx_i| tol_i, and the normal speed max(|Dh_j . F|, kMinGroupingMargin |Dh_j| |F|):
+  // a crossing slower than kMinGroupingMargin (eta . F below that fraction of |eta| |F|) counts
+  // as that fast. As sum_i |dh_j/dx_i| tol_i <= |Dh_j| |tol|, its window stays below
+  // 2 grouping_safety / kMinGroupingMargin times the time the trajectory takes to move by one
+  // tolerance |tol|, so grouping never flips a side by more than a bounded number of tolerances
+  // early. A vanishing normal or field leaves the speed zero and sigma undefined.
+  const auto weighted_tolerance = [&](int j) {
+    Wide sum(0.0);
+    for (Eigen::Index i = 0; i < d; ++i) {
+      sum = sum + Wide(dh(j, i)).abs() * tolerance[static_cast<std::size_t>(i)];
+    }
+    return sum;
+  };
+  const auto normal_speed = [&](int j) {
     const std::vector<Wide> normal_row = wide_vector(dh.row(j));
     const Wide normal = euclidean_norm(normal_row);
-    const Wide speed = max(wide_dot(normal_row, field).abs(), min_margin * normal * f_norm);
-    return normal * tol_norm / speed + time_floor;
+    return max(wide_dot(normal_row, field).abs(), min_margin * normal * f_norm);
   };
+  const auto sigma = [&](int j) { return weighted_tolerance(j) / normal_speed(j) + time_floor; };
   // How long after t1 each surface is located to cross: 0 for the first crossing; the backend's
   // root in the same step; else, for a surface approaching, the linearised time to reach it from
   // rho (a tiny extrapolation: only windows are compared). Undefined for the others (receding,
@@ -391,9 +400,16 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
       }
     }
     if (what.empty()) return what;
+    // The terms of sigma_j for the surface of the group with the largest one.
+    int widest = group.front();
+    for (int j : group) {
+      if (sigma(widest) < sigma(j)) widest = j;
+    }
+    const std::string js = std::to_string(widest);
     return "the event at t = " + format_number(t1) + ", surfaces " + indices_text(group) + ": " +
-           what + " is beyond the double range (|atol + rtol |rho|| = " + tol_norm.text() +
-           ", |F(rho)| = " + f_norm.text() +
+           what + " is beyond the double range (surface " + js + ": sum_i |dh_" + js +
+           "/dx_i| (atol + rtol |rho_i|) = " + weighted_tolerance(widest).text() +
+           ", normal speed " + normal_speed(widest).text() + ", |F(rho)| = " + f_norm.text() +
            "); its grouping cannot be reported. Tighten rtol or rescale the model";
   }();
   if (!overflow.empty()) {

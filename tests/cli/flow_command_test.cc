@@ -462,7 +462,7 @@ TEST(FlowCommandTest, CommandLineParsesNegativeNumbersAndRepeatedDirections) {
 }
 
 // The default scene's two planes crossed 1e-8 apart (F_-- = 1.25: x0_1 is 1.25e-8 further):
-// beyond the automatic window (2.8e-9), inside the band: two events, a notice in the JSON and one
+// beyond the automatic window (1.6e-9), inside the band: two events, a notice in the JSON and one
 // warning line. With --grouping window --window 1e-7 they are one event and nothing is said.
 TEST(FlowCommandTest, NearSimultaneousCrossingsAreReportedInTheJsonAndOnStderr) {
   Outcome o = command_line({"flow", "--scene", "pwconst", "--x0", "-0.625,-0.6250000125"});

@@ -32,13 +32,25 @@ PiecewiseConstantField plane() {
   return PiecewiseConstantField(delta);
 }
 
-// The automatic window at the first crossing, t1 = 0.5, rho = (0, -dt), from its definition:
-// 2 safety (|Dh| |atol + rtol |rho|| / |Dh . F| + 16 eps t1) with Dh = e_0, F = (1, 1).
-double automatic_window(const FlowOptions& options, double dt) {
+// sigma_j of a coordinate plane, Dh_j = e_j, crossed at unit normal speed (F_j = 1, at least
+// 1 % of |F|) at time t1 where x_j = rho_j, from its definition:
+// sum_i |Dh_ji| (atol + rtol |rho_i|) / |Dh_j . F| + 16 eps t1 = atol + rtol |rho_j| + 16 eps t1.
+double plane_sigma(const FlowOptions& options, double rho_j, double t1) {
   const double rtol = options.integrator.rtol;
   const double atol = options.integrator.absolute_tolerance();
-  const double tol = std::hypot(atol, atol + rtol * dt);
-  return 2.0 * options.grouping_safety * (tol + 16 * kEps * 0.5);
+  return atol + rtol * std::abs(rho_j) + 16 * kEps * t1;
+}
+
+// The automatic window at the first crossing, t1 = 0.5, rho = (0, -dt), Dh = e_0, F = (1, 1):
+// 2 safety sigma_0, which only x_0's tolerance enters (rho_0 = 0): the same for every dt.
+double automatic_window(const FlowOptions& options) {
+  return 2.0 * options.grouping_safety * plane_sigma(options, 0.0, 0.5);
+}
+
+// The window of surface 1 (Dh = e_1, F_1 = 1, rho_1 = -dt) at that crossing:
+// safety (sigma_1 + sigma_0), what its located delay dt is compared with.
+double surface_1_window(const FlowOptions& options, double dt) {
+  return options.grouping_safety * (plane_sigma(options, dt, 0.5) + plane_sigma(options, 0.0, 0.5));
 }
 
 TEST(GroupingTest, DefaultAtolFollowsRtol) {
@@ -50,30 +62,34 @@ TEST(GroupingTest, DefaultAtolFollowsRtol) {
   EXPECT_EQ(options.absolute_tolerance(), 3e-9);
 }
 
-// Grouped when dt is inside the automatic window (2.8e-9 at the defaults), split beyond it, with
-// a notice while the gap dt / 1.6 is inside the band of 100 windows (2.8e-7), none beyond.
+// Grouped when dt is inside surface 1's window (2.0e-9 at the defaults: 10 (2 x 1e-10 + 1e-8 dt
+// + 16 eps)), split beyond it (1.99e-9 and 2.01e-9 lie on either side), with a notice while the
+// gap dt / 1.6 is inside the band of 100 automatic windows (2.0e-7), none beyond.
 TEST(GroupingTest, AutomaticWindowGroupsInsideAndReportsNearSimultaneityOutside) {
   const auto model = adapt(plane());
   const FlowOptions options;  // the defaults: automatic grouping
   ASSERT_EQ(options.grouping, Grouping::kAutomatic);
-  const double window = automatic_window(options, 0.0);
-  ASSERT_NEAR(window, 2.83e-9, 0.01e-9);
-  for (double dt : {0.0, 1e-14, 1e-12, 1e-10, 1e-9, 2e-9, 4e-9, 1e-8, 1e-7, 1e-6, 1e-4}) {
+  const double window = automatic_window(options);
+  ASSERT_NEAR(window, 2.0e-9, 0.0001e-9);  // 20 (1e-10 + 8 eps)
+  for (double dt :
+       {0.0, 1e-14, 1e-12, 1e-10, 1e-9, 1.99e-9, 2.01e-9, 4e-9, 1e-8, 1e-7, 1e-6, 1e-4}) {
     const Eigen::Vector2d x0(-0.5, -0.5 - dt);
     FlowResult r;
     const FlowDerivative derivative = flow_derivative(model, x0, 1.0, options, &r);
-    const bool grouped = dt <= window;
+    const bool grouped = dt <= surface_1_window(options, dt);
+    EXPECT_EQ(grouped, dt < 2e-9) << "dt=" << dt;
     ASSERT_EQ(r.events.size(), grouped ? 1u : 2u) << "dt=" << dt;
     const EventRecord& first = r.events[0];
     EXPECT_NEAR(first.t, 0.5, 4 * kEps) << "dt=" << dt;
-    // The window is the closed form (rho_1 = -dt enters through rtol |rho_1|).
-    EXPECT_NEAR(first.automatic_window, automatic_window(options, dt), 1e-6 * window)
-        << "dt=" << dt;
+    // The window is the closed form: rho_1 = -dt does not enter surface 0's sigma (Dh_0 = e_0).
+    // The tolerance covers the rounding of rho_0 (1e-8 x 3e-17) and of t1.
+    EXPECT_NEAR(first.automatic_window, window, 1e-10 * window) << "dt=" << dt;
     if (grouped) {
       EXPECT_THAT(first.surfaces, ElementsAre(0, 1));
       // Located times: surface 1 is reached dt after surface 0 (exact field, rounding only).
       EXPECT_NEAR(first.spread, dt, 8 * kEps) << "dt=" << dt;
-      EXPECT_EQ(first.window, first.automatic_window);
+      // The window used is surface 1's, wider by rtol dt than the automatic one.
+      EXPECT_NEAR(first.window, surface_1_window(options, dt), 1e-10 * window) << "dt=" << dt;
       EXPECT_TRUE(std::isinf(first.gap));
       EXPECT_TRUE(r.notices.empty()) << "dt=" << dt;
       EXPECT_FALSE(derivative.is_linear());
@@ -93,7 +109,8 @@ TEST(GroupingTest, AutomaticWindowGroupsInsideAndReportsNearSimultaneityOutside)
         EXPECT_THAT(n.surfaces, ElementsAre(0, 1));
         EXPECT_NEAR(n.gap, dt / 1.6, 8 * kEps);
         EXPECT_EQ(n.band, 100 * std::max(first.automatic_window, r.events[1].automatic_window));
-        EXPECT_NEAR(n.band, 100 * window, 1e-5 * n.band);  // rho moves by dt: measured 5e-6
+        // The second event's window is 20 sigma_1 at t = 0.5 + dt / 1.6, rho_1 = 0.
+        EXPECT_NEAR(n.band, 100 * 20 * plane_sigma(options, 0.0, 0.5 + dt / 1.6), 1e-10 * n.band);
         EXPECT_THAT(n.message, HasSubstr("near-simultaneous crossings not grouped: surfaces [0]"));
         EXPECT_THAT(n.message, HasSubstr("[1] at t = 0.5"));
       }
@@ -106,8 +123,8 @@ TEST(GroupingTest, AutomaticWindowScalesWithTheTolerance) {
   const auto model = adapt(plane());
   FlowOptions tight;
   tight.integrator.rtol = 1e-12;
-  const double window = automatic_window(tight, 0.0);
-  EXPECT_NEAR(window, 3.18e-13, 0.01e-13);  // 20 (sqrt(2) 1e-14 + 16 eps / 2)
+  const double window = automatic_window(tight);
+  EXPECT_NEAR(window, 2.355e-13, 0.001e-13);  // 20 (1e-14 + 16 eps / 2)
   FlowResult r = simulate(model, Eigen::Vector2d(-0.5, -0.5 - 1e-10), 1.0, tight);
   EXPECT_EQ(r.events.size(), 2u);
   EXPECT_EQ(r.notices.size(), 0u);  // 1e-10 > 100 windows
@@ -118,12 +135,15 @@ TEST(GroupingTest, AutomaticWindowScalesWithTheTolerance) {
   wide.grouping_safety = 1000.0;
   r = simulate(model, Eigen::Vector2d(-0.5, -0.5 - 1e-7), 1.0, wide);
   ASSERT_EQ(r.events.size(), 1u);
-  EXPECT_NEAR(r.events[0].window, 100 * automatic_window(FlowOptions{}, 1e-7), 1e-15);
+  // Surface 1's window: 1000 (sigma_1 + sigma_0) = 1000 (2 x 1e-10 + 1e-8 x 1e-7 + 16 eps).
+  EXPECT_NEAR(r.events[0].window, surface_1_window(wide, 1e-7), 1e-12 * 2e-7);
+  EXPECT_NEAR(r.events[0].window, 2.0000455e-7, 1e-14);
 }
 
 // A slow first crossing (eta . F = 1e-4 |eta| |F|) has a large crossing-time uncertainty, but its
 // margin counts as 1e-2 in the window: a second surface 1e-5 later is not flipped with it (a
-// window from the raw margin would be 1.4e-5 and flip it 1e-5 early, a state error of 1e-5,
+// window from the raw margin would be 10 (1e-10 / 1e-4 + 1e-10) = 1.0e-5 and flip it 1e-5 early,
+// a state error of 1e-5,
 // five orders above the tolerance); it is a separate event with a notice.
 TEST(GroupingTest, ASlowCrossingDoesNotStretchTheWindow) {
   Eigen::MatrixXd delta(2, 4);
@@ -133,8 +153,11 @@ TEST(GroupingTest, ASlowCrossingDoesNotStretchTheWindow) {
   const FlowResult r = simulate(model, Eigen::Vector2d(-0.5e-4, -0.5 - 1e-5), 1.0, options);
   ASSERT_EQ(r.events.size(), 2u);
   EXPECT_NEAR(r.events[0].margin_before[0], 1e-4, 1e-8);
-  // 2 safety |tol| / (0.01 |F|), |F| = 1 to 5e-9, |tol| = sqrt(2) 1e-10 to 5e-9 (rho_1 = -1e-5).
-  EXPECT_NEAR(r.events[0].automatic_window, 2 * 10 * std::sqrt(2.0) * 1e-10 / 0.01, 1e-9);
+  // 2 safety (tol_0 / (0.01 |F|) + 16 eps t1), tol_0 = atol (rho_0 = 0), |F| = |(1e-4, 1)|: only
+  // x_0's tolerance enters, rho_1 = -1e-5 does not.
+  const double window = 2 * 10 * (1e-10 / (0.01 * std::hypot(1e-4, 1.0)) + 16 * kEps * 0.5);
+  EXPECT_NEAR(window, 2.0e-7, 0.0001e-7);
+  EXPECT_NEAR(r.events[0].automatic_window, window, 1e-12 * window);
   ASSERT_EQ(r.notices.size(), 1u);
   EXPECT_NEAR(r.notices[0].gap, 1e-5 / 1.6, 1e-12);
 }

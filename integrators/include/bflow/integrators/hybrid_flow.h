@@ -16,14 +16,17 @@
 // integration goes on.
 //
 // Grouping (FlowOptions::grouping). Crossings that happen at one point of the exact trajectory
-// reach the integrator's trajectory at times spread by its error: a state error e moves the
-// crossing of surface j by about |Dh_j| |e| / |Dh_j . F|. The automatic policy (the default)
-// measures that uncertainty for every surface at the first crossing rho, t1:
-//     sigma_j = |Dh_j(rho)| |tol(rho)| / max(|Dh_j(rho) . F(rho)|, 0.01 |Dh_j(rho)| |F(rho)|)
-//               + 16 eps |t1|,
-//     tol_i(rho) = atol + rtol |rho_i|   (Euclidean norm over i),
-// (a crossing slower than 1 % of |Dh_j| |F| counts as that fast, so that no window exceeds
-// 200 grouping_safety times the time the trajectory takes to move by one tolerance)
+// reach the integrator's trajectory at times spread by its error: a state error e with
+// |e_i| <= tol_i moves h_j by at most sum_i |dh_j/dx_i| tol_i, its crossing by that over
+// |Dh_j . F|. The automatic policy (the default) measures that uncertainty for every surface at
+// the first crossing rho, t1:
+//     sigma_j = sum_i |dh_j/dx_i(rho)| tol_i(rho) / max(|Dh_j(rho) . F(rho)|,
+//                                                       0.01 |Dh_j(rho)| |F(rho)|) + 16 eps |t1|,
+//     tol_i(rho) = atol + rtol |rho_i|,
+// so a coordinate the surface does not depend on does not widen its window (a crossing slower
+// than 1 % of |Dh_j| |F| counts as that fast; as sum_i |dh_j/dx_i| tol_i <= |Dh_j| |tol|, no
+// window exceeds 200 grouping_safety times the time |tol| / |F| the trajectory takes to move by
+// one tolerance, plus the rounding floor)
 // and groups with the first crossing every surface whose LOCATED crossing time t_j (the
 // backend's root in the same step; else the linearised time to reach it from rho) satisfies
 //     t_j - t1 <= window_j = grouping_safety x (sigma_j + max over the first crossing's sigma).
@@ -35,16 +38,17 @@
 // evaluations (the normals and the field at rho are needed anyway). kFixedWindow groups by a
 // window in time given by the user; kNone groups only crossings located at the same time.
 //
-// Range. Every quantity of the rule (|tol(rho)|, |Dh_j|, |F|, Dh_j . F, sigma_j, the linearised
-// times, the windows) is computed with a binary exponent of its own, so none overflows or
-// underflows on the way: from x0 = (-1e200, -0.625), whose |tol| has no finite square, surface 0,
-// 8e199 ahead, stays out of a window of 1.6e193. A quantity that is undefined (a normal, field or
-// surface value that is not finite, a vanishing normal or field) makes no surface join, since
-// every comparison with it is false; a crossed surface with a vanishing normal or field is then
-// reported as grazing. No surface is grouped on an infinite window: the numbers an EventRecord
-// reports (window, automatic_window, crossing_times, spread, gap unless +infinity for "none") and
-// a notice's gap and band are finite, and when one of them is beyond the double range (an
-// automatic window above 1.8e308, from tolerances huge against the flow's speed, under any
+// Range. Every quantity of the rule (tol_i, the products |dh_j/dx_i| tol_i and their sums, |Dh_j|,
+// |F|, Dh_j . F, sigma_j, the linearised times, the windows) is computed with a binary exponent
+// of its own, so none overflows or underflows on the way: from x0 = (-1e200, -0.625), where
+// tol_0 = 1e192, surface 0, 8e199 ahead, stays out of its window of 8e192, and the event of
+// surface 1 at t = 0.5 has the window 1.6e-9 of x_1's tolerance. A quantity that is undefined (a
+// normal, field or surface value that is not finite, a vanishing normal or field) makes no surface
+// join, since every comparison with it is false; a crossed surface with a vanishing normal or field
+// is then reported as grazing. No surface is grouped on an infinite window: the numbers an
+// EventRecord reports (window, automatic_window, crossing_times, spread, gap unless +infinity for
+// "none") and a notice's gap and band are finite, and when one of them is beyond the double range
+// (an automatic window above 1.8e308, from tolerances huge against the flow's speed, under any
 // grouping policy) the run ends with status kOverflow and a message naming it, with the events
 // completed before it.
 //
