@@ -45,16 +45,63 @@ inline bool asks_for_text(const std::vector<std::string>& words) {
   return false;
 }
 
-/** Runs "bflow <command> <words...>" in-process (empty stdin) and checks the contract. */
-inline void run_and_check(const char* command, const std::vector<std::string>& words,
-                          Contract contract) {
+/** Every value given to `option` ("--opt V" or "--opt=V"), in order. */
+inline std::vector<std::string> values_of(const std::vector<std::string>& words,
+                                          const std::string& option) {
+  std::vector<std::string> values;
+  for (std::size_t i = 0; i < words.size(); ++i) {
+    if (words[i] == option && i + 1 < words.size()) {
+      values.push_back(words[i + 1]);
+    } else if (words[i].compare(0, option.size() + 1, option + "=") == 0) {
+      values.push_back(words[i].substr(option.size() + 1));
+    }
+  }
+  return values;
+}
+
+/** Whether `option` is among the words, as "--opt" or "--opt=V". */
+inline bool has_option(const std::vector<std::string>& words, const std::string& option) {
+  for (const std::string& w : words) {
+    if (w == option || w.compare(0, option.size() + 1, option + "=") == 0) return true;
+  }
+  return false;
+}
+
+/** Replaces every value given to `option` ("--opt V" or "--opt=V") by f(value). */
+template <typename F>
+void map_values(std::vector<std::string>& words, const std::string& option, F f) {
+  for (std::size_t i = 0; i < words.size(); ++i) {
+    if (words[i] == option && i + 1 < words.size()) {
+      words[i + 1] = f(words[i + 1]);
+      ++i;
+    } else if (words[i].compare(0, option.size() + 1, option + "=") == 0) {
+      words[i] = option + "=" + f(words[i].substr(option.size() + 1));
+    }
+  }
+}
+
+struct RunResult {
+  int code = 0;
+  std::string out, err;
+};
+
+/** Runs "bflow <command> <words...>" in-process (empty stdin). */
+inline RunResult run_words(const char* command, const std::vector<std::string>& words) {
   std::vector<const char*> argv = {"bflow", command};
   for (const std::string& w : words) argv.push_back(w.c_str());
   std::istringstream in;
   std::ostringstream out, err;
   const int code = bflow::cli::run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
+  return {code, out.str(), err.str()};
+}
+
+/** Runs "bflow <command> <words...>" in-process (empty stdin) and checks the contract. */
+inline RunResult run_and_check(const char* command, const std::vector<std::string>& words,
+                               Contract contract) {
+  RunResult r = run_words(command, words);
   contract.text_on_success = asks_for_text(words);
-  check(code, out.str(), err.str(), contract);
+  check(r.code, r.out, r.err, contract);
+  return r;
 }
 
 }  // namespace bflow::fuzz
