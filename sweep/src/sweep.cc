@@ -130,10 +130,16 @@ bool json_record_matches(const std::string& line, std::uint64_t index, const Swe
     at = end;
   }
   static const std::string status = "],\"status\":\"";
-  if (line.compare(static_cast<std::size_t>(at - line.c_str()), status.size(), status) != 0) {
-    return false;
+  std::size_t position = static_cast<std::size_t>(at - line.c_str());
+  if (line.compare(position, status.size(), status) != 0) return false;
+  // The other keys of a record, in their order (a quote inside a string is escaped, so these
+  // are keys); then a validating scan of the whole line.
+  for (const char* key : {",\"t_reached\":", ",\"x_t\":[", ",\"events\":[", ",\"images\":[",
+                          ",\"orders\":[", ",\"pieces\":"}) {
+    position = line.find(key, position);
+    if (position == std::string::npos) return false;
   }
-  return nlohmann::json::accept(line);
+  return line.back() == '}' && nlohmann::json::accept(line);
 }
 
 // A value of a file, quoted for a message: JSON-escaped, invalid UTF-8 replaced, at most about
@@ -583,6 +589,10 @@ SweepResumePoint find_resume_point(std::istream& in, const SweepWriter& writer,
     }
     std::vector<double> expected{static_cast<double>(index)};
     for (double v : grid.values(index)) expected.push_back(v);
+    if (writer.format() == SweepFormat::kJsonLines && found == expected) {
+      // Its index and values are this record's, but its keys are not a record's.
+      not_this_sweep(number, "is not a whole JSON-lines record (a key is missing or misspelt)");
+    }
     if (!found.empty() && found != expected) {
       const auto text = [](const std::vector<double>& v) {
         return format_vector(

@@ -335,6 +335,14 @@ TEST(SweepCommand, ResumeRefusesEverythingButThisSweepsOutputAndTouchesNothing) 
        "is not from this sweep: line 2 is not a JSON-lines record"},
       {"a cut line that is not a record", first_line + "garbage",
        "is not from this sweep: line 2 is an incomplete line that is not the start of record 0"},
+      {"a misspelt key",
+       [&] {
+         std::string text = whole;
+         text.replace(text.find("\"x_t\""), 5, "\"x_T\"");
+         return text;
+       }(),
+       "is not from this sweep: line 2 is not a whole JSON-lines record (a key is missing or "
+       "misspelt)"},
       {"records beyond the grid", whole + whole.substr(first_line.size()),
        "is not from this sweep: line 6 is a record beyond the grid's samples"},
   };

@@ -7,9 +7,12 @@
 //               [--format csv] --output F --resume
 //
 // and checks the contract of --resume, whatever the format of the file:
-//   exit 0: F is byte for byte the output of the same sweep run uninterrupted (computed once per
-//           format, by the same command without --resume into a fresh file); stdout is empty;
-//           stderr holds only "sweep: " lines;
+//   exit 0: stderr says "sweep: K of 4 samples kept"; F is the first lines of what the harness
+//           wrote, the identity line (and CSV header) and K records, untouched, followed by the
+//           uninterrupted output of the same sweep (computed once per format, by the same command
+//           without --resume into a fresh file) from its record K on; with K = 0, F is that whole
+//           output (kept records are the file's own bytes: --resume checks their shape, index and
+//           varied values, not every number); stdout is empty; stderr holds only "sweep: " lines;
 //   exit 2: F is byte for byte what the harness wrote (absent if it was): a refused file loses
 //           nothing; stderr is one "error: " line; stdout is empty;
 //   any other exit code (1 included), a crash or a hang is a violation.
@@ -96,12 +99,42 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   if (!r.out.empty()) {
     bflow::fuzz::violation("--resume with --output and stdout is not empty", r.code, r.out, r.err);
   }
-  if (r.code == 0 && (!exists || after != expected)) {
+  // Where the first `lines` lines of `text` end.
+  const auto line_end = [](const std::string& text, std::size_t lines) {
+    std::size_t at = 0;
+    for (std::size_t k = 0; k < lines; ++k) {
+      const std::size_t newline = text.find('\n', at);
+      if (newline == std::string::npos) return std::string::npos;
+      at = newline + 1;
+    }
+    return at;
+  };
+  std::string wanted = expected;
+  if (r.code == 0) {
+    const std::string marker = "sweep: ";
+    const std::size_t at = r.err.find(" of 4 samples kept");
+    const std::size_t from = at == std::string::npos ? at : r.err.rfind(marker, at);
+    const std::size_t kept =
+        from == std::string::npos ? 0 : std::stoul(r.err.substr(from + marker.size()));
+    if (kept > 0) {
+      const std::size_t header = csv ? 2 : 1;
+      const std::size_t mine = line_end(before, header + kept);
+      const std::size_t theirs = line_end(expected, header + kept);
+      if (mine == std::string::npos || theirs == std::string::npos) {
+        bflow::fuzz::violation(
+            "--resume: kept " + std::to_string(kept) + " records the file does not hold", r.code,
+            r.out, r.err);
+      }
+      wanted = before.substr(0, mine) + expected.substr(theirs);
+    }
+  }
+  if (r.code == 0 && (!exists || after != wanted)) {
     bflow::fuzz::violation(
-        "--resume: exit code 0 and the file is not the uninterrupted sweep's output (" +
-            (exists ? first_difference(after, expected) : std::string("the file is gone")) +
+        "--resume: exit code 0 and the file is not its kept records followed by the uninterrupted "
+        "sweep's output (" +
+            (exists ? first_difference(after, wanted) : std::string("the file is gone")) +
             ")\n--- file after the run ---\n" + after.substr(0, 2000) + "\n--- expected ---\n" +
-            expected.substr(0, 2000),
+            wanted.substr(0, 2000),
         r.code, r.out, r.err);
   }
   if (r.code == 2 && (exists != existed || after != before)) {
