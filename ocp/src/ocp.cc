@@ -198,6 +198,10 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
         ", max_nlp_iterations = " + std::to_string(o.max_nlp_iterations) +
         ": tolerances must be positive, the weight >= 0, iterations >= 1");
   }
+  if (!std::isfinite(o.exact_hessian_scale)) {
+    throw InvalidArgument("ocp: exact_hessian_scale = " + number(o.exact_hessian_scale) +
+                          " must be finite");
+  }
 }
 
 // Lower or upper bound k of an optional bound vector.
@@ -813,6 +817,9 @@ class OcpNlp final : public Ipopt::TNLP {
       hessian_.add(
           terminal_globals(), base, nterm_, lambda + rows_elements_ + rows_sums_ + rows_path_,
           [&](const HessianScalar* in, HessianScalar* out) { model_.terminal(in, out); }, values);
+    }
+    if (o_.exact_hessian_scale != 1.0) {
+      for (Ipopt::Index k = 0; k < nele; ++k) values[k] *= o_.exact_hessian_scale;
     }
     return true;
   }

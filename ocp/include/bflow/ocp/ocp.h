@@ -378,6 +378,10 @@ struct OcpOptions {
   std::vector<std::pair<std::string, std::string>> ipopt_string_options;
   std::vector<std::pair<std::string, double>> ipopt_numeric_options;
   std::vector<std::pair<std::string, int>> ipopt_integer_options;
+  /** For testing derivative checks only: with exact_hessian, the Hessian handed to IPOPT is
+      multiplied by this (1 in any real use), so a test can show that IPOPT's second-order
+      derivative checker reports a wrong Hessian. */
+  double exact_hessian_scale = 1.0;
 };
 
 enum class OcpStatus {
