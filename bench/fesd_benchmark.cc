@@ -9,7 +9,7 @@
 
 #include "bflow/examples/irma.h"
 #include "bflow/examples/switching_cases.h"
-#include "bflow/integrators/fesd.h"
+#include "bflow/fesd/fesd.h"
 
 namespace {
 

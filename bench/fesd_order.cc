@@ -20,7 +20,7 @@
 #include <vector>
 
 #include "bflow/examples/irma.h"
-#include "bflow/integrators/fesd.h"
+#include "bflow/fesd/fesd.h"
 
 namespace {
 

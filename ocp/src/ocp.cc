@@ -16,8 +16,9 @@
 #include <IpTNLP.hpp>
 
 #include "bflow/core/errors.h"
-#include "fesd_dcs.h"
-#include "fesd_element.h"
+#include "bflow/fesd/dcs.h"
+#include "bflow/fesd/element.h"
+#include "bflow/fesd/ipopt_options.h"
 
 namespace bflow {
 
@@ -41,8 +42,8 @@ namespace {
 
 constexpr double kInfinity = 1e19;  // IPOPT's default nlp_upper_bound_inf
 
-using fesd_detail::ElementShape;
-using fesd_detail::PointDcs;
+using fesd::ElementShape;
+using fesd::PointDcs;
 
 double cpu_now() {
   timespec ts{};
@@ -326,7 +327,7 @@ class OcpNlp final : public Ipopt::TNLP {
     rows_path_ = (l_.elements + 1) * npath_;
     constraints_ = rows_elements_ + rows_sums_ + rows_path_ + nterm_;
     // Jacobian structure: each element row lists the inputs it reads (element_jacobian_pattern).
-    jac_pattern_ = fesd_detail::element_jacobian_pattern(l_);
+    jac_pattern_ = fesd::element_jacobian_pattern(l_);
     for (int e = 0; e < l_.elements; ++e) {
       const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
       for (int r = 0; r < l_.rows_per_element(); ++r) {
@@ -361,7 +362,7 @@ class OcpNlp final : public Ipopt::TNLP {
       }
     }
     if (o_.exact_hessian) {
-      pieces_ = fesd_detail::element_hessian_pieces(l_);
+      pieces_ = fesd::element_hessian_pieces(l_);
       for (const std::vector<int>& g : element_globals_) {
         for (const std::vector<int>& piece : pieces_) {
           std::vector<int> globals;
@@ -393,7 +394,7 @@ class OcpNlp final : public Ipopt::TNLP {
     for (int e = 0; e < l_.elements; ++e) {
       std::vector<bool> u_fixed(static_cast<std::size_t>(l_.npairs), false);
       for (int k = 0; k < l_.npairs; ++k) {
-        const fesd_detail::Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+        const fesd::Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
         if (o_.standard) {
           for (int m = 0; m < P; ++m) {
             const double um = PointDcs::member_u(pair, &w[l_.z(e, m, 0)]);
@@ -499,7 +500,7 @@ class OcpNlp final : public Ipopt::TNLP {
     std::vector<double> in, out(static_cast<std::size_t>(l_.rows_per_element()));
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(w, e, in);
-      fesd_detail::element_residual(tab_, l_, o_.standard, in.data(), out.data());
+      fesd::element_residual(tab_, l_, o_.standard, in.data(), out.data());
       for (int r = l_.equalities; r < l_.rows_per_element(); ++r) {
         worst = std::max(worst, std::abs(out[static_cast<std::size_t>(r)]));
       }
@@ -651,7 +652,7 @@ class OcpNlp final : public Ipopt::TNLP {
       std::vector<double> out(static_cast<std::size_t>(l_.rows_per_element()));
       for (int e = 0; e < l_.elements; ++e) {
         element_inputs(x, e, in);
-        fesd_detail::element_residual(tab_, l_, o_.standard, in.data(), out.data());
+        fesd::element_residual(tab_, l_, o_.standard, in.data(), out.data());
         for (int r = l_.equalities; r < l_.rows_per_element(); ++r) {
           value += out[static_cast<std::size_t>(r)] / sigma_;
         }
@@ -667,17 +668,17 @@ class OcpNlp final : public Ipopt::TNLP {
     for (const Term& t : terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
       gather(t, x, in);
-      fesd_detail::add_gradient(
+      fesd::add_gradient(
           t.globals, in, 1.0, [&](const JetChunk* v) { return term_value(t, v); }, grad);
     }
     if (penalty()) {
       std::vector<JetChunk> out(static_cast<std::size_t>(l_.rows_per_element()));
       for (int e = 0; e < l_.elements; ++e) {
         element_inputs(x, e, in);
-        fesd_detail::add_gradient(
+        fesd::add_gradient(
             element_globals_[static_cast<std::size_t>(e)], in, 1.0 / sigma_,
             [&](const JetChunk* v) {
-              fesd_detail::element_residual(tab_, l_, o_.standard, v, out.data());
+              fesd::element_residual(tab_, l_, o_.standard, v, out.data());
               JetChunk sum(0.0);
               for (int r = l_.equalities; r < l_.rows_per_element(); ++r)
                 sum += out[static_cast<std::size_t>(r)];
@@ -693,8 +694,7 @@ class OcpNlp final : public Ipopt::TNLP {
     std::vector<double> in;
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, in);
-      fesd_detail::element_residual(tab_, l_, o_.standard, in.data(),
-                                    g + e * l_.rows_per_element());
+      fesd::element_residual(tab_, l_, o_.standard, in.data(), g + e * l_.rows_per_element());
     }
     for (int k = 0; k < rows_sums_; ++k) {
       double sum = 0.0;
@@ -735,8 +735,8 @@ class OcpNlp final : public Ipopt::TNLP {
     Eigen::MatrixXd jac;
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, base);
-      fesd_detail::dense_jacobian(base, rpe, jac, [&](const JetChunk* in, JetChunk* out) {
-        fesd_detail::element_residual(tab_, l_, o_.standard, in, out);
+      fesd::dense_jacobian(base, rpe, jac, [&](const JetChunk* in, JetChunk* out) {
+        fesd::element_residual(tab_, l_, o_.standard, in, out);
       });
       const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
       for (int r = 0; r < rpe; ++r) {
@@ -748,7 +748,7 @@ class OcpNlp final : public Ipopt::TNLP {
     for (int s = 0; s < rows_sums_ * l_.per_stage; ++s) values[k++] = 1.0;
     for (int b = 0; b <= l_.elements && npath_ > 0; ++b) {
       path_inputs(x, b, base);
-      fesd_detail::dense_jacobian(base, npath_, jac, [&](const JetChunk* in, JetChunk* out) {
+      fesd::dense_jacobian(base, npath_, jac, [&](const JetChunk* in, JetChunk* out) {
         model_.path(in, in + l_.d, out);
       });
       const std::vector<int> g = path_globals(b);
@@ -760,8 +760,8 @@ class OcpNlp final : public Ipopt::TNLP {
     }
     if (nterm_ > 0) {
       terminal_inputs(x, base);
-      fesd_detail::dense_jacobian(
-          base, nterm_, jac, [&](const JetChunk* in, JetChunk* out) { model_.terminal(in, out); });
+      fesd::dense_jacobian(base, nterm_, jac,
+                           [&](const JetChunk* in, JetChunk* out) { model_.terminal(in, out); });
       for (int r = 0; r < nterm_; ++r) {
         for (int i = 0; i < l_.d; ++i) values[k++] = jac(r, i);
       }
@@ -794,9 +794,9 @@ class OcpNlp final : public Ipopt::TNLP {
         for (int r = l_.equalities; r < l_.rows_per_element(); ++r)
           weights[static_cast<std::size_t>(r)] += obj_factor / sigma_;
       }
-      fesd_detail::add_element_hessian(tab_, l_, o_.standard, pieces_,
-                                       element_globals_[static_cast<std::size_t>(e)], base,
-                                       weights.data(), hessian_, values);
+      fesd::add_element_hessian(tab_, l_, o_.standard, pieces_,
+                                element_globals_[static_cast<std::size_t>(e)], base, weights.data(),
+                                hessian_, values);
     }
     for (const Term& t : terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
@@ -914,7 +914,7 @@ class OcpNlp final : public Ipopt::TNLP {
       }
       case TermKind::kEquilibration:
         return std::min(1.0, sigma_) * o_.equilibration_weight *
-               fesd_detail::equilibration_term(l_, h0_, in);
+               fesd::equilibration_term(l_, h0_, in);
     }
     return T(0.0);
   }
@@ -935,7 +935,7 @@ class OcpNlp final : public Ipopt::TNLP {
   int rows_elements_ = 0, rows_sums_ = 0, rows_path_ = 0, npath_ = 0, nterm_ = 0;
   int constraints_ = 0;
   std::vector<Ipopt::Index> jac_rows_, jac_cols_;
-  fesd_detail::HessianBlocks hessian_;
+  fesd::HessianBlocks hessian_;
   std::vector<std::vector<int>> pieces_;       // an element's Hessian pieces (local indices)
   std::vector<std::vector<int>> jac_pattern_;  // per element row: the local inputs it reads
   bool polish_ = false;
@@ -1209,7 +1209,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   app->Options()->SetIntegerValue("max_iter", options.max_nlp_iterations);
   app->Options()->SetStringValue("mu_strategy", "adaptive");
   app->Options()->SetNumericValue("bound_relax_factor", 0.0);
-  fesd_detail::apply_ipopt_options(*app, options, "ocp");
+  fesd::apply_ipopt_options(*app, options, "ocp");
   if (app->Initialize() != Ipopt::Solve_Succeeded) {
     throw InvalidArgument("ocp: IPOPT failed to initialise");
   }
@@ -1261,7 +1261,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     } else {
       app->Options()->SetNumericValue("mu_init", 0.1);
     }
-    fesd_detail::apply_ipopt_options(*app, options, "ocp");
+    fesd::apply_ipopt_options(*app, options, "ocp");
     Ipopt::ApplicationReturnStatus status;
     const OcpHomotopyStep step = run_nlp(sigma, false, status);
     const bool solved = status == Ipopt::Solve_Succeeded ||
@@ -1325,7 +1325,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     app->Options()->SetNumericValue("mu_init", 1e-9);
     app->Options()->SetNumericValue("bound_push", 1e-12);
     app->Options()->SetNumericValue("bound_frac", 1e-12);
-    fesd_detail::apply_ipopt_options(*app, options, "ocp");
+    fesd::apply_ipopt_options(*app, options, "ocp");
     Ipopt::ApplicationReturnStatus status;
     const OcpHomotopyStep step = run_nlp(0.0, true, status);
     const double slack = 1e-6 * (1.0 + std::abs(before));

@@ -8,6 +8,8 @@
 #                and the other components' targets files out of reach;
 #   ad           COMPONENTS ad compiles Jet code with the ceres include directory that the
 #                imported target bflow::ad carries (a copy, to tell it from /usr/include);
+#   fesd         COMPONENTS fesd runs fesd_simulate with SUNDIALS not findable and the other
+#                components' targets files away;
 #   full         no COMPONENTS, bflow::bflow: jump map, CVODES and FESD (IPOPT) linked and run.
 # Fails unless every step succeeds and each consumer prints its numbers.
 file(REMOVE_RECURSE ${WORK_DIR})
@@ -72,7 +74,7 @@ execute_process(COMMAND ${CMAKE_COMMAND} -S ${WORK_DIR}/unknown_source -B ${WORK
                 -G ${GENERATOR} -DCMAKE_PREFIX_PATH=${prefix}
                 RESULT_VARIABLE code OUTPUT_VARIABLE out ERROR_VARIABLE err)
 string(REGEX REPLACE "[ \t\r\n]+" " " err_flat "${err}")
-set(expected "unknown component \"bogus\"; the components are core, ad, integrators, ocp and sweep")
+set(expected "unknown component \"bogus\"; the components are core, ad, integrators, fesd, ocp and sweep")
 if(code EQUAL 0 OR NOT err_flat MATCHES "bflow_FOUND to FALSE" OR
    NOT err_flat MATCHES "${expected}")
   message(FATAL_ERROR "unknown: expected a failure with [${expected}], got ${code}:\n${err}")
@@ -81,7 +83,8 @@ message("unknown: refused with \"${expected}\"")
 
 # core: the other targets files moved away and SUNDIALS, pkg-config and IPOPT not findable; a
 # package that loaded or searched them fails to configure.
-set(hidden bflowAdTargets.cmake bflowIntegratorsTargets.cmake bflowTargets.cmake)
+set(hidden bflowAdTargets.cmake bflowIntegratorsTargets.cmake bflowFesdTargets.cmake
+           bflowOcpTargets.cmake bflowSweepTargets.cmake bflowTargets.cmake)
 foreach(file IN LISTS hidden)
   file(RENAME ${package_dir}/${file} ${package_dir}/${file}.hidden)
 endforeach()
@@ -106,6 +109,19 @@ if(at EQUAL -1)
   message(FATAL_ERROR "ad: the compile line lacks -isystem ${jet_dir}:\n${commands}")
 endif()
 message("ad: compiled with -isystem ${jet_dir} from bflow::ad")
+
+# fesd: the integrators', the OCP's and the sweep's targets files moved away and SUNDIALS not
+# findable; FESD needs IPOPT alone.
+set(hidden bflowIntegratorsTargets.cmake bflowOcpTargets.cmake bflowSweepTargets.cmake
+           bflowTargets.cmake)
+foreach(file IN LISTS hidden)
+  file(RENAME ${package_dir}/${file} ${package_dir}/${file}.hidden)
+endforeach()
+consumer(fesd ${SOURCE_DIR}/consumer_fesd "consumer_fesd: x\\(1\\) = 0.666667, switch at 0.333333"
+         -DCMAKE_DISABLE_FIND_PACKAGE_SUNDIALS=ON)
+foreach(file IN LISTS hidden)
+  file(RENAME ${package_dir}/${file}.hidden ${package_dir}/${file})
+endforeach()
 
 # full: everything, as the README shows.
 consumer(full ${SOURCE_DIR}/consumer

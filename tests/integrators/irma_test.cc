@@ -4,7 +4,7 @@
 
 #include <gtest/gtest.h>
 
-#include "bflow/integrators/fesd.h"
+#include "bflow/fesd/fesd.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
 

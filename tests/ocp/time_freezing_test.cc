@@ -14,7 +14,7 @@
 #include <Eigen/Dense>
 
 #include "bflow/examples/contact_examples.h"
-#include "bflow/integrators/fesd.h"
+#include "bflow/fesd/fesd.h"
 #include "bflow/ocp/ocp.h"
 
 namespace bflow {

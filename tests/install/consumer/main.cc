@@ -4,7 +4,7 @@
 #include <iostream>
 
 #include "bflow/ad/model_jump.h"
-#include "bflow/integrators/fesd.h"
+#include "bflow/fesd/fesd.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
 

@@ -21,27 +21,10 @@
 #include <ceres/jet.h>
 #include <Eigen/Core>
 
+#include "bflow/ad/tangent_jet.h"
 #include "bflow/core/signs.h"
 
 namespace bflow {
-
-/** Jet widths the integrators are compiled for: 1, 2, 4, 6 and 8 tangent directions. A block
-    of k directions runs in chunks of at most kTangentChunk, each in the narrowest compiled width
-    that holds it (tangent_width()), so that no derivative lane is computed for nothing beyond
-    the rounding up to an even width. */
-inline constexpr int kTangentChunk = 8;
-template <int N>
-using TangentJet = ceres::Jet<double, N>;
-using Jet1 = TangentJet<1>;
-using Jet2 = TangentJet<2>;
-using Jet4 = TangentJet<4>;
-using Jet6 = TangentJet<6>;
-using JetChunk = TangentJet<kTangentChunk>;
-
-/** The narrowest compiled Jet width for k directions (1 <= k <= kTangentChunk). */
-constexpr int tangent_width(long k) {
-  return k <= 1 ? 1 : k <= 2 ? 2 : k <= 4 ? 4 : k <= 6 ? 6 : 8;
-}
 
 /** A model seen through virtual calls, so that integrators compile once (see model_adapter.h
     for the adapter of a templated bflow model). */

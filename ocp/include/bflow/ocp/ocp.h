@@ -57,11 +57,11 @@
 
 #include <Eigen/Core>
 
+#include "bflow/ad/tangent_jet.h"
 #include "bflow/core/errors.h"
 #include "bflow/core/filippov.h"
-#include "bflow/integrators/butcher.h"
-#include "bflow/integrators/fesd.h"
-#include "bflow/integrators/segment.h"
+#include "bflow/fesd/butcher.h"
+#include "bflow/fesd/fesd.h"
 
 namespace bflow {
 

@@ -1,18 +1,18 @@
-// One FESD finite element, written once for simulation (fesd.cc, one integration step per NLP)
-// and optimal control (ocp/src/ocp.cc, all control stages in one NLP): its unknowns, its
+// One FESD finite element, written once for simulation (fesd_simulate, one integration step per
+// NLP) and optimal control (ocp_solve, all control stages in one NLP): its unknowns, its
 // equations ([F] (33), (36)-(43)), the step equilibration between two elements ((39)) and the
 // assembly of exact second derivatives by nested forward AD.
 //
 // An element's own unknowns ("block"):
 //   [h | X_1..X_s (s d) | x_{n+1} (d) | z_1..z_P (P nz)]
-// with z a point's algebraic variables (fesd_dcs.h) and P = s points (Radau IIA: the last stage
+// with z a point's algebraic variables (dcs.h) and P = s points (Radau IIA: the last stage
 // is the element's end) or s + 1 (Gauss-Legendre: the stages and the end point of (42)). Its
 // "local" vector puts what it reads from elsewhere in front:
 //   [x_n (d) | v of every pair at the start (npairs) | u (nu) | T (1 if time-scaled) | block]
 // u is the control of the element's stage (the model then sees the point [X; u]); with time
 // scaling the element's physical length is T h.
-#ifndef BFLOW_INTEGRATORS_SRC_FESD_ELEMENT_H_
-#define BFLOW_INTEGRATORS_SRC_FESD_ELEMENT_H_
+#ifndef BFLOW_FESD_ELEMENT_H_
+#define BFLOW_FESD_ELEMENT_H_
 
 #include <algorithm>
 #include <cstdint>
@@ -24,12 +24,13 @@
 #include <Eigen/Core>
 
 #include "bflow/core/errors.h"
-#include "bflow/integrators/butcher.h"
-#include "bflow/integrators/fesd.h"
-#include "fesd_dcs.h"
+#include "bflow/fesd/butcher.h"
+#include "bflow/fesd/dcs.h"
+#include "bflow/fesd/fesd.h"
+#include "bflow/fesd/hessian_blocks.h"
 
 namespace bflow {
-namespace fesd_detail {
+namespace fesd {
 
 struct ElementShape {
   const PointDcs* dcs = nullptr;
@@ -269,7 +270,7 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
   }
   const double* alg = lambda + l.s * d + d;
   // The step and Stewart equalities are the model's switching functions of [x; u] plus terms
-  // linear in z (fesd_dcs.h): z enters them as constants, which leaves their (exactly zero)
+  // linear in z (dcs.h): z enters them as constants, which leaves their (exactly zero)
   // second derivatives out of the nested AD. The lifted products of z are not linear.
   const bool linear_in_z = dcs.kind() != PointDcs::Kind::kLifted;
   for (int m = 0; m < l.points; ++m) {
@@ -390,138 +391,7 @@ void dense_jacobian(const std::vector<double>& base, int rows, Eigen::MatrixXd& 
   }
 }
 
-// The caller's IPOPT options (set after bflow's, so they win).
-// @throws InvalidArgument "<who>: IPOPT does not take the <type> option <name> = <value>".
-template <typename App, typename Options>
-void apply_ipopt_options(App& app, const Options& options, const std::string& who) {
-  for (const auto& [name, value] : options.ipopt_string_options) {
-    if (!app.Options()->SetStringValue(name, value)) {
-      throw InvalidArgument(who + ": IPOPT does not take the string option " + name + " = " +
-                            value);
-    }
-  }
-  for (const auto& [name, value] : options.ipopt_numeric_options) {
-    if (!app.Options()->SetNumericValue(name, value)) {
-      throw InvalidArgument(who + ": IPOPT does not take the numeric option " + name + " = " +
-                            format_number(value));
-    }
-  }
-  for (const auto& [name, value] : options.ipopt_integer_options) {
-    if (!app.Options()->SetIntegerValue(name, value)) {
-      throw InvalidArgument(who + ": IPOPT does not take the integer option " + name + " = " +
-                            std::to_string(value));
-    }
-  }
-}
-
-// The lower triangle of a Lagrangian's Hessian assembled from blocks: each block is a function of
-// a few unknowns (`globals`, -1 for a constant), and its second derivatives come from nested
-// forward AD (HessianScalar), kHessianChunk x kHessianChunk per evaluation.
-class HessianBlocks {
- public:
-  // Registers every pair of the block's unknowns (call for every block before values are added).
-  void add_block(const std::vector<int>& globals) {
-    for (int a : globals) {
-      for (int b : globals) {
-        if (a < 0 || b < 0 || a < b) continue;
-        if (position_.emplace(std::make_pair(a, b), static_cast<int>(position_.size())).second) {
-          rows_.push_back(a);
-          cols_.push_back(b);
-        }
-      }
-    }
-    index_ready_ = false;
-  }
-  std::size_t size() const { return rows_.size(); }
-  const std::vector<int>& rows() const { return rows_; }
-  const std::vector<int>& cols() const { return cols_; }
-
-  // Adds the Hessian of sum_r weights[r] f_r(in) (f = `eval`, `outputs` values) at `base` into
-  // the lower-triangle values.
-  template <typename Eval>
-  void add(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
-           const double* weights, Eval eval, double* values) {
-    if (!index_ready_) build_index();
-    std::vector<int> free;
-    for (std::size_t k = 0; k < globals.size(); ++k) {
-      if (globals[k] >= 0) free.push_back(static_cast<int>(k));
-    }
-    const int count = static_cast<int>(free.size());
-    std::vector<HessianScalar> in(globals.size()), out(static_cast<std::size_t>(outputs));
-    for (int first_a = 0; first_a < count; first_a += kHessianChunk) {
-      for (int first_b = first_a; first_b < count; first_b += kHessianChunk) {
-        for (std::size_t k = 0; k < globals.size(); ++k)
-          in[k] = HessianScalar(HessianInner(base[k]));
-        const int width_a = std::min(kHessianChunk, count - first_a);
-        const int width_b = std::min(kHessianChunk, count - first_b);
-        for (int i = 0; i < width_a; ++i) {
-          in[static_cast<std::size_t>(free[static_cast<std::size_t>(first_a + i)])]
-              .value()
-              .derivatives()[i] = 1.0;
-        }
-        for (int j = 0; j < width_b; ++j) {
-          in[static_cast<std::size_t>(free[static_cast<std::size_t>(first_b + j)])]
-              .derivatives()[j] = HessianInner(1.0);
-        }
-        eval(in.data(), out.data());
-        for (int i = 0; i < width_a; ++i) {
-          const int ga =
-              globals[static_cast<std::size_t>(free[static_cast<std::size_t>(first_a + i)])];
-          for (int j = 0; j < width_b; ++j) {
-            const int gb =
-                globals[static_cast<std::size_t>(free[static_cast<std::size_t>(first_b + j)])];
-            // Diagonal blocks hold both (a, b) and (b, a): take each once.
-            if (first_a == first_b && ga < gb) continue;
-            double h = 0.0;
-            for (int r = 0; r < outputs; ++r) {
-              h += weights[r] * out[static_cast<std::size_t>(r)].derivatives()[j].derivatives()[i];
-            }
-            values[position(std::max(ga, gb), std::min(ga, gb))] += h;
-          }
-        }
-      }
-    }
-  }
-
- private:
-  // Row-wise sorted columns and positions (a std::map lookup per entry was a few per cent of an
-  // IPOPT iteration).
-  void build_index() {
-    int rows = 0;
-    for (int a : rows_) rows = std::max(rows, a + 1);
-    row_begin_.assign(static_cast<std::size_t>(rows) + 1, 0);
-    for (int a : rows_) ++row_begin_[static_cast<std::size_t>(a) + 1];
-    for (std::size_t a = 0; a < static_cast<std::size_t>(rows); ++a)
-      row_begin_[a + 1] += row_begin_[a];
-    index_cols_.resize(rows_.size());
-    index_positions_.resize(rows_.size());
-    for (const auto& [key, pos] : position_) {  // ordered by (row, column)
-      const auto at = static_cast<std::size_t>(row_begin_[static_cast<std::size_t>(key.first)]++);
-      index_cols_[at] = key.second;
-      index_positions_[at] = pos;
-    }
-    for (std::size_t a = static_cast<std::size_t>(rows); a > 0; --a)
-      row_begin_[a] = row_begin_[a - 1];
-    row_begin_[0] = 0;
-    index_ready_ = true;
-  }
-  // The position of the registered pair (a, b), a >= b.
-  std::size_t position(int a, int b) const {
-    const auto first = index_cols_.begin() + row_begin_[static_cast<std::size_t>(a)];
-    const auto last = index_cols_.begin() + row_begin_[static_cast<std::size_t>(a) + 1];
-    const auto it = std::lower_bound(first, last, b);
-    BFLOW_ASSERT(it != last && *it == b);
-    return static_cast<std::size_t>(
-        index_positions_[static_cast<std::size_t>(it - index_cols_.begin())]);
-  }
-
-  std::map<std::pair<int, int>, int> position_;
-  std::vector<int> rows_, cols_;
-  bool index_ready_ = false;
-  std::vector<int> row_begin_, index_cols_, index_positions_;
-};
-
-}  // namespace fesd_detail
+}  // namespace fesd
 }  // namespace bflow
 
-#endif  // BFLOW_INTEGRATORS_SRC_FESD_ELEMENT_H_
+#endif  // BFLOW_FESD_ELEMENT_H_

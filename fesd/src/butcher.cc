@@ -1,4 +1,4 @@
-#include "bflow/integrators/butcher.h"
+#include "bflow/fesd/butcher.h"
 
 #include <cmath>
 #include <vector>

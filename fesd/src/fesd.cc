@@ -1,4 +1,4 @@
-#include "bflow/integrators/fesd.h"
+#include "bflow/fesd/fesd.h"
 
 #include <algorithm>
 #include <array>
@@ -19,8 +19,9 @@
 #include <IpTNLP.hpp>
 
 #include "bflow/core/errors.h"
-#include "fesd_dcs.h"
-#include "fesd_element.h"
+#include "bflow/fesd/dcs.h"
+#include "bflow/fesd/element.h"
+#include "bflow/fesd/ipopt_options.h"
 
 namespace bflow {
 
@@ -40,15 +41,15 @@ namespace {
 
 constexpr double kInfinity = 1e19;  // IPOPT's default nlp_upper_bound_inf
 
-using fesd_detail::element_residual;
-using fesd_detail::equilibration_term;
-using fesd_detail::Pair;
-using fesd_detail::PairState;
-using fesd_detail::PointDcs;
+using fesd::element_residual;
+using fesd::equilibration_term;
+using fesd::Pair;
+using fesd::PairState;
+using fesd::PointDcs;
 
 // Where each unknown of one integration step lives: N_FE element blocks in a row
 // (fesd_element.h); the first element starts from the step's start (constants).
-struct Layout : fesd_detail::ElementShape {
+struct Layout : fesd::ElementShape {
   int elements = 0;
   // fesd_problem_size()'s counts, checked against the structures built from this layout.
   std::int64_t jacobian_nonzeros = 0, hessian_nonzeros_bound = 0;
@@ -166,7 +167,7 @@ class StepNlp final : public Ipopt::TNLP {
     std::vector<double> base;
     local_inputs(w, n, base);
     Eigen::MatrixXd jac;
-    fesd_detail::dense_jacobian(
+    fesd::dense_jacobian(
         base, l_.rows_per_element(), jac,
         [&](const JetChunk* in, JetChunk* out) {
           element_residual(tab_, l_, options_.standard, in, out);
@@ -252,7 +253,7 @@ class StepNlp final : public Ipopt::TNLP {
     const double h_ref = step_ / l_.elements;
     for (std::size_t e = 0; e < equilibration_index_.size(); ++e) {
       gather(x, e, values);
-      fesd_detail::add_gradient(
+      fesd::add_gradient(
           equilibration_index_[e], values, 1.0,
           [&](const JetChunk* in) { return equilibration_term(l_, h_ref, in); }, grad);
     }
@@ -394,7 +395,7 @@ class StepNlp final : public Ipopt::TNLP {
   std::vector<std::vector<int>> equilibration_index_;
   std::vector<std::vector<double>> equilibration_constants_;
   std::vector<Ipopt::Index> hess_rows_, hess_cols_;
-  fesd_detail::HessianBlocks hessian_;
+  fesd::HessianBlocks hessian_;
   std::vector<std::vector<int>> pieces_;  // an element's Hessian pieces (local indices)
   std::vector<Ipopt::Index> jac_rows_, jac_cols_;
   Ipopt::SolverReturn status_ = Ipopt::SUCCESS;
@@ -924,7 +925,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   app->Options()->SetIntegerValue("max_iter", options.max_nlp_iterations);
   app->Options()->SetStringValue("mu_strategy", "adaptive");
   app->Options()->SetNumericValue("bound_relax_factor", 0.0);
-  fesd_detail::apply_ipopt_options(*app, options, "fesd");
+  fesd::apply_ipopt_options(*app, options, "fesd");
   if (app->Initialize() != Ipopt::Solve_Succeeded) {
     throw InvalidArgument("fesd: IPOPT failed to initialise");
   }
@@ -1046,7 +1047,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       } else {
         app->Options()->SetNumericValue("mu_init", 0.1);
       }
-      fesd_detail::apply_ipopt_options(*app, options, "fesd");
+      fesd::apply_ipopt_options(*app, options, "fesd");
       const Ipopt::ApplicationReturnStatus status = app->OptimizeTNLP(nlp);
       if (Ipopt::IsValid(app->Statistics())) iterations += app->Statistics()->IterationCount();
       const bool solved =

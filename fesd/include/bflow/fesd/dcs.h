@@ -1,5 +1,5 @@
-// The algebraic part of the DCS at one collocation point, for the FESD engine (fesd.cc): its
-// variables z, equalities, the field it gives, its complementarity pairs and bounds. Three
+// The algebraic part of the DCS at one collocation point, for FESD's element equations (element.h):
+// its variables z, equalities, the field it gives, its complementarity pairs and bounds. Three
 // formulations ([F] Section 2.5-2.6, 6.3):
 //
 //   step      z = [a | lambda^p | lambda^n]            (nc each), eq c - lambda^p + lambda^n;
@@ -17,8 +17,8 @@
 // A pair (u, v) has u = z[u] or 1 - z[u] (flipped) and v = z[v] >= 0. Its "group" is the
 // switching function (step) or the mode (Stewart) it belongs to; the step equilibration and the
 // active sides are computed per group.
-#ifndef BFLOW_INTEGRATORS_SRC_FESD_DCS_H_
-#define BFLOW_INTEGRATORS_SRC_FESD_DCS_H_
+#ifndef BFLOW_FESD_DCS_H_
+#define BFLOW_FESD_DCS_H_
 
 #include <algorithm>
 #include <limits>
@@ -27,10 +27,10 @@
 
 #include "bflow/core/errors.h"
 #include "bflow/core/filippov.h"
-#include "bflow/integrators/fesd.h"
+#include "bflow/fesd/fesd.h"
 
 namespace bflow {
-namespace fesd_detail {
+namespace fesd {
 
 struct Pair {
   int u;
@@ -325,7 +325,7 @@ class PointDcs {
   std::vector<double> mix_;  // nf x model_modes_: theta of the model's modes at each vertex
 };
 
-}  // namespace fesd_detail
+}  // namespace fesd
 }  // namespace bflow
 
-#endif  // BFLOW_INTEGRATORS_SRC_FESD_DCS_H_
+#endif  // BFLOW_FESD_DCS_H_

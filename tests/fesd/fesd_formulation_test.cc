@@ -8,7 +8,7 @@
 #include <gtest/gtest.h>
 
 #include "bflow/examples/switching_cases.h"
-#include "bflow/integrators/fesd.h"
+#include "bflow/fesd/fesd.h"
 #include "support/error_message.h"
 
 namespace bflow {

@@ -1,6 +1,6 @@
 // The computed collocation tableaus against Butcher's simplifying assumptions B(p), C(q), D(r),
 // closed forms for small s, and an integration that shows the order.
-#include "bflow/integrators/butcher.h"
+#include "bflow/fesd/butcher.h"
 
 #include <cmath>
 #include <string>

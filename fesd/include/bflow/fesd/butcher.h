@@ -14,8 +14,8 @@
 //   Gauss-Legendre: order 2s, B(2s), C(s), D(s); Radau IIA: order 2s - 1, B(2s - 1), C(s), D(s - 1)
 // (B, C, D are Butcher's simplifying assumptions). Example, Radau IIA with s = 2:
 //   c = (1/3, 1), A = [5/12 -1/12; 3/4 1/4], b = (3/4, 1/4), order 3.
-#ifndef BFLOW_INTEGRATORS_BUTCHER_H_
-#define BFLOW_INTEGRATORS_BUTCHER_H_
+#ifndef BFLOW_FESD_BUTCHER_H_
+#define BFLOW_FESD_BUTCHER_H_
 
 #include <string>
 
@@ -48,4 +48,4 @@ ButcherTableau collocation_tableau(CollocationScheme scheme, int stages);
 
 }  // namespace bflow
 
-#endif  // BFLOW_INTEGRATORS_BUTCHER_H_
+#endif  // BFLOW_FESD_BUTCHER_H_

@@ -1,6 +1,6 @@
 // FESD ([F] Sections 4-5) on the four switching cases of Example 3 against their exact
 // solutions, IRMA against its closed form, and the sensitivity against the event-driven engine.
-#include "bflow/integrators/fesd.h"
+#include "bflow/fesd/fesd.h"
 
 #include <cmath>
 #include <string>

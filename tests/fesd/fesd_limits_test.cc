@@ -13,7 +13,7 @@
 #include "bflow/core/filippov.h"
 #include "bflow/examples/irma.h"
 #include "bflow/examples/switching_cases.h"
-#include "bflow/integrators/fesd.h"
+#include "bflow/fesd/fesd.h"
 #include "support/error_message.h"
 
 namespace bflow {

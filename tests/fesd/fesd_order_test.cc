@@ -10,7 +10,7 @@
 #include <gtest/gtest.h>
 
 #include "bflow/examples/irma.h"
-#include "bflow/integrators/fesd.h"
+#include "bflow/fesd/fesd.h"
 
 namespace bflow {
 namespace {
