@@ -361,8 +361,9 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     fesd->add_option("--T", numbers.fesd_t,
                      "Horizon, finite and > 0 (default: irma 100, sliding-leave 2, the others 1)")
         ->type_name("T");
-    fesd->add_flag("--exact-hessian", fesd_options.exact_hessian,
-                   "IPOPT with the exact Hessian (nested forward AD) instead of limited-memory");
+    fesd->add_flag(
+        "--exact-hessian", fesd_options.exact_hessian,
+        "IPOPT with the exact Hessian (second-order AD by pieces) instead of limited-memory");
     fesd->add_flag("--standard", fesd_options.standard,
                    "Standard time-stepping: fixed steps, no switch detection");
     fesd->add_flag("--trajectory", fesd_options.trajectory,

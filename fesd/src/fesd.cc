@@ -321,10 +321,7 @@ class StepNlp final : public Ipopt::TNLP {
         gather(x, e, base);
         hessian_.add(
             equilibration_index_[e], base, 1, &obj_factor,
-            [&](const HessianScalar* in, HessianScalar* out) {
-              out[0] = equilibration_term(l_, h_ref, in);
-            },
-            values);
+            [&](const auto* in, auto* out) { out[0] = equilibration_term(l_, h_ref, in); }, values);
       }
     }
     if (options_.exact_hessian_scale != 1.0) {

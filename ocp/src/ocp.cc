@@ -803,20 +803,19 @@ class OcpNlp final : public Ipopt::TNLP {
       gather(t, x, base);
       hessian_.add(
           t.globals, base, 1, &obj_factor,
-          [&](const HessianScalar* in, HessianScalar* out) { out[0] = term_value(t, in); }, values);
+          [&](const auto* in, auto* out) { out[0] = term_value(t, in); }, values);
     }
     for (int b = 0; b <= l_.elements && npath_ > 0; ++b) {
       path_inputs(x, b, base);
       hessian_.add(
           path_globals(b), base, npath_, lambda + rows_elements_ + rows_sums_ + b * npath_,
-          [&](const HessianScalar* in, HessianScalar* out) { model_.path(in, in + l_.d, out); },
-          values);
+          [&](const auto* in, auto* out) { model_.path(in, in + l_.d, out); }, values);
     }
     if (nterm_ > 0) {
       terminal_inputs(x, base);
       hessian_.add(
           terminal_globals(), base, nterm_, lambda + rows_elements_ + rows_sums_ + rows_path_,
-          [&](const HessianScalar* in, HessianScalar* out) { model_.terminal(in, out); }, values);
+          [&](const auto* in, auto* out) { model_.terminal(in, out); }, values);
     }
     if (o_.exact_hessian_scale != 1.0) {
       for (Ipopt::Index k = 0; k < nele; ++k) values[k] *= o_.exact_hessian_scale;

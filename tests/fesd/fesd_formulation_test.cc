@@ -111,7 +111,7 @@ TEST(FesdFormulationTest, StewartOnTheSwitchingCases) {
   }
 }
 
-// Exact Hessians (nested forward AD): IPOPT's own second-order derivative checker (finite
+// Exact Hessians (HessianJet by pieces): IPOPT's own second-order derivative checker (finite
 // differences of the exact gradients) finds no error in them, in all three formulations, and
 // the homotopy reaches the exact solution with them. Measured on this problem (N_sim 4): 374
 // IPOPT iterations against 1389 with the limited-memory Hessian (step), 390 against 672

@@ -1,7 +1,7 @@
 // One FESD finite element, written once for simulation (fesd_simulate, one integration step per
 // NLP) and optimal control (ocp_solve, all control stages in one NLP): its unknowns, its
 // equations ([F] (33), (36)-(43)), the step equilibration between two elements ((39)) and the
-// assembly of exact second derivatives by nested forward AD.
+// assembly of exact second derivatives by pieces (hessian_blocks.h).
 //
 // An element's own unknowns ("block"):
 //   [h | X_1..X_s (s d) | x_{n+1} (d) | z_1..z_P (P nz)]
@@ -18,6 +18,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -188,12 +189,12 @@ inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape
 // pieces, and its second derivatives are theirs:
 //   field piece k (stage point k < s):  -h sum_i w_ki f_i([X_k; u], z_k),
 //        w_ki = sum_m lambda_(m,i) A_mk + lambda_(end,i) b_k   (the collocation and end rows),
-//        over [h, T (time-scaled), X_k, u, the entries of z_k the field reads];
+//        over [X_k, u, the entries of z_k the field reads, h, T (time-scaled)];
 //   algebraic piece m (point m < P):     lambda_alg(m) . algebraic([X_m or x_{n+1}; u], z_m),
 //        over [X_m or x_{n+1}, u, z_m];
 //   complementarity piece:               lambda_comp . comp(v0, z), over [v0, z_1..z_P].
-// Each piece's unknowns are listed as local indices (element_hessian_pieces); the nested forward
-// AD then costs a few chunks of a piece instead of every pair of chunks of the whole element.
+// Each piece's unknowns are listed as local indices (element_hessian_pieces); second derivatives
+// then cost a pass over a piece's few unknowns instead of over the whole element.
 inline std::vector<std::vector<int>> element_hessian_pieces(const ElementShape& l) {
   std::vector<std::vector<int>> pieces;
   const int own = l.own(), u0 = l.d + l.npairs;
@@ -201,11 +202,14 @@ inline std::vector<std::vector<int>> element_hessian_pieces(const ElementShape& 
     for (int k = 0; k < count; ++k) v.push_back(first + k);
   };
   for (int k = 0; k < l.s; ++k) {
-    std::vector<int> v{own};  // h
-    if (l.scaled) v.push_back(u0 + l.nu);
+    // h (and T) last: HessianJet pays for a lane only in the values that depend on it, and the
+    // length enters only in the final product.
+    std::vector<int> v;
     range(v, own + 1 + k * l.d, l.d);
     range(v, u0, l.nu);
     range(v, own + l.off_z + k * l.nz + l.dcs->field_first(), l.dcs->field_count());
+    v.push_back(own);  // h
+    if (l.scaled) v.push_back(u0 + l.nu);
     pieces.push_back(std::move(v));
   }
   for (int m = 0; m < l.points; ++m) {
@@ -252,17 +256,18 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
     gather(pieces[static_cast<std::size_t>(k)]);
     hessian.add(
         piece_globals, piece_base, 1, &one,
-        [&](const HessianScalar* in, HessianScalar* out) {
-          const HessianScalar h = l.scaled ? in[0] * in[1] : in[0];
-          const HessianScalar* x = in + (l.scaled ? 2 : 1);
-          thread_local std::vector<HessianScalar> rate, z;
+        [&](const auto* in, auto* out) {
+          using T = std::remove_const_t<std::remove_pointer_t<decltype(in)>>;
+          const int nf = dcs.field_count();
+          const T h = l.scaled ? in[d + nu + nf] * in[d + nu + nf + 1] : in[d + nu + nf];
+          thread_local std::vector<T> rate, z;
           rate.resize(static_cast<std::size_t>(d + nu));
           // The model sees [X_k; u] (contiguous here) and the entries of the point's z that the
           // field reads (the others are not read).
-          z.assign(static_cast<std::size_t>(l.nz), HessianScalar(0.0));
-          std::copy(x + d + nu, x + d + nu + dcs.field_count(), z.begin() + dcs.field_first());
-          dcs.field(x, z.data(), rate.data());
-          HessianScalar sum(0.0);
+          z.assign(static_cast<std::size_t>(l.nz), T(0.0));
+          std::copy(in + d + nu, in + d + nu + nf, z.begin() + dcs.field_first());
+          dcs.field(in, z.data(), rate.data());
+          T sum(0.0);
           for (int i = 0; i < d; ++i) sum += w[static_cast<std::size_t>(i)] * rate[i];
           out[0] = -h * sum;
         },
@@ -271,22 +276,19 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
   const double* alg = lambda + l.s * d + d;
   // The step and Stewart equalities are the model's switching functions of [x; u] plus terms
   // linear in z (dcs.h): z enters them as constants, which leaves their (exactly zero)
-  // second derivatives out of the nested AD. The lifted products of z are not linear.
+  // second derivatives out of the AD. The lifted products of z are not linear.
   const bool linear_in_z = dcs.kind() != PointDcs::Kind::kLifted;
   for (int m = 0; m < l.points; ++m) {
     gather(pieces[static_cast<std::size_t>(l.s + m)]);
     if (linear_in_z) std::fill(piece_globals.begin() + d + nu, piece_globals.end(), -1);
     hessian.add(
         piece_globals, piece_base, l.neq, alg + m * l.neq,
-        [&](const HessianScalar* in, HessianScalar* out) { dcs.algebraic(in, in + d + nu, out); },
-        values);
+        [&](const auto* in, auto* out) { dcs.algebraic(in, in + d + nu, out); }, values);
   }
   gather(pieces.back());
   hessian.add(
       piece_globals, piece_base, l.npairs, lambda + l.equalities,
-      [&](const HessianScalar* in, HessianScalar* out) {
-        complementarity_rows(l, standard, in, in + l.npairs, out);
-      },
+      [&](const auto* in, auto* out) { complementarity_rows(l, standard, in, in + l.npairs, out); },
       values);
 }
 

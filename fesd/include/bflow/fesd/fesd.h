@@ -83,8 +83,9 @@ struct FesdOptions {
   double sigma_factor = 0.1;  ///< linear update sigma <- factor sigma
   bool superlinear = true;    ///< sigma <- min(factor sigma, sigma^1.5)
   double nlp_tolerance = 1e-13;
-  /** IPOPT with the exact Hessian of the Lagrangian (nested forward AD on each element and each
-      equilibration term, HessianScalar) instead of its limited-memory approximation. */
+  /** IPOPT with the exact Hessian of the Lagrangian (HessianJet on the pieces of each element
+      and each equilibration term, hessian_blocks.h) instead of its limited-memory
+      approximation. */
   bool exact_hessian = false;
   int max_nlp_iterations = 500;
   /** Try each step first by Newton's method on the active set predicted from its start (no

@@ -5,11 +5,14 @@
 #define BFLOW_FESD_HESSIAN_BLOCKS_H_
 
 #include <algorithm>
+#include <cmath>
 #include <cstddef>
+#include <limits>
 #include <map>
 #include <utility>
 #include <vector>
 
+#include "bflow/ad/tangent_jet.h"
 #include "bflow/core/errors.h"
 #include "bflow/fesd/step_model.h"
 
@@ -17,8 +20,14 @@ namespace bflow {
 namespace fesd {
 
 // The lower triangle of a Lagrangian's Hessian assembled from blocks: each block is a function of
-// a few unknowns (`globals`, -1 for a constant), and its second derivatives come from nested
-// forward AD (HessianScalar), kHessianChunk x kHessianChunk per evaluation.
+// a few unknowns (`globals`, -1 for a constant), and its second derivatives come from
+// HessianJet (hessian_jet.h) over the unknowns the block really depends on at this point.
+//
+// Which unknowns those are is found first by one pass of Jet chunks whose derivative lanes are
+// NaN: an unknown whose lane stays finite in every weighted output does not enter the code path
+// taken (NaN survives every product, even by a zero partial), so its rows and columns of this
+// block are exactly zero and it gets no lane. The monoped's field piece depends on 12 of its 16
+// unknowns (not on its horizontal position, its height or the clock).
 class HessianBlocks {
  public:
   // Registers every pair of the block's unknowns (call for every block before values are added).
@@ -39,53 +48,124 @@ class HessianBlocks {
   const std::vector<int>& cols() const { return cols_; }
 
   // Adds the Hessian of sum_r weights[r] f_r(in) (f = `eval`, `outputs` values) at `base` into
-  // the lower-triangle values.
+  // the lower-triangle values. `eval(in, out)` is called with JetChunk and with HessianScalar
+  // (a generic lambda). Outputs of weight 0 are left out.
   template <typename Eval>
   void add(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
            const double* weights, Eval eval, double* values) {
     if (!index_ready_) build_index();
-    std::vector<int> free;
-    for (std::size_t k = 0; k < globals.size(); ++k) {
-      if (globals[k] >= 0) free.push_back(static_cast<int>(k));
+    const std::vector<int>& deps = dependencies(globals, base, outputs, weights, eval);
+    const int count = static_cast<int>(deps.size());
+    if (count == 0) return;
+    constexpr int kLanes = HessianScalar::kLanes;
+    if (count <= kLanes) {
+      pass(globals, base, outputs, weights, eval, deps, 0, count, count, 0, true, true, values);
+      return;
     }
-    const int count = static_cast<int>(free.size());
-    std::vector<HessianScalar> in(globals.size()), out(static_cast<std::size_t>(outputs));
-    for (int first_a = 0; first_a < count; first_a += kHessianChunk) {
-      for (int first_b = first_a; first_b < count; first_b += kHessianChunk) {
-        for (std::size_t k = 0; k < globals.size(); ++k)
-          in[k] = HessianScalar(HessianInner(base[k]));
-        const int width_a = std::min(kHessianChunk, count - first_a);
-        const int width_b = std::min(kHessianChunk, count - first_b);
-        for (int i = 0; i < width_a; ++i) {
-          in[static_cast<std::size_t>(free[static_cast<std::size_t>(first_a + i)])]
-              .value()
-              .derivatives()[i] = 1.0;
-        }
-        for (int j = 0; j < width_b; ++j) {
-          in[static_cast<std::size_t>(free[static_cast<std::size_t>(first_b + j)])]
-              .derivatives()[j] = HessianInner(1.0);
-        }
-        eval(in.data(), out.data());
-        for (int i = 0; i < width_a; ++i) {
-          const int ga =
-              globals[static_cast<std::size_t>(free[static_cast<std::size_t>(first_a + i)])];
-          for (int j = 0; j < width_b; ++j) {
-            const int gb =
-                globals[static_cast<std::size_t>(free[static_cast<std::size_t>(first_b + j)])];
-            // Diagonal blocks hold both (a, b) and (b, a): take each once.
-            if (first_a == first_b && ga < gb) continue;
-            double h = 0.0;
-            for (int r = 0; r < outputs; ++r) {
-              h += weights[r] * out[static_cast<std::size_t>(r)].derivatives()[j].derivatives()[i];
-            }
-            values[position(std::max(ga, gb), std::min(ga, gb))] += h;
-          }
-        }
+    // More unknowns than lanes: groups of half the lanes, two at a time. Pair (0, 1) gives the
+    // diagonal block of group 0, every pair (0, B) that of group B, every pair its cross block.
+    constexpr int kGroup = kLanes / 2;
+    const int groups = (count + kGroup - 1) / kGroup;
+    for (int ga = 0; ga < groups; ++ga) {
+      for (int gb = ga + 1; gb < groups; ++gb) {
+        pass(globals, base, outputs, weights, eval, deps, ga * kGroup,
+             std::min(kGroup, count - ga * kGroup), gb * kGroup,
+             std::min(kGroup, count - gb * kGroup), ga == 0 && gb == 1, ga == 0, values);
       }
     }
   }
 
  private:
+  // The entries of `globals` (local indices) that some output of nonzero weight depends on.
+  template <typename Eval>
+  const std::vector<int>& dependencies(const std::vector<int>& globals,
+                                       const std::vector<double>& base, int outputs,
+                                       const double* weights, Eval& eval) {
+    thread_local std::vector<int> deps, free;
+    thread_local std::vector<JetChunk> in, out;
+    deps.clear();
+    free.clear();
+    for (std::size_t k = 0; k < globals.size(); ++k) {
+      if (globals[k] >= 0) free.push_back(static_cast<int>(k));
+    }
+    in.resize(globals.size());
+    out.resize(static_cast<std::size_t>(outputs));
+    const int count = static_cast<int>(free.size());
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    for (int first = 0; first < count; first += kTangentChunk) {
+      for (std::size_t k = 0; k < globals.size(); ++k) in[k] = JetChunk(base[k]);
+      const int width = std::min(kTangentChunk, count - first);
+      for (int c = 0; c < width; ++c) {
+        in[static_cast<std::size_t>(free[static_cast<std::size_t>(first + c)])].v[c] = nan;
+      }
+      eval(static_cast<const JetChunk*>(in.data()), out.data());
+      for (int c = 0; c < width; ++c) {
+        for (int r = 0; r < outputs; ++r) {
+          if (weights[r] != 0.0 && std::isnan(out[static_cast<std::size_t>(r)].v[c])) {
+            deps.push_back(free[static_cast<std::size_t>(first + c)]);
+            break;
+          }
+        }
+      }
+    }
+    return deps;
+  }
+
+  // One HessianJet evaluation with lanes [0, na) on deps[first_a ...] and [na, na + nb) on
+  // deps[first_b ...] (first_b == first_a: one group of na lanes). Adds the cross block, and the
+  // diagonal blocks of the first and second group where asked.
+  template <typename Eval>
+  void pass(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
+            const double* weights, Eval& eval, const std::vector<int>& deps, int first_a, int na,
+            int first_b, int nb, bool diagonal_a, bool diagonal_b, double* values) {
+    thread_local std::vector<HessianScalar> in, out;
+    in.resize(globals.size());
+    out.resize(static_cast<std::size_t>(outputs));
+    for (std::size_t k = 0; k < globals.size(); ++k) in[k] = HessianScalar(base[k]);
+    const bool single = first_a == first_b;
+    const int lanes = single ? na : na + nb;
+    // lane -> local index
+    int local[HessianScalar::kLanes];
+    for (int i = 0; i < na; ++i) local[i] = deps[static_cast<std::size_t>(first_a + i)];
+    for (int j = 0; !single && j < nb; ++j) {
+      local[na + j] = deps[static_cast<std::size_t>(first_b + j)];
+    }
+    for (int i = 0; i < lanes; ++i) {
+      const auto k = static_cast<std::size_t>(local[i]);
+      in[k] = HessianScalar::variable(base[k], i);
+    }
+    eval(static_cast<const HessianScalar*>(in.data()), out.data());
+    // The weighted sum's Hessian, lower triangle over the lanes.
+    thread_local std::vector<double> sum;
+    sum.assign(static_cast<std::size_t>(HessianScalar::at(lanes, 0)), 0.0);
+    for (int r = 0; r < outputs; ++r) {
+      if (weights[r] == 0.0) continue;
+      const HessianScalar& o = out[static_cast<std::size_t>(r)];
+      const int e = HessianScalar::at(std::min(o.n, lanes), 0);
+      for (int k = 0; k < e; ++k) sum[static_cast<std::size_t>(k)] += weights[r] * o.h[k];
+    }
+    for (int i = 0; i < lanes; ++i) {
+      const bool in_a = single || i < na;
+      const int gi = globals[static_cast<std::size_t>(local[i])];
+      for (int j = 0; j <= i; ++j) {
+        const bool j_in_a = single || j < na;
+        // Block of (i, j): both in a, both in b, or across.
+        if (in_a && j_in_a && !(single || diagonal_a)) continue;
+        if (!in_a && !j_in_a && !diagonal_b) continue;
+        const int gj = globals[static_cast<std::size_t>(local[j])];
+        const double value = sum[static_cast<std::size_t>(HessianScalar::at(i, j))];
+        if (value == 0.0) continue;
+        // Two locals may name one unknown (never in FESD's blocks, but allowed): each pair of
+        // lanes is one term of the chain rule, the diagonal counted once per lane pair.
+        if (gi == gj && i != j) {
+          values[position(gi, gj)] += 2.0 * value;
+        } else {
+          values[position(std::max(gi, gj), std::min(gi, gj))] += value;
+        }
+      }
+    }
+  }
+
   // Row-wise sorted columns and positions (a std::map lookup per entry was a few per cent of an
   // IPOPT iteration).
   void build_index() {

@@ -19,21 +19,19 @@
 #include <utility>
 
 #include <Eigen/Core>
-#include <unsupported/Eigen/AutoDiff>
 
 #include "bflow/ad/tangent_jet.h"
 #include "bflow/core/errors.h"
 #include "bflow/core/filippov.h"
 #include "bflow/core/signs.h"
+#include "bflow/fesd/hessian_jet.h"
 
 namespace bflow {
 
-/** Forward-over-forward scalar for exact Hessians of the FESD NLP: Eigen's AutoDiffScalar nested
-    (kHessianChunk directions inside and outside), so a block of second derivatives comes from
-    one evaluation. Models written as templates with T(c) constants compile with it. */
-constexpr int kHessianChunk = 8;
-using HessianInner = Eigen::AutoDiffScalar<Eigen::Matrix<double, kHessianChunk, 1>>;
-using HessianScalar = Eigen::AutoDiffScalar<Eigen::Matrix<HessianInner, kHessianChunk, 1>>;
+/** The scalar of exact Hessians of the FESD NLP and an OCP's (hessian_jet.h): value, gradient
+    and lower-triangle Hessian in up to HessianJet::kLanes directions. Models written as
+    templates with T(c) constants compile with it. */
+using HessianScalar = HessianJet;
 
 /** A step inclusion seen through virtual calls (double, Jet chunks and, for exact Hessians,
     HessianScalar), so FESD compiles once. */

@@ -1,0 +1,294 @@
+// HessianJet: a scalar that carries its value, its gradient and its Hessian in up to kLanes
+// directions, for the exact second derivatives of FESD's and an OCP's Lagrangian.
+//
+// Worked example: with x = HessianJet::variable(2.0, 0), y = HessianJet::variable(3.0, 1),
+//   HessianJet f = x * x * y;
+// gives f.a = 12, f.v = (12, 4) and the lower triangle of the Hessian f.h = (6; 4, 0), stored
+// packed by rows: h[i (i + 1) / 2 + j] = d2f / dx_i dx_j for j <= i.
+//
+// Why not nested first-order AD: forward-over-forward (Eigen's AutoDiffScalar nested in itself,
+// or Jets of Jets) computes the full n x n block, both triangles, and every product of two
+// nested scalars runs (n + 1)^2 inner products whatever the operands; this type keeps the lower
+// triangle only (n (n + 1) / 2 entries) and tracks how many directions each value depends on
+// (`n`: the first n lanes), so a constant costs what a double costs and a value that depends on
+// the first few lanes only pays for those. The lanes of a value beyond its n are zero and are
+// never read. bench/fesd_hessian_benchmark.cc measures it against nested AutoDiffScalar.
+//
+// Models written as templates on T with T(c) constants and mixed arithmetic with double compile
+// with it. Comparisons look at values only: a model branches on values, never on derivatives,
+// and the derivative is that of the branch taken.
+#ifndef BFLOW_FESD_HESSIAN_JET_H_
+#define BFLOW_FESD_HESSIAN_JET_H_
+
+#include <algorithm>
+#include <cmath>
+
+namespace bflow {
+// The type and its functions live in their own namespace, found by argument-dependent lookup, so
+// that an unqualified sin(double) in namespace bflow still means std::sin.
+namespace hessian_jet {
+
+class HessianJet {
+ public:
+  static constexpr int kLanes = 16;
+  static constexpr int kEntries = kLanes * (kLanes + 1) / 2;
+  /** Position of d2 / dx_i dx_j (j <= i) in h. */
+  static constexpr int at(int i, int j) { return i * (i + 1) / 2 + j; }
+
+  double a = 0.0;  ///< value
+  int n = 0;       ///< lanes this value depends on: v[0..n), h[0..at(n, 0))
+  double v[kLanes];
+  double h[kEntries];
+
+  HessianJet() = default;
+  explicit HessianJet(double value) : a(value) {}
+  /** The independent variable of lane `lane` at `value` (gradient e_lane, Hessian 0). */
+  static HessianJet variable(double value, int lane) {
+    HessianJet x(value);
+    x.n = lane + 1;
+    for (int i = 0; i < x.n; ++i) x.v[i] = 0.0;
+    for (int k = 0; k < at(x.n, 0); ++k) x.h[k] = 0.0;
+    x.v[lane] = 1.0;
+    return x;
+  }
+  HessianJet(const HessianJet& o) : a(o.a), n(o.n) { copy_lanes(o); }
+  HessianJet& operator=(const HessianJet& o) {
+    a = o.a;
+    n = o.n;
+    copy_lanes(o);
+    return *this;
+  }
+  /** d2 / dx_i dx_j of this value (0 beyond its lanes). */
+  double hessian(int i, int j) const {
+    if (i < j) std::swap(i, j);
+    return i < n ? h[at(i, j)] : 0.0;
+  }
+  double gradient(int i) const { return i < n ? v[i] : 0.0; }
+
+  HessianJet& operator+=(const HessianJet& o) { return *this = *this + o; }
+  HessianJet& operator-=(const HessianJet& o) { return *this = *this - o; }
+  HessianJet& operator*=(const HessianJet& o) { return *this = *this * o; }
+  HessianJet& operator/=(const HessianJet& o) { return *this = *this / o; }
+  HessianJet& operator+=(double s) {
+    a += s;
+    return *this;
+  }
+  HessianJet& operator-=(double s) {
+    a -= s;
+    return *this;
+  }
+  HessianJet& operator*=(double s) { return *this = *this * s; }
+  HessianJet& operator/=(double s) { return *this = *this * (1.0 / s); }
+
+  friend HessianJet operator+(const HessianJet& x) { return x; }
+  friend HessianJet operator-(const HessianJet& x) { return x * -1.0; }
+
+  friend HessianJet operator+(const HessianJet& x, const HessianJet& y) {
+    return linear(1.0, x, 1.0, y, x.a + y.a);
+  }
+  friend HessianJet operator-(const HessianJet& x, const HessianJet& y) {
+    return linear(1.0, x, -1.0, y, x.a - y.a);
+  }
+  friend HessianJet operator+(const HessianJet& x, double s) {
+    HessianJet r(x);
+    r.a += s;
+    return r;
+  }
+  friend HessianJet operator+(double s, const HessianJet& x) { return x + s; }
+  friend HessianJet operator-(const HessianJet& x, double s) { return x + (-s); }
+  friend HessianJet operator-(double s, const HessianJet& x) { return (x * -1.0) + s; }
+
+  friend HessianJet operator*(const HessianJet& x, double s) {
+    HessianJet r;
+    r.a = x.a * s;
+    r.n = x.n;
+    for (int i = 0; i < x.n; ++i) r.v[i] = s * x.v[i];
+    const int e = at(x.n, 0);
+    for (int k = 0; k < e; ++k) r.h[k] = s * x.h[k];
+    return r;
+  }
+  friend HessianJet operator*(double s, const HessianJet& x) { return x * s; }
+  friend HessianJet operator*(const HessianJet& x, const HessianJet& y) {
+    if (y.n == 0) return x * y.a;
+    if (x.n == 0) return y * x.a;
+    // (xy)'' = x y'' + y x'' + x' y'^T + y' x'^T
+    HessianJet r = linear(y.a, x, x.a, y, x.a * y.a);
+    const int m = std::min(x.n, y.n);
+    // Lanes i < x.n and j < y.n meet in x_i y_j + y_i x_j; beyond the shorter one only one term.
+    for (int i = 0; i < r.n; ++i) {
+      const double xi = i < x.n ? x.v[i] : 0.0;
+      const double yi = i < y.n ? y.v[i] : 0.0;
+      double* row = r.h + at(i, 0);
+      const int jm = std::min(i + 1, m);
+      for (int j = 0; j < jm; ++j) row[j] += xi * y.v[j] + yi * x.v[j];
+      if (x.n > m) {
+        for (int j = jm; j <= i && j < x.n; ++j) row[j] += yi * x.v[j];
+      } else {
+        for (int j = jm; j <= i && j < y.n; ++j) row[j] += xi * y.v[j];
+      }
+    }
+    return r;
+  }
+  friend HessianJet operator/(const HessianJet& x, double s) { return x * (1.0 / s); }
+  friend HessianJet operator/(const HessianJet& x, const HessianJet& y) {
+    return x * reciprocal(y);
+  }
+  friend HessianJet operator/(double s, const HessianJet& y) { return reciprocal(y) * s; }
+
+  // Comparisons of values.
+#define BFLOW_HESSIAN_JET_COMPARE(op)                                                      \
+  friend bool operator op(const HessianJet& x, const HessianJet& y) { return x.a op y.a; } \
+  friend bool operator op(const HessianJet& x, double s) { return x.a op s; }              \
+  friend bool operator op(double s, const HessianJet& y) { return s op y.a; }
+  BFLOW_HESSIAN_JET_COMPARE(<)
+  BFLOW_HESSIAN_JET_COMPARE(>)
+  BFLOW_HESSIAN_JET_COMPARE(<=)
+  BFLOW_HESSIAN_JET_COMPARE(>=)
+  BFLOW_HESSIAN_JET_COMPARE(==)
+  BFLOW_HESSIAN_JET_COMPARE(!=)
+#undef BFLOW_HESSIAN_JET_COMPARE
+
+  /** phi(x, y) from its value and partial derivatives at (x.a, y.a):
+      v' = px vx + py vy, H' = px Hx + py Hy + pxx vx vx^T + pxy (vx vy^T + vy vx^T) + pyy vy vy^T.
+   */
+  static HessianJet chain2(const HessianJet& x, const HessianJet& y, double value, double px,
+                           double py, double pxx, double pxy, double pyy) {
+    HessianJet r = linear(px, x, py, y, value);
+    for (int i = 0; i < r.n; ++i) {
+      const double xi = i < x.n ? x.v[i] : 0.0;
+      const double yi = i < y.n ? y.v[i] : 0.0;
+      double* row = r.h + at(i, 0);
+      for (int j = 0; j <= i; ++j) {
+        const double xj = j < x.n ? x.v[j] : 0.0;
+        const double yj = j < y.n ? y.v[j] : 0.0;
+        row[j] += pxx * xi * xj + pxy * (xi * yj + yi * xj) + pyy * yi * yj;
+      }
+    }
+    return r;
+  }
+
+  /** phi(x) from phi(x.a) = value, phi' = d1, phi'' = d2: v' = d1 v, H' = d1 H + d2 v v^T. */
+  static HessianJet chain(const HessianJet& x, double value, double d1, double d2) {
+    HessianJet r;
+    r.a = value;
+    r.n = x.n;
+    for (int i = 0; i < x.n; ++i) r.v[i] = d1 * x.v[i];
+    for (int i = 0; i < x.n; ++i) {
+      double* row = r.h + at(i, 0);
+      const double* xrow = x.h + at(i, 0);
+      const double di = d2 * x.v[i];
+      for (int j = 0; j <= i; ++j) row[j] = d1 * xrow[j] + di * x.v[j];
+    }
+    return r;
+  }
+
+ private:
+  // Loops, not std::copy: GCC cannot see that n lies in [0, kLanes] and warns of memcpy bounds.
+  void copy_lanes(const HessianJet& o) {
+    for (int i = 0; i < o.n; ++i) v[i] = o.v[i];
+    const int e = at(o.n, 0);
+    for (int k = 0; k < e; ++k) h[k] = o.h[k];
+  }
+  // s x + t y with value `value` (lanes beyond a shorter operand are its zeros).
+  static HessianJet linear(double s, const HessianJet& x, double t, const HessianJet& y,
+                           double value) {
+    HessianJet r;
+    r.a = value;
+    r.n = std::max(x.n, y.n);
+    const HessianJet& big = x.n >= y.n ? x : y;
+    const HessianJet& small = x.n >= y.n ? y : x;
+    const double sb = x.n >= y.n ? s : t;
+    const double ss = x.n >= y.n ? t : s;
+    for (int i = 0; i < small.n; ++i) r.v[i] = sb * big.v[i] + ss * small.v[i];
+    for (int i = small.n; i < big.n; ++i) r.v[i] = sb * big.v[i];
+    const int es = at(small.n, 0), eb = at(big.n, 0);
+    for (int k = 0; k < es; ++k) r.h[k] = sb * big.h[k] + ss * small.h[k];
+    for (int k = es; k < eb; ++k) r.h[k] = sb * big.h[k];
+    return r;
+  }
+  static HessianJet reciprocal(const HessianJet& y) {
+    const double r = 1.0 / y.a;
+    return chain(y, r, -r * r, 2.0 * r * r * r);
+  }
+};
+
+// Elementary functions, each with its first and second derivative at the value.
+inline HessianJet sqrt(const HessianJet& x) {
+  const double s = std::sqrt(x.a);
+  return HessianJet::chain(x, s, 0.5 / s, -0.25 / (s * x.a));
+}
+inline HessianJet sin(const HessianJet& x) {
+  const double s = std::sin(x.a), c = std::cos(x.a);
+  return HessianJet::chain(x, s, c, -s);
+}
+inline HessianJet cos(const HessianJet& x) {
+  const double s = std::sin(x.a), c = std::cos(x.a);
+  return HessianJet::chain(x, c, -s, -c);
+}
+inline HessianJet tan(const HessianJet& x) {
+  const double t = std::tan(x.a), d = 1.0 + t * t;
+  return HessianJet::chain(x, t, d, 2.0 * t * d);
+}
+inline HessianJet exp(const HessianJet& x) {
+  const double e = std::exp(x.a);
+  return HessianJet::chain(x, e, e, e);
+}
+inline HessianJet log(const HessianJet& x) {
+  return HessianJet::chain(x, std::log(x.a), 1.0 / x.a, -1.0 / (x.a * x.a));
+}
+inline HessianJet log1p(const HessianJet& x) {
+  const double p = 1.0 + x.a;
+  return HessianJet::chain(x, std::log1p(x.a), 1.0 / p, -1.0 / (p * p));
+}
+inline HessianJet sinh(const HessianJet& x) {
+  const double s = std::sinh(x.a), c = std::cosh(x.a);
+  return HessianJet::chain(x, s, c, s);
+}
+inline HessianJet cosh(const HessianJet& x) {
+  const double s = std::sinh(x.a), c = std::cosh(x.a);
+  return HessianJet::chain(x, c, s, c);
+}
+inline HessianJet tanh(const HessianJet& x) {
+  const double t = std::tanh(x.a), d = 1.0 - t * t;
+  return HessianJet::chain(x, t, d, -2.0 * t * d);
+}
+inline HessianJet atan(const HessianJet& x) {
+  const double d = 1.0 / (1.0 + x.a * x.a);
+  return HessianJet::chain(x, std::atan(x.a), d, -2.0 * x.a * d * d);
+}
+inline HessianJet cbrt(const HessianJet& x) {
+  const double c = std::cbrt(x.a), d = 1.0 / (3.0 * c * c);
+  return HessianJet::chain(x, c, d, -2.0 * d / (3.0 * x.a));
+}
+/** x^p for a constant p. */
+inline HessianJet pow(const HessianJet& x, double p) {
+  if (p == 0.0) return HessianJet(1.0);
+  const double value = std::pow(x.a, p);
+  return HessianJet::chain(x, value, p * std::pow(x.a, p - 1.0),
+                           p * (p - 1.0) * std::pow(x.a, p - 2.0));
+}
+inline HessianJet pow(double s, const HessianJet& y) {
+  const double value = std::pow(s, y.a), l = std::log(s);
+  return HessianJet::chain(y, value, value * l, value * l * l);
+}
+inline HessianJet pow(const HessianJet& x, const HessianJet& y) { return exp(y * log(x)); }
+/** |x|: the derivative of the side taken (+1 at 0). */
+inline HessianJet abs(const HessianJet& x) { return x.a < 0.0 ? -x : x; }
+inline HessianJet fabs(const HessianJet& x) { return abs(x); }
+/** atan2(y, x): the angle's derivatives d theta = (x dy - y dx) / r^2 (r > 0). */
+inline HessianJet atan2(const HessianJet& y, const HessianJet& x) {
+  const double r2 = x.a * x.a + y.a * y.a, r4 = r2 * r2;
+  return HessianJet::chain2(y, x, std::atan2(y.a, x.a), x.a / r2, -y.a / r2, -2.0 * x.a * y.a / r4,
+                            (y.a * y.a - x.a * x.a) / r4, 2.0 * x.a * y.a / r4);
+}
+inline bool isfinite(const HessianJet& x) { return std::isfinite(x.a); }
+inline bool isnan(const HessianJet& x) { return std::isnan(x.a); }
+inline bool isinf(const HessianJet& x) { return std::isinf(x.a); }
+
+}  // namespace hessian_jet
+
+using hessian_jet::HessianJet;
+
+}  // namespace bflow
+
+#endif  // BFLOW_FESD_HESSIAN_JET_H_
