@@ -1,0 +1,91 @@
+// What IPOPT's derivative checker (derivative_test = second-order, print_level >= 5) printed.
+//
+// IPOPT 3.11's TNLPAdapter::CheckDerivatives evaluates everything at the NLP's starting point
+// moved to a random point (fixed seed) of the box of radius point_perturbation_radius (default
+// 10) around it, clipped to the variable bounds, so the point is generic: off every switching
+// surface, no complementarity member at zero. The second-order part does not use IPOPT's
+// multipliers: it compares the Hessian of the objective (obj_factor 1, every lambda 0) and then
+// of each constraint i alone (obj_factor 0, lambda = e_i) with forward differences of the
+// gradient and of row i of the Jacobian, entry by entry, relative error
+// |approx - exact| / max(|approx|, 1) against derivative_test_tol (1e-4). An entry above the
+// tolerance is printed with a '*' in front:
+//   "*             obj_hess[    3,    7] = ...  ~ ...  [ 1.0e-03]"
+//   "*    12-th constr_hess[    3,    7] = ...  ~ ...  [ 1.0e-03]"
+// (C-style indices). A Hessian scaled by 1 + 1e-3 is reported exactly at the entries of
+// magnitude above about 0.1, so a negative control's flagged lines show which Hessians the
+// check compared with nonzero entries.
+#ifndef BFLOW_TESTS_SUPPORT_DERIVATIVE_CHECKER_H_
+#define BFLOW_TESTS_SUPPORT_DERIVATIVE_CHECKER_H_
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <set>
+#include <sstream>
+#include <string>
+
+namespace bflow::testing {
+
+struct CheckerOutput {
+  bool second_order_started = false;  ///< "Starting derivative checker for second derivatives"
+  bool no_errors = false;             ///< "No errors detected by derivative checker"
+  bool errors = false;                ///< "Derivative checker detected ... error(s)"
+  int flagged_objective = 0;          ///< flagged obj_hess entries
+  int flagged_constraint = 0;         ///< flagged constr_hess entries
+  int flagged_first_order = 0;        ///< flagged grad_f or jac_g entries
+  std::set<int> constraint_rows;      ///< constraints with a flagged constr_hess entry
+  std::set<int> variables;            ///< unknowns in a flagged obj_hess or constr_hess entry
+  /** The largest relative error printed for a second derivative: of the flagged entries, or of
+      all entries with derivative_test_print_all = yes. */
+  double worst_second_order = 0.0;
+  std::string first_flagged;  ///< the first few flagged lines, for a failure message
+};
+
+inline CheckerOutput parse_checker_output(const std::string& text) {
+  CheckerOutput out;
+  out.second_order_started =
+      text.find("Starting derivative checker for second derivatives") != std::string::npos;
+  out.no_errors = text.find("No errors detected by derivative checker") != std::string::npos;
+  out.errors = text.find("Derivative checker detected") != std::string::npos;
+  std::istringstream lines(text);
+  std::string line;
+  while (std::getline(lines, line)) {
+    if (line.size() < 2 || (line[0] != '*' && line[0] != ' ')) continue;
+    const bool flagged = line[0] == '*';
+    if (flagged && std::count(out.first_flagged.begin(), out.first_flagged.end(), '\n') < 12) {
+      out.first_flagged += line + "\n";
+    }
+    const auto objective = line.find("obj_hess[");
+    const auto constraint = line.find("-th constr_hess[");
+    if (objective == std::string::npos && constraint == std::string::npos) {
+      if (flagged && (line.find("grad_f[") != std::string::npos ||
+                      line.find("jac_g [") != std::string::npos)) {
+        ++out.flagged_first_order;
+      }
+      continue;
+    }
+    // "... = exact v  ~ approx  [ rel_error]"
+    const auto error_at = line.rfind('[');
+    if (error_at != std::string::npos && error_at > line.find(']')) {
+      out.worst_second_order =
+          std::max(out.worst_second_order, std::atof(line.c_str() + error_at + 1));
+    }
+    if (!flagged) continue;
+    const auto indices = line.find('[');
+    int first = -1, second = -1;
+    std::sscanf(line.c_str() + indices, "[%d,%d]", &first, &second);
+    out.variables.insert(first);
+    out.variables.insert(second);
+    if (objective != std::string::npos) {
+      ++out.flagged_objective;
+    } else {
+      ++out.flagged_constraint;
+      out.constraint_rows.insert(std::atoi(line.substr(1, constraint - 1).c_str()));
+    }
+  }
+  return out;
+}
+
+}  // namespace bflow::testing
+
+#endif  // BFLOW_TESTS_SUPPORT_DERIVATIVE_CHECKER_H_
