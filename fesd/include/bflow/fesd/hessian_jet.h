@@ -30,7 +30,7 @@ namespace hessian_jet {
 
 class HessianJet {
  public:
-  static constexpr int kLanes = 16;
+  static constexpr int kLanes = 24;
   static constexpr int kEntries = kLanes * (kLanes + 1) / 2;
   /** Position of d2 / dx_i dx_j (j <= i) in h. */
   static constexpr int at(int i, int j) { return i * (i + 1) / 2 + j; }
