@@ -913,15 +913,10 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
 
   Ipopt::SmartPtr<Ipopt::IpoptApplication> app = IpoptApplicationFactory();
   app->RethrowNonIpoptException(false);
-  app->Options()->SetIntegerValue("print_level", options.print_level);
-  app->Options()->SetStringValue("sb", "yes");
-  app->Options()->SetStringValue("hessian_approximation",
-                                 options.exact_hessian ? "exact" : "limited-memory");
+  fesd::set_ipopt_defaults(*app, options.print_level, options.exact_hessian,
+                           options.max_nlp_iterations);
   app->Options()->SetNumericValue("tol", options.nlp_tolerance);
   app->Options()->SetNumericValue("acceptable_tol", 1e3 * options.nlp_tolerance);
-  app->Options()->SetIntegerValue("max_iter", options.max_nlp_iterations);
-  app->Options()->SetStringValue("mu_strategy", "adaptive");
-  app->Options()->SetNumericValue("bound_relax_factor", 0.0);
   fesd::apply_ipopt_options(*app, options, "fesd");
   if (app->Initialize() != Ipopt::Solve_Succeeded) {
     throw InvalidArgument("fesd: IPOPT failed to initialise");

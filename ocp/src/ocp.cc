@@ -1201,13 +1201,8 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
 
   Ipopt::SmartPtr<Ipopt::IpoptApplication> app = IpoptApplicationFactory();
   app->RethrowNonIpoptException(false);
-  app->Options()->SetIntegerValue("print_level", options.print_level);
-  app->Options()->SetStringValue("sb", "yes");
-  app->Options()->SetStringValue("hessian_approximation",
-                                 options.exact_hessian ? "exact" : "limited-memory");
-  app->Options()->SetIntegerValue("max_iter", options.max_nlp_iterations);
-  app->Options()->SetStringValue("mu_strategy", "adaptive");
-  app->Options()->SetNumericValue("bound_relax_factor", 0.0);
+  fesd::set_ipopt_defaults(*app, options.print_level, options.exact_hessian,
+                           options.max_nlp_iterations);
   fesd::apply_ipopt_options(*app, options, "ocp");
   if (app->Initialize() != Ipopt::Solve_Succeeded) {
     throw InvalidArgument("ocp: IPOPT failed to initialise");

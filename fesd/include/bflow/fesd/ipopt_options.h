@@ -11,6 +11,25 @@
 namespace bflow {
 namespace fesd {
 
+/** bflow's own IPOPT options, the same for fesd_simulate's step NLPs and ocp_solve's NLP (set
+    before the caller's, which win): exact or limited-memory Hessians, the iteration limit, the
+    adaptive barrier update and no relaxation of the bounds (the complementarity pairs sit on
+    them). The KKT systems are factorised by MUMPS with IPOPT's defaults (its automatic ordering,
+    pivot tolerance 1e-6): docs/ocp.md measures the alternatives on the monoped, the turbo car and
+    the braking block; the faster AMD ordering changes round-off enough to send the small
+    examples' homotopies along paths up to eight times longer, so it is left to the caller
+    ({"mumps_pivot_order", 0}, {"mumps_mem_percent", 200}). */
+template <typename App>
+void set_ipopt_defaults(App& app, int print_level, bool exact_hessian, int max_iterations) {
+  app.Options()->SetIntegerValue("print_level", print_level);
+  app.Options()->SetStringValue("sb", "yes");
+  app.Options()->SetStringValue("hessian_approximation",
+                                exact_hessian ? "exact" : "limited-memory");
+  app.Options()->SetIntegerValue("max_iter", max_iterations);
+  app.Options()->SetStringValue("mu_strategy", "adaptive");
+  app.Options()->SetNumericValue("bound_relax_factor", 0.0);
+}
+
 // The caller's IPOPT options (set after bflow's, so they win).
 // @throws InvalidArgument "<who>: IPOPT does not take the <type> option <name> = <value>".
 template <typename App, typename Options>
