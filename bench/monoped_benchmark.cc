@@ -14,7 +14,20 @@
 //   BM_MonopedIteration/<formulation>/<N>   the cost of an IPOPT iteration alone: the first NLP
 //       (sigma = sigma_initial) of the same problem, stopped after kIterations iterations; the
 //       reported time is its CPU time per iteration (the performance target at N = 60 in the
-//       step formulation, and its growth in N). A minute for all 14 rows.
+//       step formulation, and its growth in N). A minute for all 14 rows. From IPOPT's own log
+//       (bench/ipopt_flags.h: output_file at file_print_level 6 with print_timing_statistics)
+//       also factorizations_per_iteration (IPOPT's trial factorizations of the KKT matrix;
+//       mumps_factorizations_per_iteration counts every MUMPS factorization, one more per NLP),
+//       seconds_per_factorization (the CPU time of MUMPS's factorizations over their number),
+//       hessian_seconds_per_iteration (the Lagrangian Hessian's evaluations) and
+//       rest_seconds_per_iteration (cpu_per_iteration minus those two).
+//
+//   BM_MonopedFirstNlp/<formulation>/30   the first NLP of the homotopy (sigma = 1, IPOPT's tol
+//       1e-2 as in the homotopy) solved to its end: iterations, objective, IPOPT's status (the
+//       label) and the same counters: whether IPOPT options change its path.
+//
+// IPOPT options for every row: --ipopt-int=name=value, --ipopt-num=..., --ipopt-str=...
+// (repeatable; bench/ipopt_flags.h); the context records them and the BLAS and LAPACK loaded.
 //
 //   build-bench/bench/monoped_benchmark   (scripts/bench --monoped stores the JSON and draws
 //                                          docs/monoped_cpu.png; scripts/bench
@@ -27,8 +40,27 @@
 
 #include "bflow/examples/monoped_ocp.h"
 #include "bflow/ocp/ocp.h"
+#include "ipopt_flags.h"
 
 namespace {
+
+bflow_bench::IpoptFlags g_ipopt_flags;  // from the command line, for every row
+
+// The counters read from IPOPT's log of the solve (`iterations` IPOPT iterations, `cpu` seconds).
+void log_counters(benchmark::State& state, const bflow_bench::IpoptCounts& c, int iterations,
+                  double cpu) {
+  if (iterations <= 0) return;
+  state.counters["factorizations_per_iteration"] =
+      static_cast<double>(c.trial_factorizations) / iterations;
+  state.counters["mumps_factorizations_per_iteration"] =
+      static_cast<double>(c.factorizations) / iterations;
+  state.counters["seconds_per_factorization"] =
+      c.factorizations > 0 ? c.factorization / static_cast<double>(c.factorizations) : 0.0;
+  state.counters["hessian_seconds_per_iteration"] = c.hessian / iterations;
+  state.counters["rest_seconds_per_iteration"] = (cpu - c.factorization - c.hessian) / iterations;
+  state.counters["symbolic_seconds"] = c.symbolic;
+  state.counters["ipopt_overall_seconds"] = c.overall;
+}
 
 using bflow::OcpResult;
 using bflow::examples::MonopedTask;
@@ -40,6 +72,7 @@ void BM_Monoped(benchmark::State& state, bflow::DcsFormulation formulation) {
   const bflow::OcpProblem problem = task.problem();
   bflow::OcpOptions o = MonopedTask::options(static_cast<int>(state.range(0)));
   o.formulation = formulation;
+  g_ipopt_flags.apply_to(o);
   OcpResult r;
   for (auto _ : state) {
     r = bflow::ocp_solve(model, problem, o);
@@ -73,6 +106,9 @@ void BM_MonopedIteration(benchmark::State& state, bflow::DcsFormulation formulat
   o.sigma_final = o.sigma_initial;  // one NLP
   o.max_nlp_iterations = kIterations;
   o.polish = false;
+  const bflow_bench::IpoptLog log;
+  log.apply_to(o);
+  g_ipopt_flags.apply_to(o);
   OcpResult r;
   for (auto _ : state) {
     r = bflow::ocp_solve(model, problem, o);
@@ -89,12 +125,50 @@ void BM_MonopedIteration(benchmark::State& state, bflow::DcsFormulation formulat
   state.counters["constraints"] = r.constraints;
   state.counters["jacobian_nonzeros"] = r.jacobian_nonzeros;
   state.counters["hessian_nonzeros"] = r.hessian_nonzeros;
+  log_counters(state, log.read(), nlp.iterations, nlp.cpu_seconds);
+  state.SetLabel(nlp.ipopt_status);
+}
+
+// The first NLP (sigma = sigma_initial) to its end, with the tolerances the homotopy gives it
+// (tol = 1e-2 sigma; ocp_solve's last NLP gets nlp_tolerance, so that is set to it).
+template <bflow::TimeFreezingRegions kRegions>
+void BM_MonopedFirstNlp(benchmark::State& state, bflow::DcsFormulation formulation) {
+  const auto model = bflow::adapt_ocp(bflow::examples::monoped_model<kRegions>());
+  const MonopedTask task;
+  const bflow::OcpProblem problem = task.problem();
+  bflow::OcpOptions o = MonopedTask::options(static_cast<int>(state.range(0)));
+  o.formulation = formulation;
+  o.sigma_final = o.sigma_initial;  // one NLP
+  o.nlp_tolerance = 1e-2 * o.sigma_initial;
+  o.polish = false;
+  const bflow_bench::IpoptLog log;
+  log.apply_to(o);
+  g_ipopt_flags.apply_to(o);
+  OcpResult r;
+  for (auto _ : state) {
+    r = bflow::ocp_solve(model, problem, o);
+    if (r.homotopy.empty() || r.homotopy.front().iterations == 0) {
+      state.SkipWithError(("no IPOPT iteration: " + r.message).c_str());
+      return;
+    }
+    state.SetIterationTime(r.homotopy.front().cpu_seconds / r.homotopy.front().iterations);
+  }
+  const bflow::OcpHomotopyStep& nlp = r.homotopy.front();
+  state.counters["ipopt_iterations"] = nlp.iterations;
+  state.counters["cpu_total"] = nlp.cpu_seconds;
+  state.counters["cpu_per_iteration"] = nlp.cpu_seconds / nlp.iterations;
+  state.counters["objective"] = nlp.objective;
+  state.counters["complementarity"] = nlp.complementarity;
+  state.counters["unknowns"] = r.unknowns;
+  log_counters(state, log.read(), nlp.iterations, nlp.cpu_seconds);
+  state.SetLabel(nlp.ipopt_status);
 }
 }  // namespace
 
 // Rows by N, the two formulations next to each other, so that a run stopped early (each row
 // takes minutes) still compares them.
 int main(int argc, char** argv) {
+  g_ipopt_flags = bflow_bench::take_ipopt_flags(argc, argv);
   for (int n = 30; n <= 90; n += 10) {
     for (const bool stewart : {false, true}) {
       const std::string name =
@@ -125,6 +199,22 @@ int main(int argc, char** argv) {
           benchmark::kMillisecond);
     }
   }
+  for (const bool stewart : {false, true}) {
+    const std::string name =
+        std::string("BM_MonopedFirstNlp/") + (stewart ? "stewart" : "step") + "/30";
+    benchmark::internal::Benchmark* b =
+        stewart ? benchmark::RegisterBenchmark(
+                      name.c_str(), BM_MonopedFirstNlp<bflow::TimeFreezingRegions::kBaseSets>,
+                      bflow::DcsFormulation::kStewart)
+                : benchmark::RegisterBenchmark(
+                      name.c_str(), BM_MonopedFirstNlp<bflow::TimeFreezingRegions::kUnions>,
+                      bflow::DcsFormulation::kStep);
+    b->Arg(30)->Iterations(1)->UseManualTime()->MeasureProcessCPUTime()->Unit(
+        benchmark::kMillisecond);
+  }
+  benchmark::AddCustomContext("ipopt_options", g_ipopt_flags.describe());
+  benchmark::AddCustomContext("blas", bflow_bench::loaded_library("libblas.so"));
+  benchmark::AddCustomContext("lapack", bflow_bench::loaded_library("liblapack.so"));
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   benchmark::RunSpecifiedBenchmarks();

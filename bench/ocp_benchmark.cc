@@ -16,6 +16,11 @@
 // its BigO coefficient the fit of a solve. A solve whose status is not "solved" is reported as
 // an error with its message.
 //
+// From IPOPT's own log over the whole solve (bench/ipopt_flags.h): factorizations_per_iteration,
+// seconds_per_factorization, hessian_seconds_per_iteration and rest_seconds_per_iteration.
+// IPOPT options for every row: --ipopt-int=name=value, --ipopt-num=..., --ipopt-str=...
+// (repeatable); the context records them and the BLAS and LAPACK loaded.
+//
 //   build-bench/bench/ocp_benchmark     (scripts/bench --ocp stores the JSON)
 #include <benchmark/benchmark.h>
 
@@ -24,8 +29,11 @@
 
 #include "bflow/examples/ocp_examples.h"
 #include "bflow/ocp/ocp.h"
+#include "ipopt_flags.h"
 
 namespace {
+
+bflow_bench::IpoptFlags g_ipopt_flags;  // from the command line, for every row
 
 using bflow::OcpOptions;
 using bflow::OcpResult;
@@ -50,6 +58,7 @@ bool report(benchmark::State& state, const OcpResult& r) {
   }
   state.counters["ipopt_iterations"] = r.ipopt_iterations;
   state.counters["cpu_per_iteration"] = r.cpu_per_iteration;
+  state.counters["objective"] = r.objective;
   state.counters["unknowns"] = r.unknowns;
   state.counters["jacobian_nonzeros"] = r.jacobian_nonzeros;
   state.counters["hessian_nonzeros"] = r.hessian_nonzeros;
@@ -65,12 +74,30 @@ OcpResult solve(benchmark::State& state, bflow::DcsFormulation formulation) {
   OcpOptions o;
   o.stages = static_cast<int>(state.range(0));
   o.formulation = formulation;
+  const bflow_bench::IpoptLog log;
+  log.apply_to(o);
+  g_ipopt_flags.apply_to(o);
   OcpResult r;
   for (auto _ : state) {
     r = bflow::ocp_solve(model, problem, o);
     state.SetIterationTime(r.cpu_per_iteration);
   }
   state.SetComplexityN(state.range(0));
+  const bflow_bench::IpoptCounts c = log.read();
+  if (r.ipopt_iterations > 0) {
+    const double it = r.ipopt_iterations;
+    double nlp_cpu = 0.0;
+    for (const bflow::OcpHomotopyStep& s : r.homotopy) nlp_cpu += s.cpu_seconds;
+    state.counters["factorizations_per_iteration"] =
+        static_cast<double>(c.trial_factorizations) / it;
+    state.counters["mumps_factorizations_per_iteration"] = static_cast<double>(c.factorizations) / it;
+    state.counters["seconds_per_factorization"] =
+        c.factorizations > 0 ? c.factorization / static_cast<double>(c.factorizations) : 0.0;
+    state.counters["hessian_seconds_per_iteration"] = c.hessian / it;
+    state.counters["rest_seconds_per_iteration"] = (nlp_cpu - c.factorization - c.hessian) / it;
+  }
+  state.counters["cpu_total"] = r.cpu_seconds;
+  state.counters["nlps"] = static_cast<double>(r.homotopy.size());
   return r;
 }
 
@@ -100,4 +127,14 @@ BENCHMARK_CAPTURE(BM_OcpTurboCar, step, bflow::DcsFormulation::kStep)->Apply(up_
 
 }  // namespace
 
-BENCHMARK_MAIN();
+int main(int argc, char** argv) {
+  g_ipopt_flags = bflow_bench::take_ipopt_flags(argc, argv);
+  benchmark::AddCustomContext("ipopt_options", g_ipopt_flags.describe());
+  benchmark::AddCustomContext("blas", bflow_bench::loaded_library("libblas.so"));
+  benchmark::AddCustomContext("lapack", bflow_bench::loaded_library("liblapack.so"));
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}
