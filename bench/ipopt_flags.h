@@ -51,8 +51,7 @@ struct IpoptFlags {
   void apply_to(bflow::OcpOptions& o) const {
     o.ipopt_string_options.insert(o.ipopt_string_options.end(), strings.begin(), strings.end());
     o.ipopt_numeric_options.insert(o.ipopt_numeric_options.end(), numbers.begin(), numbers.end());
-    o.ipopt_integer_options.insert(o.ipopt_integer_options.end(), integers.begin(),
-                                   integers.end());
+    o.ipopt_integer_options.insert(o.ipopt_integer_options.end(), integers.begin(), integers.end());
   }
 
   // "name=value, ..." for a benchmark's context.

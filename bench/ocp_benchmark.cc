@@ -90,7 +90,8 @@ OcpResult solve(benchmark::State& state, bflow::DcsFormulation formulation) {
     for (const bflow::OcpHomotopyStep& s : r.homotopy) nlp_cpu += s.cpu_seconds;
     state.counters["factorizations_per_iteration"] =
         static_cast<double>(c.trial_factorizations) / it;
-    state.counters["mumps_factorizations_per_iteration"] = static_cast<double>(c.factorizations) / it;
+    state.counters["mumps_factorizations_per_iteration"] =
+        static_cast<double>(c.factorizations) / it;
     state.counters["seconds_per_factorization"] =
         c.factorizations > 0 ? c.factorization / static_cast<double>(c.factorizations) : 0.0;
     state.counters["hessian_seconds_per_iteration"] = c.hessian / it;
