@@ -150,10 +150,10 @@ TEST(OcpBrakingBlock, SlidesAndConvergesAtSecondOrder) {
 // stage reproduce the optimiser's states at the stage boundaries. With the control held, both
 // models are polynomial in t on each side of the switch (degree <= 2), which Radau IIA 2
 // integrates exactly once the switch is on an element boundary. What is left is how exactly the
-// last NLP places the switch: measured 1.4e-13 (turbo car, N = 10) with the nested forward AD
-// Hessian and 1.4e-9 with HessianJet (equal Hessians to round-off, which sends IPOPT along
-// another path: 492 iterations against 353), and 5e-16 (braking block, N = 20); the bounds
-// are 1e-8 and 1e-9.
+// last NLP places the switch, which follows round-off: measured for the turbo car (N = 10)
+// 1.4e-13 with the nested forward AD Hessian and ATLAS, 1.4e-9 with HessianJet and ATLAS (492
+// IPOPT iterations against 353) and 1.1e-13 with HessianJet and OpenBLAS; for the braking block
+// (N = 20) 5e-16 to 7e-16. The bounds are 1e-8 and 1e-9.
 TEST(OcpConsistency, FesdSimulationOnAFinerGridReproducesTheStates) {
   const struct {
     const char* name;
