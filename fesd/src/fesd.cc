@@ -48,7 +48,7 @@ using fesd::PairState;
 using fesd::PointDcs;
 
 // Where each unknown of one integration step lives: N_FE element blocks in a row
-// (fesd_element.h); the first element starts from the step's start (constants).
+// (element.h); the first element starts from the step's start (constants).
 struct Layout : fesd::ElementShape {
   int elements = 0;
   // fesd_problem_size()'s counts, checked against the structures built from this layout.
@@ -365,16 +365,14 @@ class StepNlp final : public Ipopt::TNLP {
     }
   }
 
-  // Lower-triangle positions of the Lagrangian's Hessian: every pair of unknowns of a piece of
-  // an element (element_hessian_pieces) and of an equilibration term.
+  // Lower-triangle positions of the Lagrangian's Hessian: the entries of each element that can
+  // be nonzero (element_hessian_structure) and every pair of unknowns of an equilibration term.
   void build_hessian_structure() {
     pieces_ = element_hessian_pieces(l_);
+    const std::vector<std::pair<int, int>> structure =
+        element_hessian_structure(l_, options_.standard, pieces_);
     for (int n = 0; n < l_.elements; ++n) {
-      for (const std::vector<int>& piece : pieces_) {
-        std::vector<int> globals;
-        for (int k : piece) globals.push_back(l_.global(n, k));
-        hessian_.add_block(globals);
-      }
+      for (const auto& [a, b] : structure) hessian_.add_pair(l_.global(n, a), l_.global(n, b));
     }
     for (const std::vector<int>& idx : equilibration_index_) hessian_.add_block(idx);
     hess_rows_.assign(hessian_.rows().begin(), hessian_.rows().end());
@@ -833,7 +831,7 @@ FesdProblemSize fesd_problem_size(const StepModel& model, const FesdOptions& opt
   const int n_c = model.switches();
   FesdProblemSize size;
   if (options.formulation == DcsFormulation::kStewart || options.lifting_depth != 0) {
-    // [F] Table 4: the lifted step and Stewart's point DCS (fesd_dcs.h) are exactly its sizes.
+    // [F] Table 4: the lifted step and Stewart's point DCS (dcs.h) are exactly its sizes.
     const SignMatrix* signs = model.sign_matrix();
     const DcsSize table = options.formulation == DcsFormulation::kStewart
                               ? dcs_size_dense(n_c, DcsFormulation::kStewart)

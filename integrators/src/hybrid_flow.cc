@@ -370,7 +370,8 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
           std::to_string(j) + " the field F_" + record.sides_after.str() +
           " points back into it (eta . F / (|eta| |F|) = " + format_number(after) +
           ") at rho = " + format_vector(rho) +
-          "; the flow is not event-selected there. Simulate sliding with FESD (integrators/fesd)");
+          "; the flow is not event-selected there. Simulate sliding with FESD (bflow/fesd/fesd.h, "
+          "bflow fesd)");
     }
   }
 

@@ -212,7 +212,7 @@ double bound(const Eigen::VectorXd& v, int k, double fallback) {
 
 // Where the unknowns of the whole OCP live:
 //   [T | stage 0: u_0 (nu), N_FE element blocks | stage 1: ... ]
-// An element's local vector (fesd_element.h) reads x_n and the pairs' v from the previous
+// An element's local vector (bflow/fesd/element.h) reads x_n and the pairs' v from the previous
 // element (from x0 for the first), u of its stage and T.
 struct OcpLayout : ElementShape {
   int stages = 0, per_stage = 0, elements = 0;
@@ -363,11 +363,11 @@ class OcpNlp final : public Ipopt::TNLP {
     }
     if (o_.exact_hessian) {
       pieces_ = fesd::element_hessian_pieces(l_);
+      const std::vector<std::pair<int, int>> structure =
+          fesd::element_hessian_structure(l_, o_.standard, pieces_);
       for (const std::vector<int>& g : element_globals_) {
-        for (const std::vector<int>& piece : pieces_) {
-          std::vector<int> globals;
-          for (int k : piece) globals.push_back(g[static_cast<std::size_t>(k)]);
-          hessian_.add_block(globals);
+        for (const auto& [a, b] : structure) {
+          hessian_.add_pair(g[static_cast<std::size_t>(a)], g[static_cast<std::size_t>(b)]);
         }
       }
       for (const Term& t : terms_) hessian_.add_block(t.globals);

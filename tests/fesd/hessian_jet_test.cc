@@ -3,6 +3,7 @@
 #include <cmath>
 #include <functional>
 #include <random>
+#include <type_traits>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -56,6 +57,16 @@ TEST(HessianJet, ElementaryFunctionsMatchTheirClosedForms) {
        2.0 / (u * u * u)},
       {"x*x", u, [](const HessianJet& x) { return x * x; }, u * u, 2.0 * u, 2.0},
       {"-|x| at -u", -u, [](const HessianJet& x) { return -abs(x); }, -u, 1.0, 0.0},
+      {"asin", u, [](const HessianJet& x) { return asin(x); }, std::asin(u),
+       1.0 / std::sqrt(1.0 - u * u), u / std::pow(1.0 - u * u, 1.5)},
+      {"acos", u, [](const HessianJet& x) { return acos(x); }, std::acos(u),
+       -1.0 / std::sqrt(1.0 - u * u), -u / std::pow(1.0 - u * u, 1.5)},
+      {"expm1", u, [](const HessianJet& x) { return expm1(x); }, std::expm1(u), std::exp(u),
+       std::exp(u)},
+      {"log10", u, [](const HessianJet& x) { return log10(x); }, std::log10(u),
+       1.0 / (u * std::log(10.0)), -1.0 / (u * u * std::log(10.0))},
+      {"log2", u, [](const HessianJet& x) { return log2(x); }, std::log2(u),
+       1.0 / (u * std::log(2.0)), -1.0 / (u * u * std::log(2.0))},
   };
   for (const Case& c : cases) {
     // x + 2 y = c.u with x = c.u / 3, y = c.u / 3.
@@ -103,6 +114,38 @@ TEST(HessianJet, ValuesOfDifferentLaneCountsCombineExactly) {
   EXPECT_EQ(s.n, 2);
   EXPECT_EQ(s.gradient(1), -3.0);
   EXPECT_EQ(s.gradient(0), 0.0);
+}
+
+// The special cases of pow, where 0 * inf or log(0) would give NaN, and abs at -0.0 (as Ceres).
+TEST(HessianJet, PowAtZeroAndNegativeBasesHasExactDerivatives) {
+  const HessianJet zero = HessianJet::variable(0.0, 0);
+  const HessianJet one = pow(zero, 1.0);  // x: d1 = 1, d2 = 0
+  EXPECT_EQ(one.gradient(0), 1.0);
+  EXPECT_EQ(one.hessian(0, 0), 0.0);
+  const HessianJet square = pow(zero, HessianJet(2.0));  // constant exponent: x^2
+  EXPECT_EQ(square.a, 0.0);
+  EXPECT_EQ(square.gradient(0), 0.0);
+  EXPECT_EQ(square.hessian(0, 0), 2.0);
+  const HessianJet negative = pow(HessianJet::variable(-1.5, 0), HessianJet(2.0));
+  EXPECT_EQ(negative.a, 2.25);
+  EXPECT_EQ(negative.gradient(0), -3.0);
+  EXPECT_EQ(negative.hessian(0, 0), 2.0);
+  const HessianJet y = HessianJet::variable(1.0, 0);
+  const HessianJet sum = pow(0.0, y) + y * y;  // 0^y = 0 for y > 0
+  EXPECT_EQ(sum.a, 1.0);
+  EXPECT_EQ(sum.gradient(0), 2.0);
+  EXPECT_EQ(sum.hessian(0, 0), 2.0);
+  const HessianJet both = pow(HessianJet::variable(2.0, 0), HessianJet::variable(3.0, 1));
+  // x^y: d/dx = y x^(y-1) = 12, d/dy = x^y log x, d2/dx2 = y (y-1) x^(y-2) = 12,
+  // d2/dxdy = x^(y-1) (1 + y log x), d2/dy2 = x^y log^2 x.
+  const double l = std::log(2.0);
+  EXPECT_NEAR(both.gradient(0), 12.0, 1e-13);
+  EXPECT_NEAR(both.gradient(1), 8.0 * l, 1e-13);
+  EXPECT_NEAR(both.hessian(0, 0), 12.0, 1e-12);
+  EXPECT_NEAR(both.hessian(1, 0), 4.0 * (1.0 + 3.0 * l), 1e-12);
+  EXPECT_NEAR(both.hessian(1, 1), 8.0 * l * l, 1e-12);
+  EXPECT_EQ(abs(HessianJet::variable(-0.0, 0)).gradient(0), -1.0);
+  EXPECT_EQ(abs(HessianJet::variable(0.0, 0)).gradient(0), 1.0);
 }
 
 // atan2 in all four quadrants: d theta = (x dy - y dx) / r^2, second derivatives
@@ -174,8 +217,37 @@ TEST(HessianJet, MonopedFieldAgreesWithNestedForwardAd) {
   }
 }
 
+// HessianBlocks: two entries of a block naming one unknown (f(a, b) = a^2 b with a = b = g gives
+// g^3, d2/dg2 = 6 g), and an unknown behind Ceres's pow(f, g) at f = 0, whose lanes the NaN pass
+// cannot see (f = x^2 at x = 0: d2/dx2 = 2).
+TEST(HessianJet, BlocksAddRepeatedUnknownsAndUnseenDependences) {
+  fesd::HessianBlocks blocks;
+  const std::vector<int> same = {0, 0};
+  blocks.add_block(same);
+  std::vector<double> values(blocks.size(), 0.0);
+  const double one = 1.0;
+  blocks.add(
+      same, {1.5, 1.5}, 1, &one, [](const auto* in, auto* out) { out[0] = in[0] * in[0] * in[1]; },
+      values.data());
+  ASSERT_EQ(blocks.size(), 1u);
+  EXPECT_NEAR(values[0], 9.0, 1e-14);
+
+  fesd::HessianBlocks hidden;
+  const std::vector<int> x = {0};
+  hidden.add_block(x);
+  std::vector<double> h(hidden.size(), 0.0);
+  hidden.add(
+      x, {0.0}, 1, &one,
+      [](const auto* in, auto* out) {
+        using T = std::remove_const_t<std::remove_pointer_t<decltype(in)>>;
+        out[0] = pow(in[0], T(2.0));
+      },
+      h.data());
+  EXPECT_EQ(h[0], 2.0);
+}
+
 // HessianBlocks: a function of 40 unknowns, some of which it does not read, through more lanes
-// than one pass holds (groups of eight, two at a time), against its closed form: the weighted
+// than one pass holds (groups of twelve, two at a time), against its closed form: the weighted
 // sum of f_0 = 1/2 y^T A y and f_1 = y_0 y_39 has Hessian w_0 A + w_1 (e_0 e_39^T + e_39 e_0^T).
 TEST(HessianJet, BlocksOverManyUnknownsMatchTheClosedForm) {
   constexpr int n = 40;

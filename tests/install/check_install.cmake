@@ -46,7 +46,8 @@ endfunction()
 run(${CMAKE_COMMAND} --install ${BUILD_DIR} --prefix ${prefix})
 
 # targets: one file per component and the umbrella; no duplicated include directory.
-foreach(set IN ITEMS bflowCoreTargets bflowAdTargets bflowIntegratorsTargets bflowTargets)
+foreach(set IN ITEMS bflowCoreTargets bflowAdTargets bflowIntegratorsTargets bflowFesdTargets
+                     bflowOcpTargets bflowSweepTargets bflowTargets)
   if(NOT EXISTS ${package_dir}/${set}.cmake)
     message(FATAL_ERROR "targets: ${package_dir}/${set}.cmake was not installed")
   endif()

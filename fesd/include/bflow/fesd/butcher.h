@@ -10,7 +10,7 @@
 //   sum_j a_ij c_j^(k-1) = c_i^k / k,  k = 1..s,
 // and b from B(s), sum_j b_j c_j^(k-1) = 1 / k; both are Vandermonde solves in long double.
 //
-// What a tableau guarantees (tests/integrators/butcher_test.cc checks all of it):
+// What a tableau guarantees (tests/fesd/butcher_test.cc checks all of it):
 //   Gauss-Legendre: order 2s, B(2s), C(s), D(s); Radau IIA: order 2s - 1, B(2s - 1), C(s), D(s - 1)
 // (B, C, D are Butcher's simplifying assumptions). Example, Radau IIA with s = 2:
 //   c = (1/3, 1), A = [5/12 -1/12; 3/4 1/4], b = (3/4, 1/4), order 3.

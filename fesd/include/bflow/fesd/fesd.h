@@ -34,8 +34,8 @@
 // guesses that are FESD solutions the one with the least step equilibration is taken. When no
 // guess fits, the step is a homotopy of Scholtes-relaxed NLPs (products <= sigma, sigma from
 // sigma_initial down to sigma_final, times sigma_factor, or sigma^1.5 when superlinear), solved
-// by IPOPT with exact first derivatives from Jets and a limited-memory or exact Hessian (nested
-// forward AD, `exact_hessian`), each NLP warm-started from the previous one. A step whose
+// by IPOPT with exact first derivatives from Jets and a limited-memory or exact Hessian (HessianJet
+// by pieces, `exact_hessian`), each NLP warm-started from the previous one. A step whose
 // homotopy fails is replaced by its two halves (up to four times); one that still does not
 // converge ends the run with a status that quotes the complementarity residual and IPOPT's
 // status. A step whose last NLP IPOPT solves only to its acceptable level, with complementarity

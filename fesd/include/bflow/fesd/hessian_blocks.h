@@ -21,13 +21,15 @@ namespace fesd {
 
 // The lower triangle of a Lagrangian's Hessian assembled from blocks: each block is a function of
 // a few unknowns (`globals`, -1 for a constant), and its second derivatives come from
-// HessianJet (hessian_jet.h) over the unknowns the block really depends on at this point.
+// HessianJet (hessian_jet.h), one lane per unknown.
 //
-// Which unknowns those are is found first by one pass of Jet chunks whose derivative lanes are
-// NaN: an unknown whose lane stays finite in every weighted output does not enter the code path
-// taken (NaN survives every product, even by a zero partial), so its rows and columns of this
-// block are exactly zero and it gets no lane. The monoped's field piece depends on 12 of its 16
-// unknowns (not on its horizontal position, its height or the clock).
+// HessianJet makes a value pay only for the leading lanes it depends on, so the order of the
+// lanes matters: one pass of Jet chunks whose derivative lanes are NaN first finds the unknowns
+// the weighted outputs depend on along the code path taken (NaN survives every product, even by
+// a zero partial), and those get the leading lanes. The others come after them: they still have
+// lanes, so that a dependence the NaN pass cannot see (Ceres's pow(f, g) at f = 0 returns a Jet
+// without f's lanes) costs time, never exactness. The monoped's field piece depends on 13 of its
+// 16 unknowns (not on its horizontal position, its height or the clock).
 class HessianBlocks {
  public:
   // Registers every pair of the block's unknowns (call for every block before values are added).
@@ -43,6 +45,16 @@ class HessianBlocks {
     }
     index_ready_ = false;
   }
+  // Registers the entry of unknowns a and b (either order; nothing for a constant, -1).
+  void add_pair(int a, int b) {
+    if (a < 0 || b < 0) return;
+    if (a < b) std::swap(a, b);
+    if (position_.emplace(std::make_pair(a, b), static_cast<int>(position_.size())).second) {
+      rows_.push_back(a);
+      cols_.push_back(b);
+    }
+    index_ready_ = false;
+  }
   std::size_t size() const { return rows_.size(); }
   const std::vector<int>& rows() const { return rows_; }
   const std::vector<int>& cols() const { return cols_; }
@@ -54,7 +66,7 @@ class HessianBlocks {
   void add(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
            const double* weights, Eval eval, double* values) {
     if (!index_ready_) build_index();
-    const std::vector<int>& deps = dependencies(globals, base, outputs, weights, eval);
+    const std::vector<int>& deps = lane_order(globals, base, outputs, weights, eval);
     const int count = static_cast<int>(deps.size());
     if (count == 0) return;
     constexpr int kLanes = HessianScalar::kLanes;
@@ -76,15 +88,17 @@ class HessianBlocks {
   }
 
  private:
-  // The entries of `globals` (local indices) that some output of nonzero weight depends on.
+  // The free entries of `globals` (local indices), those that some output of nonzero weight
+  // visibly depends on first.
   template <typename Eval>
-  const std::vector<int>& dependencies(const std::vector<int>& globals,
-                                       const std::vector<double>& base, int outputs,
-                                       const double* weights, Eval& eval) {
-    thread_local std::vector<int> deps, free;
+  const std::vector<int>& lane_order(const std::vector<int>& globals,
+                                     const std::vector<double>& base, int outputs,
+                                     const double* weights, Eval& eval) {
+    thread_local std::vector<int> deps, free, rest;
     thread_local std::vector<JetChunk> in, out;
     deps.clear();
     free.clear();
+    rest.clear();
     for (std::size_t k = 0; k < globals.size(); ++k) {
       if (globals[k] >= 0) free.push_back(static_cast<int>(k));
     }
@@ -100,20 +114,20 @@ class HessianBlocks {
       }
       eval(static_cast<const JetChunk*>(in.data()), out.data());
       for (int c = 0; c < width; ++c) {
-        for (int r = 0; r < outputs; ++r) {
-          if (weights[r] != 0.0 && std::isnan(out[static_cast<std::size_t>(r)].v[c])) {
-            deps.push_back(free[static_cast<std::size_t>(first + c)]);
-            break;
-          }
+        bool seen = false;
+        for (int r = 0; r < outputs && !seen; ++r) {
+          seen = weights[r] != 0.0 && std::isnan(out[static_cast<std::size_t>(r)].v[c]);
         }
+        (seen ? deps : rest).push_back(free[static_cast<std::size_t>(first + c)]);
       }
     }
+    deps.insert(deps.end(), rest.begin(), rest.end());
     return deps;
   }
 
   // One HessianJet evaluation with lanes [0, na) on deps[first_a ...] and [na, na + nb) on
-  // deps[first_b ...] (first_b == first_a: one group of na lanes). Adds the cross block, and the
-  // diagonal blocks of the first and second group where asked.
+  // deps[first_b ...] (nb = 0: one group). Adds the cross block, and the diagonal blocks of the
+  // first and second group where asked.
   template <typename Eval>
   void pass(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
             const double* weights, Eval& eval, const std::vector<int>& deps, int first_a, int na,
@@ -122,12 +136,11 @@ class HessianBlocks {
     in.resize(globals.size());
     out.resize(static_cast<std::size_t>(outputs));
     for (std::size_t k = 0; k < globals.size(); ++k) in[k] = HessianScalar(base[k]);
-    const bool single = first_a == first_b;
-    const int lanes = single ? na : na + nb;
+    const int lanes = na + nb;
     // lane -> local index
     int local[HessianScalar::kLanes];
     for (int i = 0; i < na; ++i) local[i] = deps[static_cast<std::size_t>(first_a + i)];
-    for (int j = 0; !single && j < nb; ++j) {
+    for (int j = 0; j < nb; ++j) {
       local[na + j] = deps[static_cast<std::size_t>(first_b + j)];
     }
     for (int i = 0; i < lanes; ++i) {
@@ -145,12 +158,12 @@ class HessianBlocks {
       for (int k = 0; k < e; ++k) sum[static_cast<std::size_t>(k)] += weights[r] * o.h[k];
     }
     for (int i = 0; i < lanes; ++i) {
-      const bool in_a = single || i < na;
+      const bool in_a = i < na;
       const int gi = globals[static_cast<std::size_t>(local[i])];
       for (int j = 0; j <= i; ++j) {
-        const bool j_in_a = single || j < na;
+        const bool j_in_a = j < na;
         // Block of (i, j): both in a, both in b, or across.
-        if (in_a && j_in_a && !(single || diagonal_a)) continue;
+        if (in_a && j_in_a && !diagonal_a) continue;
         if (!in_a && !j_in_a && !diagonal_b) continue;
         const int gj = globals[static_cast<std::size_t>(local[j])];
         const double value = sum[static_cast<std::size_t>(HessianScalar::at(i, j))];

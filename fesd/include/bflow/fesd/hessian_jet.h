@@ -113,19 +113,15 @@ class HessianJet {
     if (x.n == 0) return y * x.a;
     // (xy)'' = x y'' + y x'' + x' y'^T + y' x'^T
     HessianJet r = linear(y.a, x, x.a, y, x.a * y.a);
+    // x_i y_j + y_i x_j (j <= i) is nonzero only where j < min(x.n, y.n): for j >= x.n both
+    // x_j and x_i are zero (i >= j), likewise for y.
     const int m = std::min(x.n, y.n);
-    // Lanes i < x.n and j < y.n meet in x_i y_j + y_i x_j; beyond the shorter one only one term.
     for (int i = 0; i < r.n; ++i) {
       const double xi = i < x.n ? x.v[i] : 0.0;
       const double yi = i < y.n ? y.v[i] : 0.0;
       double* row = r.h + at(i, 0);
       const int jm = std::min(i + 1, m);
       for (int j = 0; j < jm; ++j) row[j] += xi * y.v[j] + yi * x.v[j];
-      if (x.n > m) {
-        for (int j = jm; j <= i && j < x.n; ++j) row[j] += yi * x.v[j];
-      } else {
-        for (int j = jm; j <= i && j < y.n; ++j) row[j] += xi * y.v[j];
-      }
     }
     return r;
   }
@@ -260,21 +256,57 @@ inline HessianJet cbrt(const HessianJet& x) {
   const double c = std::cbrt(x.a), d = 1.0 / (3.0 * c * c);
   return HessianJet::chain(x, c, d, -2.0 * d / (3.0 * x.a));
 }
-/** x^p for a constant p. */
+/** x^p for a constant p (p = 0: the constant 1; p = 1: x itself; a term whose factor p (p - 1)
+    or p is zero is left out, so that x = 0 gives no 0 * inf). */
 inline HessianJet pow(const HessianJet& x, double p) {
   if (p == 0.0) return HessianJet(1.0);
-  const double value = std::pow(x.a, p);
-  return HessianJet::chain(x, value, p * std::pow(x.a, p - 1.0),
-                           p * (p - 1.0) * std::pow(x.a, p - 2.0));
+  if (p == 1.0) return x;
+  const double d2 = p == 2.0 ? 2.0 : p * (p - 1.0) * std::pow(x.a, p - 2.0);
+  return HessianJet::chain(x, std::pow(x.a, p), p * std::pow(x.a, p - 1.0), d2);
 }
+/** s^y for a constant s > 0; 0^y = 0 for y > 0 (derivatives 0). */
 inline HessianJet pow(double s, const HessianJet& y) {
+  if (s == 0.0) return HessianJet::chain(y, std::pow(s, y.a), 0.0, 0.0);
   const double value = std::pow(s, y.a), l = std::log(s);
   return HessianJet::chain(y, value, value * l, value * l * l);
 }
-inline HessianJet pow(const HessianJet& x, const HessianJet& y) { return exp(y * log(x)); }
-/** |x|: the derivative of the side taken (+1 at 0). */
-inline HessianJet abs(const HessianJet& x) { return x.a < 0.0 ? -x : x; }
+/** x^y: with a constant exponent (no lanes) as pow(x, double), with a constant base as
+    pow(double, y), else exp(y log x) (x > 0). */
+inline HessianJet pow(const HessianJet& x, const HessianJet& y) {
+  if (y.n == 0) return pow(x, y.a);
+  if (x.n == 0) return pow(x.a, y);
+  return exp(y * log(x));
+}
+/** |x|: the derivative of the side of x's sign bit (-1 at -0.0, +1 at +0.0), as Ceres's Jets. */
+inline HessianJet abs(const HessianJet& x) { return std::signbit(x.a) ? -x : x; }
 inline HessianJet fabs(const HessianJet& x) { return abs(x); }
+inline HessianJet asin(const HessianJet& x) {
+  const double r = 1.0 / std::sqrt(1.0 - x.a * x.a);
+  return HessianJet::chain(x, std::asin(x.a), r, x.a * r * r * r);
+}
+inline HessianJet acos(const HessianJet& x) {
+  const double r = 1.0 / std::sqrt(1.0 - x.a * x.a);
+  return HessianJet::chain(x, std::acos(x.a), -r, -x.a * r * r * r);
+}
+inline HessianJet expm1(const HessianJet& x) {
+  const double e = std::exp(x.a);
+  return HessianJet::chain(x, std::expm1(x.a), e, e);
+}
+inline HessianJet log10(const HessianJet& x) {
+  const double k = 1.0 / std::log(10.0);
+  return HessianJet::chain(x, std::log10(x.a), k / x.a, -k / (x.a * x.a));
+}
+inline HessianJet log2(const HessianJet& x) {
+  const double k = 1.0 / std::log(2.0);
+  return HessianJet::chain(x, std::log2(x.a), k / x.a, -k / (x.a * x.a));
+}
+inline HessianJet hypot(const HessianJet& x, const HessianJet& y) { return sqrt(x * x + y * y); }
+/** The larger (smaller) value and its derivatives; the first at a tie, as std::fmax. */
+inline HessianJet fmax(const HessianJet& x, const HessianJet& y) { return y.a > x.a ? y : x; }
+inline HessianJet fmin(const HessianJet& x, const HessianJet& y) { return y.a < x.a ? y : x; }
+/** Piecewise constant: no derivatives. */
+inline HessianJet floor(const HessianJet& x) { return HessianJet(std::floor(x.a)); }
+inline HessianJet ceil(const HessianJet& x) { return HessianJet(std::ceil(x.a)); }
 /** atan2(y, x): the angle's derivatives d theta = (x dy - y dx) / r^2 (r > 0). */
 inline HessianJet atan2(const HessianJet& y, const HessianJet& x) {
   const double r2 = x.a * x.a + y.a * y.a, r4 = r2 * r2;

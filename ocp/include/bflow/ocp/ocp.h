@@ -40,9 +40,10 @@
 // Solution. Scholtes' relaxation (every aggregated complementarity product <= sigma) or the l1
 // penalty (rho = 1 / sigma times the products' sum added to the objective), sigma from
 // sigma_initial down to sigma_final, each NLP warm-started from the previous one, with exact
-// sparse first derivatives from Jets element by element and exact sparse Hessians by nested
-// forward AD (or IPOPT's limited-memory approximation). The result is "solved" only when IPOPT
-// solved the last NLP and the complementarity residual is at most complementarity_tolerance.
+// sparse first derivatives from Jets element by element and exact sparse Hessians by
+// HessianJet, piece by piece (or IPOPT's limited-memory approximation). The result is "solved" only
+// when IPOPT solved the last NLP and the complementarity residual is at most
+// complementarity_tolerance.
 #ifndef BFLOW_OCP_OCP_H_
 #define BFLOW_OCP_OCP_H_
 

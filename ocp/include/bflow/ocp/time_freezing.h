@@ -37,7 +37,7 @@
 // (u is nullptr in `forces` when kControls = 0.) Every function is a template on the scalar, so
 // FESD and the OCP differentiate the PSS by Jets; check_contact_jacobians() compares J_n and
 // J_t with Jets of the gap and of the contact point's `tangential_position<T>(q)`, if given.
-// M(q)^-1 b is a Cholesky solve written on the scalar type, which the nested Hessian scalar
+// M(q)^-1 b is a Cholesky solve written on the scalar type, which the Hessian scalar (HessianJet)
 // needs (Eigen's decompositions do not compile with it).
 //
 // In an optimal control problem (kSpeedOfTime), the last control is the speed of time
@@ -73,7 +73,7 @@ struct ContactParameters {
 namespace detail {
 /** The Cholesky factor L (lower triangle, row-major) of a small symmetric positive definite
     M = L L^T, in place. Written on the scalar type so that every scalar bflow differentiates
-    with (double, Jets, the nested Hessian scalar) goes through it. */
+    with (double, Jets, HessianJet) goes through it. */
 template <typename T, int N>
 void cholesky_factor(T* m) {
   using std::sqrt;
