@@ -365,14 +365,16 @@ class StepNlp final : public Ipopt::TNLP {
     }
   }
 
-  // Lower-triangle positions of the Lagrangian's Hessian: the entries of each element that can
-  // be nonzero (element_hessian_structure) and every pair of unknowns of an equilibration term.
+  // Lower-triangle positions of the Lagrangian's Hessian: every pair of unknowns of a piece of
+  // an element (element_hessian_pieces) and of an equilibration term.
   void build_hessian_structure() {
     pieces_ = element_hessian_pieces(l_);
-    const std::vector<std::pair<int, int>> structure =
-        element_hessian_structure(l_, options_.standard, pieces_);
     for (int n = 0; n < l_.elements; ++n) {
-      for (const auto& [a, b] : structure) hessian_.add_pair(l_.global(n, a), l_.global(n, b));
+      for (const std::vector<int>& piece : pieces_) {
+        std::vector<int> globals;
+        for (int k : piece) globals.push_back(l_.global(n, k));
+        hessian_.add_block(globals);
+      }
     }
     for (const std::vector<int>& idx : equilibration_index_) hessian_.add_block(idx);
     hess_rows_.assign(hessian_.rows().begin(), hessian_.rows().end());

@@ -363,11 +363,11 @@ class OcpNlp final : public Ipopt::TNLP {
     }
     if (o_.exact_hessian) {
       pieces_ = fesd::element_hessian_pieces(l_);
-      const std::vector<std::pair<int, int>> structure =
-          fesd::element_hessian_structure(l_, o_.standard, pieces_);
       for (const std::vector<int>& g : element_globals_) {
-        for (const auto& [a, b] : structure) {
-          hessian_.add_pair(g[static_cast<std::size_t>(a)], g[static_cast<std::size_t>(b)]);
+        for (const std::vector<int>& piece : pieces_) {
+          std::vector<int> globals;
+          for (int k : piece) globals.push_back(g[static_cast<std::size_t>(k)]);
+          hessian_.add_block(globals);
         }
       }
       for (const Term& t : terms_) hessian_.add_block(t.globals);

@@ -226,47 +226,6 @@ inline std::vector<std::vector<int>> element_hessian_pieces(const ElementShape& 
   return pieces;
 }
 
-// The entries of the element's Hessian that can be nonzero, as pairs of local indices (each
-// pair once, in either order): every pair of a field piece's unknowns; every pair of [X_m; u]
-// of an algebraic piece (the step and Stewart equalities are linear in z, the lifted products
-// are not: then all of [X_m; u; z_m]); and of the complementarity products only the pairs of a
-// pair's members, u_m with v_m (standard) or u_m with every v_m' and with the start's v (cross).
-// Registering these instead of every pair of a piece's unknowns leaves IPOPT's KKT matrix only
-// the structure it has: at N = 60 the monoped's Hessian has 44 % fewer entries (152533 to
-// 85129).
-inline std::vector<std::pair<int, int>> element_hessian_structure(
-    const ElementShape& l, bool standard, const std::vector<std::vector<int>>& pieces) {
-  std::vector<std::pair<int, int>> out;
-  const auto dense = [&](const std::vector<int>& v, std::size_t count) {
-    for (std::size_t a = 0; a < count; ++a) {
-      for (std::size_t b = 0; b <= a; ++b) out.emplace_back(v[a], v[b]);
-    }
-  };
-  for (int k = 0; k < l.s; ++k) {
-    const std::vector<int>& piece = pieces[static_cast<std::size_t>(k)];
-    dense(piece, piece.size());
-  }
-  const bool linear_in_z = l.dcs->kind() != PointDcs::Kind::kLifted;
-  for (int m = 0; m < l.points; ++m) {
-    const std::vector<int>& piece = pieces[static_cast<std::size_t>(l.s + m)];
-    dense(piece, linear_in_z ? static_cast<std::size_t>(l.d + l.nu) : piece.size());
-  }
-  const int z0 = l.own() + l.off_z;
-  for (int k = 0; k < l.npairs; ++k) {
-    const Pair& pair = l.dcs->pairs()[static_cast<std::size_t>(k)];
-    for (int m = 0; m < l.points; ++m) {
-      const int u = z0 + m * l.nz + pair.u;
-      if (standard) {
-        out.emplace_back(u, z0 + m * l.nz + pair.v);
-        continue;
-      }
-      out.emplace_back(u, l.d + k);  // the start's v of this pair
-      for (int mv = 0; mv < l.points; ++mv) out.emplace_back(u, z0 + mv * l.nz + pair.v);
-    }
-  }
-  return out;
-}
-
 // Adds the Hessian of the element's Lagrangian sum_r lambda[r] residual_r at its local values
 // `local` (globals: the unknown of each local entry, -1 for a constant) to `values`.
 template <typename Blocks>

@@ -45,16 +45,6 @@ class HessianBlocks {
     }
     index_ready_ = false;
   }
-  // Registers the entry of unknowns a and b (either order; nothing for a constant, -1).
-  void add_pair(int a, int b) {
-    if (a < 0 || b < 0) return;
-    if (a < b) std::swap(a, b);
-    if (position_.emplace(std::make_pair(a, b), static_cast<int>(position_.size())).second) {
-      rows_.push_back(a);
-      cols_.push_back(b);
-    }
-    index_ready_ = false;
-  }
   std::size_t size() const { return rows_.size(); }
   const std::vector<int>& rows() const { return rows_; }
   const std::vector<int>& cols() const { return cols_; }
