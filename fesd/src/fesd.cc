@@ -1,27 +1,22 @@
 #include "bflow/fesd/fesd.h"
 
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <deque>
 #include <limits>
-#include <map>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include <Eigen/LU>
 #include <Eigen/QR>
-#include <IpIpoptApplication.hpp>
-#include <IpSolveStatistics.hpp>
-#include <IpTNLP.hpp>
 
 #include "bflow/core/errors.h"
 #include "bflow/fesd/dcs.h"
 #include "bflow/fesd/element.h"
-#include "bflow/fesd/ipopt_options.h"
+#include "bflow/fesd/transcription.h"
 
 namespace bflow {
 
@@ -39,377 +34,12 @@ const char* to_string(FesdStatus status) {
 
 namespace {
 
-constexpr double kInfinity = 1e19;  // IPOPT's default nlp_upper_bound_inf
-
-using fesd::element_residual;
-using fesd::equilibration_term;
 using fesd::Pair;
 using fesd::PairState;
 using fesd::PointDcs;
-
-// Where each unknown of one integration step lives: N_FE element blocks in a row
-// (element.h); the first element starts from the step's start (constants).
-struct Layout : fesd::ElementShape {
-  int elements = 0;
-  // fesd_problem_size()'s counts, checked against the structures built from this layout.
-  std::int64_t jacobian_nonzeros = 0, hessian_nonzeros_bound = 0;
-
-  Layout(const PointDcs& point, int states, int switches, const ButcherTableau& tableau, int n_fe)
-      : ElementShape(point, states, switches, tableau), elements(n_fe) {}
-  int variables() const { return elements * block; }
-  int constraints() const { return elements * rows_per_element() + 1; }
-  int var(int n, int offset) const { return n * block + offset; }
-  // Global index of z_k at point m of element n.
-  int z(int n, int m, int k) const { return var(n, off_z + m * nz + k); }
-  // Global index of local input k of element n, or -1 for a constant (the step's start).
-  int global(int n, int k) const {
-    if (k >= d + npairs) return var(n, k - d - npairs);
-    if (n == 0) return -1;
-    if (k < d) return var(n - 1, off_x + k);
-    return z(n - 1, points - 1, dcs->pairs()[static_cast<std::size_t>(k - d)].v);
-  }
-};
-
-// Global indices of the inputs of equilibration_term at boundary n (1 <= n < N): -1 = constant.
-std::vector<int> equilibration_inputs(const Layout& l, int n) {
-  std::vector<int> idx;
-  idx.push_back(l.var(n - 1, 0));
-  idx.push_back(l.var(n, 0));
-  for (int k = 0; k < l.npairs; ++k) idx.push_back(l.global(n - 1, l.d + k));
-  for (int e : {n - 1, n}) {
-    for (int k = 0; k < l.points * l.nz; ++k) idx.push_back(l.var(e, l.off_z + k));
-  }
-  return idx;
-}
-
-// One integration step as an IPOPT problem at relaxation sigma.
-class StepNlp final : public Ipopt::TNLP {
- public:
-  StepNlp(const ButcherTableau& tab, const Layout& layout, const FesdOptions& options,
-          Eigen::VectorXd x_start, double step)
-      : tab_(tab), l_(layout), options_(options), x_start_(std::move(x_start)), step_(step) {
-    v_start_.resize(l_.npairs);
-    l_.dcs->start(x_start_.data(), v_start_.data());  // (17)
-    Eigen::VectorXd z(l_.nz);
-    l_.dcs->initial(x_start_.data(), z.data());
-    // Initial guess: the state held, the algebraic variables of the start's sides.
-    w_.setZero(l_.variables());
-    for (int n = 0; n < l_.elements; ++n) {
-      w_[l_.var(n, 0)] = step_ / l_.elements;
-      for (int m = 0; m < l_.s; ++m) {
-        w_.segment(l_.var(n, 1 + m * l_.d), l_.d) = x_start_;
-      }
-      w_.segment(l_.var(n, l_.off_x), l_.d) = x_start_;
-      for (int m = 0; m < l_.points; ++m) w_.segment(l_.z(n, m, 0), l_.nz) = z;
-    }
-    for (int n = 1; n < l_.elements; ++n) {
-      equilibration_index_.push_back(equilibration_inputs(l_, n));
-      // Its constants: the pairs' v at the step's start (boundary 1 only).
-      std::vector<double> constants(equilibration_index_.back().size(), 0.0);
-      for (int k = 0; k < l_.npairs; ++k) constants[static_cast<std::size_t>(2 + k)] = v_start_[k];
-      equilibration_constants_.push_back(std::move(constants));
-    }
-    if (options_.exact_hessian) build_hessian_structure();
-    // Jacobian structure: each element's rows against its non-constant local inputs.
-    for (int n = 0; n < l_.elements; ++n) {
-      for (int r = 0; r < l_.rows_per_element(); ++r) {
-        for (int k = 0; k < l_.local; ++k) {
-          const int col = l_.global(n, k);
-          if (col < 0) continue;
-          jac_rows_.push_back(n * l_.rows_per_element() + r);
-          jac_cols_.push_back(col);
-        }
-      }
-    }
-    for (int n = 0; n < l_.elements; ++n) {
-      jac_rows_.push_back(l_.elements * l_.rows_per_element());
-      jac_cols_.push_back(l_.var(n, 0));
-    }
-    BFLOW_ASSERT(static_cast<std::int64_t>(jac_rows_.size()) == l_.jacobian_nonzeros);
-    BFLOW_ASSERT(static_cast<std::int64_t>(hess_rows_.size()) <= l_.hessian_nonzeros_bound);
-  }
-
-  void set_sigma(double sigma) { sigma_ = sigma; }
-  void set_solution(const Eigen::VectorXd& w) { w_ = w; }
-  // The last converged iterate, kept so that a failed solve can be retried from it.
-  void save() { saved_ = {w_, z_l_, z_u_, lambda_}; }
-  void restore() {
-    w_ = saved_[0];
-    z_l_ = saved_[1];
-    z_u_ = saved_[2];
-    lambda_ = saved_[3];
-  }
-  const Eigen::VectorXd& solution() const { return w_; }
-  // v of pair k at the step's start ((17)).
-  double start_v(int k) const { return v_start_[k]; }
-  Ipopt::SolverReturn last_status() const { return status_; }
-
-  // Local input vector of element n from w (constants from the step's start).
-  template <typename T>
-  void local_inputs(const double* w, int n, std::vector<T>& in) const {
-    in.resize(static_cast<std::size_t>(l_.local));
-    for (int k = 0; k < l_.local; ++k) {
-      const int g = l_.global(n, k);
-      double value;
-      if (g >= 0) {
-        value = w[g];
-      } else if (k < l_.d) {
-        value = x_start_[k];
-      } else {
-        value = v_start_[k - l_.d];
-      }
-      in[static_cast<std::size_t>(k)] = T(value);
-    }
-  }
-
-  // Dense Jacobian of element n's rows against its local inputs, by Jet chunks.
-  Eigen::MatrixXd element_jacobian(const double* w, int n, Eigen::VectorXd* values) const {
-    std::vector<double> base;
-    local_inputs(w, n, base);
-    Eigen::MatrixXd jac;
-    fesd::dense_jacobian(
-        base, l_.rows_per_element(), jac,
-        [&](const JetChunk* in, JetChunk* out) {
-          element_residual(tab_, l_, options_.standard, in, out);
-        },
-        values);
-    return jac;
-  }
-
-  bool get_nlp_info(Ipopt::Index& n, Ipopt::Index& m, Ipopt::Index& nnz_jac, Ipopt::Index& nnz_hess,
-                    IndexStyleEnum& style) override {
-    n = l_.variables();
-    m = l_.constraints();
-    nnz_jac = static_cast<Ipopt::Index>(jac_rows_.size());
-    nnz_hess = static_cast<Ipopt::Index>(hess_rows_.size());
-    style = C_STYLE;
-    return true;
-  }
-
-  bool get_bounds_info(Ipopt::Index n, Ipopt::Number* x_l, Ipopt::Number* x_u, Ipopt::Index m,
-                       Ipopt::Number* g_l, Ipopt::Number* g_u) override {
-    for (int k = 0; k < n; ++k) {
-      x_l[k] = -kInfinity;
-      x_u[k] = kInfinity;
-    }
-    const double h0 = step_ / l_.elements;
-    for (int e = 0; e < l_.elements; ++e) {
-      x_l[l_.var(e, 0)] = options_.standard ? h0 : 0.0;
-      x_u[l_.var(e, 0)] = options_.standard ? h0 : 2.0 * h0;
-      for (int pt = 0; pt < l_.points; ++pt) {
-        for (int k = 0; k < l_.nz; ++k) {
-          x_l[l_.z(e, pt, k)] = std::max(l_.dcs->lower(k), -kInfinity);
-          x_u[l_.z(e, pt, k)] = std::min(l_.dcs->upper(k), kInfinity);
-        }
-      }
-      for (int r = 0; r < l_.rows_per_element(); ++r) {
-        const int row = e * l_.rows_per_element() + r;
-        g_l[row] = r < l_.equalities ? 0.0 : -kInfinity;
-        g_u[row] = r < l_.equalities ? 0.0 : sigma_;
-      }
-    }
-    g_l[m - 1] = g_u[m - 1] = step_;
-    return true;
-  }
-
-  bool get_starting_point(Ipopt::Index n, bool init_x, Ipopt::Number* x, bool init_z,
-                          Ipopt::Number* z_l, Ipopt::Number* z_u, Ipopt::Index m, bool init_lambda,
-                          Ipopt::Number* lambda) override {
-    if (init_x) std::copy(w_.data(), w_.data() + n, x);
-    if (init_z) {
-      if (z_l_.size() != n) return false;
-      std::copy(z_l_.data(), z_l_.data() + n, z_l);
-      std::copy(z_u_.data(), z_u_.data() + n, z_u);
-    }
-    if (init_lambda) {
-      if (lambda_.size() != m) return false;
-      std::copy(lambda_.data(), lambda_.data() + m, lambda);
-    }
-    return true;
-  }
-
-  // The objective: the step equilibration (39) summed over the element boundaries.
-  double objective(const double* x) const {
-    double value = 0.0;
-    if (options_.standard) return value;
-    std::vector<double> in;
-    for (std::size_t e = 0; e < equilibration_index_.size(); ++e) {
-      gather(x, e, in);
-      value += equilibration_term(l_, step_ / l_.elements, in.data());
-    }
-    return value;
-  }
-  double objective(const Eigen::VectorXd& w) const { return objective(w.data()); }
-
-  bool eval_f(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Number& value) override {
-    value = objective(x);
-    return true;
-  }
-
-  bool eval_grad_f(Ipopt::Index n, const Ipopt::Number* x, bool, Ipopt::Number* grad) override {
-    std::fill(grad, grad + n, 0.0);
-    if (options_.standard) return true;
-    std::vector<double> values;
-    const double h_ref = step_ / l_.elements;
-    for (std::size_t e = 0; e < equilibration_index_.size(); ++e) {
-      gather(x, e, values);
-      fesd::add_gradient(
-          equilibration_index_[e], values, 1.0,
-          [&](const JetChunk* in) { return equilibration_term(l_, h_ref, in); }, grad);
-    }
-    return true;
-  }
-
-  bool eval_g(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Index m,
-              Ipopt::Number* g) override {
-    std::vector<double> in;
-    for (int n = 0; n < l_.elements; ++n) {
-      local_inputs(x, n, in);
-      element_residual(tab_, l_, options_.standard, in.data(), g + n * l_.rows_per_element());
-    }
-    double sum = 0;
-    for (int n = 0; n < l_.elements; ++n) sum += x[l_.var(n, 0)];
-    g[m - 1] = sum;
-    return true;
-  }
-
-  bool eval_jac_g(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Index, Ipopt::Index nele,
-                  Ipopt::Index* rows, Ipopt::Index* cols, Ipopt::Number* values) override {
-    if (values == nullptr) {
-      for (Ipopt::Index k = 0; k < nele; ++k) {
-        rows[k] = jac_rows_[static_cast<std::size_t>(k)];
-        cols[k] = jac_cols_[static_cast<std::size_t>(k)];
-      }
-      return true;
-    }
-    Ipopt::Index k = 0;
-    for (int n = 0; n < l_.elements; ++n) {
-      const Eigen::MatrixXd jac = element_jacobian(x, n, nullptr);
-      for (int r = 0; r < l_.rows_per_element(); ++r) {
-        for (int c = 0; c < l_.local; ++c) {
-          if (l_.global(n, c) < 0) continue;
-          values[k++] = jac(r, c);
-        }
-      }
-    }
-    for (int n = 0; n < l_.elements; ++n) values[k++] = 1.0;
-    return true;
-  }
-
-  bool eval_h(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Number obj_factor, Ipopt::Index,
-              const Ipopt::Number* lambda, bool, Ipopt::Index nele, Ipopt::Index* rows,
-              Ipopt::Index* cols, Ipopt::Number* values) override {
-    if (values == nullptr) {
-      for (Ipopt::Index k = 0; k < nele; ++k) {
-        rows[k] = hess_rows_[static_cast<std::size_t>(k)];
-        cols[k] = hess_cols_[static_cast<std::size_t>(k)];
-      }
-      return true;
-    }
-    std::fill(values, values + nele, 0.0);
-    std::vector<double> base;
-    std::vector<int> globals(static_cast<std::size_t>(l_.local));
-    for (int n = 0; n < l_.elements; ++n) {
-      local_inputs(x, n, base);
-      for (int k = 0; k < l_.local; ++k) globals[static_cast<std::size_t>(k)] = l_.global(n, k);
-      add_element_hessian(tab_, l_, options_.standard, pieces_, globals, base,
-                          lambda + n * l_.rows_per_element(), hessian_, values);
-    }
-    if (!options_.standard) {
-      const double h_ref = step_ / l_.elements;
-      for (std::size_t e = 0; e < equilibration_index_.size(); ++e) {
-        gather(x, e, base);
-        hessian_.add(
-            equilibration_index_[e], base, 1, &obj_factor,
-            [&](const auto* in, auto* out) { out[0] = equilibration_term(l_, h_ref, in); }, values);
-      }
-    }
-    if (options_.exact_hessian_scale != 1.0) {
-      for (Ipopt::Index k = 0; k < nele; ++k) values[k] *= options_.exact_hessian_scale;
-    }
-    return true;
-  }
-
-  void finalize_solution(Ipopt::SolverReturn status, Ipopt::Index n, const Ipopt::Number* x,
-                         const Ipopt::Number* z_l, const Ipopt::Number* z_u, Ipopt::Index m,
-                         const Ipopt::Number*, const Ipopt::Number* lambda, Ipopt::Number,
-                         const Ipopt::IpoptData*, Ipopt::IpoptCalculatedQuantities*) override {
-    status_ = status;
-    w_ = Eigen::Map<const Eigen::VectorXd>(x, n);
-    z_l_ = Eigen::Map<const Eigen::VectorXd>(z_l, n);
-    z_u_ = Eigen::Map<const Eigen::VectorXd>(z_u, n);
-    lambda_ = Eigen::Map<const Eigen::VectorXd>(lambda, m);
-  }
-
-  // Largest aggregated complementarity product at w.
-  double complementarity(const Eigen::VectorXd& w) const {
-    double worst = 0;
-    std::vector<double> in, out(static_cast<std::size_t>(l_.rows_per_element()));
-    for (int n = 0; n < l_.elements; ++n) {
-      local_inputs(w.data(), n, in);
-      element_residual(tab_, l_, options_.standard, in.data(), out.data());
-      for (int r = l_.equalities; r < l_.rows_per_element(); ++r) {
-        worst = std::max(worst, std::abs(out[static_cast<std::size_t>(r)]));
-      }
-    }
-    return worst;
-  }
-
- private:
-  // The inputs of equilibration term e at x (constants from the step's start).
-  void gather(const double* x, std::size_t e, std::vector<double>& out) const {
-    const std::vector<int>& idx = equilibration_index_[e];
-    out.resize(idx.size());
-    for (std::size_t k = 0; k < idx.size(); ++k) {
-      out[k] = idx[k] >= 0 ? x[idx[k]] : equilibration_constants_[e][k];
-    }
-  }
-
-  // Lower-triangle positions of the Lagrangian's Hessian: every pair of unknowns of a piece of
-  // an element (element_hessian_pieces) and of an equilibration term.
-  void build_hessian_structure() {
-    pieces_ = element_hessian_pieces(l_);
-    for (int n = 0; n < l_.elements; ++n) {
-      for (const std::vector<int>& piece : pieces_) {
-        std::vector<int> globals;
-        for (int k : piece) globals.push_back(l_.global(n, k));
-        hessian_.add_block(globals);
-      }
-    }
-    for (const std::vector<int>& idx : equilibration_index_) hessian_.add_block(idx);
-    hess_rows_.assign(hessian_.rows().begin(), hessian_.rows().end());
-    hess_cols_.assign(hessian_.cols().begin(), hessian_.cols().end());
-  }
-
-  const ButcherTableau& tab_;
-  const Layout& l_;
-  const FesdOptions& options_;
-  Eigen::VectorXd x_start_, v_start_;
-  double step_;
-  double sigma_ = 1.0;
-  Eigen::VectorXd w_, z_l_, z_u_, lambda_;
-  std::array<Eigen::VectorXd, 4> saved_;
-  std::vector<std::vector<int>> equilibration_index_;
-  std::vector<std::vector<double>> equilibration_constants_;
-  std::vector<Ipopt::Index> hess_rows_, hess_cols_;
-  fesd::HessianBlocks hessian_;
-  std::vector<std::vector<int>> pieces_;  // an element's Hessian pieces (local indices)
-  std::vector<Ipopt::Index> jac_rows_, jac_cols_;
-  Ipopt::SolverReturn status_ = Ipopt::SUCCESS;
-};
-
-// Sides of the switching functions on element n: +1, -1, or 0 (on the surface).
-std::vector<int> element_sides(const Layout& l, const Eigen::VectorXd& w, int n, double tol) {
-  std::vector<double> vmax(static_cast<std::size_t>(l.npairs), 0.0);
-  for (int k = 0; k < l.npairs; ++k) {
-    const int v = l.dcs->pairs()[static_cast<std::size_t>(k)].v;
-    for (int m = 0; m < l.points; ++m) {
-      vmax[static_cast<std::size_t>(k)] =
-          std::max(vmax[static_cast<std::size_t>(k)], w[l.z(n, m, v)]);
-    }
-  }
-  return l.dcs->sides(vmax, tol);
-}
+using fesd::Transcription;
+// One integration step: one stage of N_FE elements, absolute lengths, no controls.
+using Layout = fesd::TranscriptionLayout;
 
 // Whether h_n lies in (0, h_max] and the algebraic variables of w within their bounds; round-off
 // just outside a bound (a member that is zero at the solution) is clamped.
@@ -442,7 +72,7 @@ struct FixedActiveSet {
            static_cast<int>(equal_lengths.size());
   }
 
-  void assemble(const StepNlp& nlp, const Layout& l, const Eigen::VectorXd& w, double step,
+  void assemble(const Transcription& nlp, const Layout& l, const Eigen::VectorXd& w, double step,
                 Eigen::MatrixXd& jac_w, Eigen::MatrixXd& jac_x, Eigen::VectorXd& residual) const {
     const int count = rows(l);
     jac_w.setZero(count, l.variables());
@@ -451,7 +81,7 @@ struct FixedActiveSet {
     int row = 0;
     Eigen::VectorXd values;
     for (int n = 0; n < l.elements; ++n) {
-      const Eigen::MatrixXd local = nlp.element_jacobian(w.data(), n, &values);
+      const Eigen::MatrixXd local = nlp.element_jacobian(w, n, &values);
       for (int r = 0; r < l.equalities; ++r, ++row) {
         residual[row] = values[r];
         for (int k = 0; k < l.local; ++k) {
@@ -484,8 +114,9 @@ struct FixedActiveSet {
 
 // dx_end/dx_start by the implicit function theorem on the converged active set, or an empty
 // matrix with *why set when the fixed-active-set system is not square or is singular.
-Eigen::MatrixXd step_sensitivity(const StepNlp& nlp, const Layout& l, const Eigen::VectorXd& w,
-                                 double step, double tol, std::string* why) {
+Eigen::MatrixXd step_sensitivity(const Transcription& nlp, const Layout& l,
+                                 const Eigen::VectorXd& w, double step, double tol,
+                                 std::string* why) {
   const int nv = l.variables();
   FixedActiveSet active;
   for (int n = 0; n < l.elements; ++n) {
@@ -500,7 +131,7 @@ Eigen::MatrixXd step_sensitivity(const StepNlp& nlp, const Layout& l, const Eige
     }
   }
   for (int n = 1; n < l.elements; ++n) {
-    if (element_sides(l, w, n - 1, tol) == element_sides(l, w, n, tol)) {
+    if (nlp.sides(w, n - 1, tol) == nlp.sides(w, n, tol)) {
       active.equal_lengths.push_back(n);
     }
   }
@@ -548,8 +179,9 @@ Eigen::MatrixXd step_sensitivity(const StepNlp& nlp, const Layout& l, const Eige
 // start a pair whose u is free must have v <= tol. Its solution is
 // an FESD solution (every complementarity product 0) if the free members come out within their
 // bounds and 0 < h_n <= 2 H / N_FE. Returns false otherwise (a wrong guess, or no convergence).
-bool solve_guess(const StepNlp& nlp, const Layout& l, const std::vector<std::vector<int>>& sides,
-                 double step, double tol, Eigen::VectorXd& w, int* iterations) {
+bool solve_guess(const Transcription& nlp, const Layout& l,
+                 const std::vector<std::vector<int>>& sides, double step, double tol,
+                 Eigen::VectorXd& w, int* iterations) {
   const PointDcs& dcs = *l.dcs;
   FixedActiveSet active;
   std::vector<bool> taken(static_cast<std::size_t>(l.variables()), false);
@@ -628,7 +260,7 @@ bool solve_guess(const StepNlp& nlp, const Layout& l, const std::vector<std::vec
 }
 
 // The guesses of switch_step for the functions `changed`; the best FESD solution found, if any.
-bool guess_switches(const StepNlp& nlp, const Layout& l, const std::vector<int>& sides,
+bool guess_switches(const Transcription& nlp, const Layout& l, const std::vector<int>& sides,
                     const std::vector<int>& changed, const Eigen::VectorXd& tried, double step,
                     double tol, Eigen::VectorXd& w, int* iterations) {
   // Every assignment of distinct boundaries and new sides to the changed functions.
@@ -669,7 +301,7 @@ bool guess_switches(const StepNlp& nlp, const Layout& l, const std::vector<int>&
       }
       Eigen::VectorXd candidate = start;
       if (!solve_guess(nlp, l, guess, step, tol, candidate, iterations)) continue;
-      const double value = nlp.objective(candidate);
+      const double value = nlp.equilibration(candidate);
       if (value < best) {
         best = value;
         w = candidate;
@@ -686,7 +318,7 @@ bool guess_switches(const StepNlp& nlp, const Layout& l, const std::vector<int>&
 // by solve_guess; among the FESD solutions found, the one the step equilibration prefers (the NLP's
 // objective) is taken. Returns false when no guess is an FESD solution (the caller then runs the
 // homotopy).
-bool switch_step(const StepModel& model, const StepNlp& nlp, const Layout& l,
+bool switch_step(const StepModel& model, const Transcription& nlp, const Layout& l,
                  const std::vector<int>& sides, const Eigen::VectorXd& tried, double step,
                  double tol, Eigen::VectorXd& w, int* iterations) {
   std::vector<int> crossed, sliding;
@@ -796,9 +428,6 @@ std::string memory_limit_text() {
 
 }  // namespace
 
-static_assert(std::numeric_limits<Ipopt::Index>::max() == kFesdMaxIndex,
-              "kFesdMaxIndex must be the largest value of IPOPT's Index");
-
 std::string FesdProblemSize::step_excess() const {
   const std::string index_limit = ", above IPOPT's limit of " + std::to_string(kFesdMaxIndex);
   if (unknowns > kFesdMaxIndex) {
@@ -859,9 +488,9 @@ FesdProblemSize fesd_problem_size(const StepModel& model, const FesdOptions& opt
   // Inputs of element n >= 1: the previous end x_n and its last point's v of every pair.
   const std::int64_t local = add(d + size.point_pairs, block);
   size.unknowns = mul(n_fe, block);
-  size.constraints = add(mul(n_fe, rows), 1);
-  size.jacobian_nonzeros =
-      add(add(mul(rows, block), mul(n_fe - 1, mul(rows, local))), n_fe);  // + the row sum h
+  size.constraints = add(mul(n_fe, rows), options.standard ? 0 : 1);  // + sum h_n = H
+  size.jacobian_nonzeros = add(add(mul(rows, block), mul(n_fe - 1, mul(rows, local))),
+                               options.standard ? 0 : n_fe);  // + the row sum h
   if (options.exact_hessian) {
     // Each equilibration term: h_{n-1}, h_n, the pairs' v at n - 1's start, z of n - 1 and n.
     const std::int64_t term = add(2 + size.point_pairs, mul(2 * size.points, size.point_variables));
@@ -898,29 +527,23 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   }
   const ButcherTableau tab = collocation_tableau(options.scheme, options.stages);
   const PointDcs dcs(model, options.formulation, options.lifting_depth);
-  Layout l(dcs, model.states(), model.switches(), tab, options.elements);
+  const Layout l(dcs, model.states(), model.switches(), /*controls=*/0, tab, /*stages=*/1,
+                 options.elements, /*time_scaled=*/false);
   // The closed forms against the layout (its int sizes cannot overflow within kFesdMaxIndex).
   BFLOW_ASSERT(l.nz == size.point_variables && l.neq == size.point_equalities &&
                l.npairs == size.point_pairs && l.points == size.points);
-  BFLOW_ASSERT(l.variables() == size.unknowns && l.constraints() == size.constraints);
-  l.jacobian_nonzeros = size.jacobian_nonzeros;
-  l.hessian_nonzeros_bound = size.hessian_nonzeros;
+  BFLOW_ASSERT(l.variables() == size.unknowns);
   const double step = t_end / options.steps;
-  // Active-set decisions: a complementarity variable counts as zero below this.
   // A complementarity variable counts as zero below this: with products <= sigma_final, the zero
   // member of a pair whose other member is O(1e-3) or more is below sqrt(sigma_final).
   const double active_tol = std::clamp(std::sqrt(options.sigma_final), 1e-9, 1e-4);
 
-  Ipopt::SmartPtr<Ipopt::IpoptApplication> app = IpoptApplicationFactory();
-  app->RethrowNonIpoptException(false);
-  fesd::set_ipopt_defaults(*app, options.print_level, options.exact_hessian,
-                           options.max_nlp_iterations);
-  app->Options()->SetNumericValue("tol", options.nlp_tolerance);
-  app->Options()->SetNumericValue("acceptable_tol", 1e3 * options.nlp_tolerance);
-  fesd::apply_ipopt_options(*app, options, "fesd");
-  if (app->Initialize() != Ipopt::Solve_Succeeded) {
-    throw InvalidArgument("fesd: IPOPT failed to initialise");
-  }
+  fesd::HomotopySolver solver(fesd::ipopt_settings(options, "fesd"));
+  // The objective (step equilibration) only selects among the FESD solutions; when IPOPT crawls
+  // along its flat directions (lengths inside a sliding arc), a point that satisfies the
+  // constraints to the tolerance is the answer: HomotopyRules' defaults accept at 1e-4 with the
+  // violation at tol after 5 iterations.
+  const fesd::HomotopyRules rules = fesd::homotopy_schedule(options);
 
   FesdResult result;
   Eigen::VectorXd x = x0;
@@ -938,12 +561,19 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   while (!pending.empty()) {
     const auto [length, halvings] = pending.front();
     pending.pop_front();
-    Ipopt::SmartPtr<StepNlp> nlp = new StepNlp(tab, l, options, x, length);
-    int iterations = 0;
-    double sigma = options.sigma_initial, last_sigma = sigma;
-    bool first = true;
-    int retries = 0;
-    Ipopt::ApplicationReturnStatus last_status = Ipopt::Solve_Succeeded;
+    fesd::TranscriptionSetup setup;
+    setup.x0 = x;
+    setup.horizon = length;
+    setup.standard = options.standard;
+    setup.relaxation = fesd::Relaxation::kScholtes;
+    setup.equilibration_weight = 1.0;
+    setup.equilibration_fades = false;
+    setup.exact_hessian = options.exact_hessian;
+    setup.exact_hessian_scale = options.exact_hessian_scale;
+    Transcription nlp(tab, l, setup, nullptr);
+    BFLOW_ASSERT(nlp.constraints() <= size.constraints &&
+                 static_cast<std::int64_t>(nlp.jacobian_nonzeros()) <= size.jacobian_nonzeros &&
+                 static_cast<std::int64_t>(nlp.hessian_nonzeros()) <= size.hessian_nonzeros);
     // Predicted sides: from c(x) where it is clearly nonzero, else the last element's.
     bool solved_by_newton = false;
     if (options.newton && !options.standard) {
@@ -960,7 +590,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
           unknown.push_back(j);
         }
       }
-      Eigen::VectorXd w = nlp->solution();
+      Eigen::VectorXd w = nlp.solution();
       int newton_iterations = 0;
       bool known = unknown.empty();
       if (!known && unknown.size() <= 2) {
@@ -975,29 +605,29 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
             sides[static_cast<std::size_t>(j)] = rest % 3 == 0 ? 0 : rest % 3 == 1 ? 1 : -1;
             rest /= 3;
           }
-          Eigen::VectorXd trial = nlp->solution();
+          Eigen::VectorXd trial = nlp.solution();
           const std::vector<std::vector<int>> same(static_cast<std::size_t>(l.elements), sides);
-          if (solve_guess(*nlp, l, same, length, active_tol, trial, &newton_iterations)) {
+          if (solve_guess(nlp, l, same, length, active_tol, trial, &newton_iterations)) {
             known = true;
             w = trial;
           }
         }
-        if (!known) w = nlp->solution();
+        if (!known) w = nlp.solution();
       }
       const std::vector<std::vector<int>> same(static_cast<std::size_t>(l.elements), sides);
       Eigen::VectorXd switched;
       if (known && !unknown.empty()) {
-        nlp->set_solution(w);
+        nlp.set_solution(w);
         solved_by_newton = true;
         ++result.newton_steps;
-      } else if (known && solve_guess(*nlp, l, same, length, active_tol, w, &newton_iterations)) {
-        nlp->set_solution(w);
+      } else if (known && solve_guess(nlp, l, same, length, active_tol, w, &newton_iterations)) {
+        nlp.set_solution(w);
         solved_by_newton = true;
         ++result.newton_steps;
       } else if (known && w.allFinite() &&
-                 switch_step(model, *nlp, l, sides, w, length, active_tol, switched,
+                 switch_step(model, nlp, l, sides, w, length, active_tol, switched,
                              &newton_iterations)) {
-        nlp->set_solution(switched);
+        nlp.set_solution(switched);
         solved_by_newton = true;
         ++result.newton_steps;
         ++result.newton_switch_steps;
@@ -1013,80 +643,43 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
             }
           }
         }
-        nlp->set_solution(w);
+        nlp.set_solution(w);
       }
     }
-    while (!solved_by_newton) {
-      nlp->set_sigma(sigma);
-      // Intermediate problems only need to be solved to the accuracy sigma allows.
-      const double tol = sigma <= options.sigma_final
-                             ? options.nlp_tolerance
-                             : std::max(options.nlp_tolerance, 1e-2 * sigma);
-      app->Options()->SetNumericValue("tol", tol);
-      // The objective (step equilibration) only selects among the FESD solutions; when IPOPT
-      // crawls along its flat directions (lengths inside a sliding arc), a point that satisfies
-      // the constraints to the tolerance is the answer.
-      app->Options()->SetNumericValue("acceptable_tol", 1e-4);
-      app->Options()->SetNumericValue("acceptable_constr_viol_tol", std::max(tol, 1e-12));
-      app->Options()->SetNumericValue("acceptable_compl_inf_tol", 1e-4);
-      app->Options()->SetIntegerValue("acceptable_iter", 5);
-      app->Options()->SetStringValue("warm_start_init_point", first ? "no" : "yes");
-      if (!first) {
-        app->Options()->SetNumericValue("mu_init", std::max(1e-12, 1e-2 * sigma));
-        app->Options()->SetNumericValue("warm_start_bound_push", 1e-9);
-        app->Options()->SetNumericValue("warm_start_mult_bound_push", 1e-9);
-        app->Options()->SetNumericValue("warm_start_slack_bound_push", 1e-9);
-      } else {
-        app->Options()->SetNumericValue("mu_init", 0.1);
-      }
-      fesd::apply_ipopt_options(*app, options, "fesd");
-      const Ipopt::ApplicationReturnStatus status = app->OptimizeTNLP(nlp);
-      if (Ipopt::IsValid(app->Statistics())) iterations += app->Statistics()->IterationCount();
-      const bool solved =
-          status == Ipopt::Solve_Succeeded || status == Ipopt::Solved_To_Acceptable_Level;
-      if (!solved && !first && retries < 6) {
-        // Too large a step in sigma: back to the last solution, half the step (in log sigma).
-        ++retries;
-        nlp->restore();
-        sigma = std::sqrt(sigma * last_sigma);
-        continue;
-      }
-      if (!solved && halvings < kMaxHalvings) {
+    int iterations = 0;
+    bool acceptable_level = false;
+    double last_sigma = 0.0;
+    if (!solved_by_newton) {
+      const fesd::HomotopyOutcome outcome = solver.run(nlp, rules);
+      iterations = outcome.iterations;
+      if (!outcome.done && halvings < kMaxHalvings) {
         pending.push_front({length / 2, halvings + 1});
         pending.push_front({length / 2, halvings + 1});
         ++result.halved_steps;
-        break;
+        continue;
       }
-      if (!solved) {
+      if (!outcome.done) {
         result.status = FesdStatus::kStepFailed;
-        result.message = "fesd: the integration step at t = " + format_number(t0) + " of length " +
-                         format_number(length) + " (halved " + std::to_string(halvings) +
-                         " times) did not converge at sigma = " + format_number(sigma) +
-                         ": IPOPT status " + std::to_string(static_cast<int>(status)) +
-                         ", complementarity residual " +
-                         format_number(nlp->complementarity(nlp->solution()));
+        result.message =
+            "fesd: the integration step at t = " + format_number(t0) + " of length " +
+            format_number(length) + " (halved " + std::to_string(halvings) +
+            " times) did not converge at sigma = " + format_number(outcome.failed_sigma) +
+            ": IPOPT status " + outcome.failed_status + ", complementarity residual " +
+            format_number(outcome.failed_complementarity);
         result.x_end = x;
         result.nlp_iterations.push_back(iterations);
         return result;
       }
-      first = false;
-      nlp->save();
-      last_sigma = sigma;
-      last_status = status;
-      if (sigma <= options.sigma_final) break;
-      double next = options.sigma_factor * sigma;
-      if (options.superlinear) next = std::min(next, std::pow(sigma, 1.5));
-      sigma = std::max(next, options.sigma_final);
+      acceptable_level = outcome.acceptable_only;
+      last_sigma = outcome.last_sigma;
     }
-    if (!solved_by_newton && last_sigma > options.sigma_final) continue;  // halved
-    const Eigen::VectorXd& w = nlp->solution();
+    const Eigen::VectorXd& w = nlp.solution();
     result.nlp_iterations.push_back(iterations);
-    const double residual = nlp->complementarity(w);
+    const double residual = nlp.complementarity(w);
     result.max_complementarity = std::max(result.max_complementarity, residual);
     // IPOPT's acceptable level bounds neither the complementarity products nor the objective's
     // optimality by `tol`; only a residual within the final relaxation makes it an FESD solution.
-    if (!solved_by_newton && last_status == Ipopt::Solved_To_Acceptable_Level &&
-        !(residual <= options.sigma_final + options.nlp_tolerance)) {
+    if (acceptable_level && !(residual <= options.sigma_final + options.nlp_tolerance)) {
       if (!result.acceptable_only) {
         result.message += std::string(result.message.empty() ? "" : "; ") +
                           "fesd: the integration step at t = " + format_number(t0) + " of length " +
@@ -1106,7 +699,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       result.step_sizes.push_back(h);
       result.grid.push_back(n + 1 == l.elements ? t0 + length : t);
       states.push_back(w.segment(l.var(n, l.off_x), l.d));
-      std::vector<int> sides = element_sides(l, w, n, active_tol);
+      std::vector<int> sides = nlp.sides(w, n, active_tol);
       if (!previous_sides.empty() && sides != previous_sides) {
         result.switch_times.push_back(result.grid[result.grid.size() - 2]);
       }
@@ -1115,7 +708,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
     }
     if (sensitivities) {
       std::string why;
-      const Eigen::MatrixXd s = step_sensitivity(*nlp, l, w, length, active_tol, &why);
+      const Eigen::MatrixXd s = step_sensitivity(nlp, l, w, length, active_tol, &why);
       if (s.size() == 0) {
         sensitivities = false;
         result.message += std::string(result.message.empty() ? "" : "; ") +

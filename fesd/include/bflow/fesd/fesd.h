@@ -170,9 +170,12 @@ inline constexpr double kFesdMaxMemoryBytes = 4294967296.0;
     Gauss-Legendre. One integration step's NLP (N_FE elements, d states) has
       unknowns    = N_FE (1 + (n_s + 1) d + points point_variables),
       constraints = N_FE (rows) + 1,  rows = (n_s + 1) d + points point_equalities + point_pairs,
-      jacobian_nonzeros = rows (1 + (n_s + 1) d + points point_variables)
-                          + (N_FE - 1) rows (d + point_pairs + 1 + (n_s + 1) d
-                                             + points point_variables) + N_FE.
+      jacobian_nonzeros <= rows (1 + (n_s + 1) d + points point_variables)
+                           + (N_FE - 1) rows (d + point_pairs + 1 + (n_s + 1) d
+                                              + points point_variables) + N_FE,
+    the last row (and its N_FE entries) being sum h_n = H, absent with `standard`. The Jacobian
+    bound counts every row against every input of its element; the structure handed to IPOPT
+    lists only the inputs each row reads (element_jacobian_pattern, transcription.h).
     A count that would pass 2^63 - 1 saturates there (far above every limit). */
 struct FesdProblemSize {
   std::int64_t point_variables = 0;
@@ -181,7 +184,7 @@ struct FesdProblemSize {
   std::int64_t points = 0;
   std::int64_t unknowns = 0;
   std::int64_t constraints = 0;
-  std::int64_t jacobian_nonzeros = 0;
+  std::int64_t jacobian_nonzeros = 0;  ///< an upper bound (see above)
   /** With exact_hessian: an upper bound on the lower triangle's nonzeros (the element and
       equilibration blocks, counted as if they did not overlap); else 0. */
   std::int64_t hessian_nonzeros = 0;

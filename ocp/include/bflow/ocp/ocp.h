@@ -63,6 +63,7 @@
 #include "bflow/core/filippov.h"
 #include "bflow/fesd/butcher.h"
 #include "bflow/fesd/fesd.h"
+#include "bflow/fesd/transcription.h"
 
 namespace bflow {
 
@@ -331,7 +332,8 @@ enum class OcpRelaxation {
   kL1Penalty,  ///< (1 / sigma) sum of products added to the objective (elastic)
 };
 
-struct OcpHomotopyStep;
+/** One NLP of the homotopy (fesd/transcription.h). */
+using OcpHomotopyStep = fesd::HomotopyStep;
 
 struct OcpOptions {
   int stages = 10;   ///< N control stages, >= 1
@@ -394,18 +396,6 @@ enum class OcpStatus {
   kInfeasible,                 ///< IPOPT found the NLP locally infeasible
 };
 const char* to_string(OcpStatus status);  ///< "solved", "complementarity_not_reached", ...
-
-/** One NLP of the homotopy. */
-struct OcpHomotopyStep {
-  int index = 0;
-  double sigma = 0.0;
-  double objective = 0.0;        ///< the OCP's cost at the NLP's solution (no penalty terms)
-  double complementarity = 0.0;  ///< largest aggregated complementarity product
-  int iterations = 0;            ///< IPOPT iterations of this NLP
-  double cpu_seconds = 0.0;
-  std::string ipopt_status;  ///< e.g. "Solve_Succeeded"
-  bool polish = false;       ///< the final solve with the active set fixed (sigma 0)
-};
 
 struct OcpResult {
   OcpStatus status = OcpStatus::kNlpFailed;

@@ -1,0 +1,334 @@
+// The FESD transcription on IPOPT, one for simulation and optimal control: N control stages of
+// N_FE finite elements each (element.h), the costs and constraints a caller puts on top
+// (TranscriptionTerms), one IPOPT problem at relaxation sigma, and one homotopy that drives
+// sigma down and can polish the result with its active set fixed.
+//
+// fesd_simulate's integration step is the special case with one stage, no controls, no costs,
+// absolute element lengths (sum h_n = H) and the step equilibration at full weight:
+//
+//   TranscriptionLayout layout(dcs, d, n_c, /*controls=*/0, tableau, /*stages=*/1, n_fe,
+//                              /*time_scaled=*/false);
+//   TranscriptionSetup setup;  setup.x0 = x;  setup.horizon = H;
+//   Transcription step(tableau, layout, setup, /*terms=*/nullptr);
+//   HomotopySolver solver(ipopt_settings);
+//   const HomotopyOutcome outcome = solver.run(step, rules);
+//
+// ocp_solve's problem has N stages, the controls u_k per stage, a time-scaling unknown T (fixed
+// to the horizon, or free for a time-optimal problem; element lengths are then relative, T h_n,
+// with sum h_n = 1/N per stage) and its costs and constraints through TranscriptionTerms.
+// Whatever improves the transcription, its derivatives or the homotopy reaches both.
+//
+// Unknowns (TranscriptionLayout): [T (time-scaled only) | stage 0: u_0 (nu), its N_FE element
+// blocks | stage 1: ...]. Constraint rows: every element's rows (element_residual), one length
+// sum per stage (not with standard time-stepping, whose lengths are fixed), the path constraints
+// at every element boundary (x0 with u_0 first, x(T) with u_{N-1} last), the terminal
+// constraints at x(T), and during a polish one equal-length row per listed boundary.
+#ifndef BFLOW_FESD_TRANSCRIPTION_H_
+#define BFLOW_FESD_TRANSCRIPTION_H_
+
+#include <functional>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "bflow/fesd/butcher.h"
+#include "bflow/fesd/dcs.h"
+#include "bflow/fesd/element.h"
+#include "bflow/fesd/step_model.h"
+
+namespace bflow {
+namespace fesd {
+
+/** Where the unknowns of a transcription live (see the file comment). An element's local vector
+    (element.h) reads x_n and the pairs' v from the previous element (constants from x0 for the
+    first), u of its stage and T. */
+struct TranscriptionLayout : ElementShape {
+  int stages = 1, per_stage = 1, elements = 1;
+
+  TranscriptionLayout(const PointDcs& point, int states, int switches, int controls,
+                      const ButcherTableau& tableau, int n_stages, int n_fe, bool time_scaled)
+      : ElementShape(point, states, switches, tableau, controls, time_scaled),
+        stages(n_stages),
+        per_stage(n_fe),
+        elements(n_stages * n_fe) {}
+  /** The index of T (time-scaled layouts only). */
+  static constexpr int kT = 0;
+  int stage_base(int k) const { return (scaled ? 1 : 0) + k * (nu + per_stage * block); }
+  int u(int k, int j) const { return stage_base(k) + j; }
+  int var(int e, int offset) const {
+    return stage_base(e / per_stage) + nu + (e % per_stage) * block + offset;
+  }
+  /** z_k at point m of element e. */
+  int z(int e, int m, int k) const { return var(e, off_z + m * nz + k); }
+  int x_end(int e, int i) const { return var(e, off_x + i); }
+  int variables() const { return stage_base(stages); }
+  /** The unknown behind local input k of element e, or -1 for a constant (x0 and the pairs' v
+      at x0, read by the first element). */
+  int global(int e, int k) const {
+    if (k < d) return e == 0 ? -1 : x_end(e - 1, k);
+    if (k < d + npairs) {
+      return e == 0 ? -1 : z(e - 1, points - 1, dcs->pairs()[static_cast<std::size_t>(k - d)].v);
+    }
+    if (k < d + npairs + nu) return u(e / per_stage, k - d - npairs);
+    if (scaled && k == d + npairs + nu) return kT;
+    return var(e, k - own());
+  }
+};
+
+/** Costs and constraints on top of the FESD equations, in the three scalar types of the
+    derivative passes (values, Jet chunks for gradients and Jacobians, HessianScalar for the
+    exact Hessian). A simulation has none; ocp_solve adapts its OcpProblem. x is a state, u the
+    control of the stage it belongs to (nu values, none without controls). */
+class TranscriptionTerms {
+ public:
+  virtual ~TranscriptionTerms() = default;
+  /** The stage cost: T h_n sum_m b_m l_k(X_nm, u_k) summed over the elements of stage k. */
+  virtual bool has_stage_cost() const { return false; }
+  /** The terminal cost m(x(T)). */
+  virtual bool has_terminal_cost() const { return false; }
+  /** Path constraints g(x, u) at every element boundary, bounds from TranscriptionSetup. */
+  virtual int path_constraints() const { return 0; }
+  /** Terminal constraints r(x(T)), bounds from TranscriptionSetup. */
+  virtual int terminal_constraints() const { return 0; }
+
+#define BFLOW_TRANSCRIPTION_TERMS(T)                                                           \
+  virtual T stage_cost(int /*stage*/, const T* /*x*/, const T* /*u*/) const { return T(0.0); } \
+  virtual T terminal_cost(const T* /*x*/) const { return T(0.0); }                             \
+  virtual void path(const T* /*x*/, const T* /*u*/, T* /*g*/) const {}                         \
+  virtual void terminal(const T* /*x*/, T* /*r*/) const {}
+  BFLOW_TRANSCRIPTION_TERMS(double)
+  BFLOW_TRANSCRIPTION_TERMS(JetChunk)
+  BFLOW_TRANSCRIPTION_TERMS(HessianScalar)
+#undef BFLOW_TRANSCRIPTION_TERMS
+};
+
+/** How the complementarity products enter the relaxed NLP at sigma. */
+enum class Relaxation {
+  kScholtes,   ///< products <= sigma
+  kL1Penalty,  ///< (1 / sigma) sum of products added to the objective (elastic)
+};
+
+/** The problem data of a transcription. Empty bound vectors mean unbounded. */
+struct TranscriptionSetup {
+  Eigen::VectorXd x0;    ///< the initial state (d)
+  double horizon = 1.0;  ///< the horizon; T's value when not time-optimal
+  /** Time-scaled layouts only: T is free in [T_min, T_max] and is the objective's first term. */
+  bool time_optimal = false;
+  double T_min = 0.0, T_max = 0.0;
+  Eigen::VectorXd x_lower, x_upper;                ///< on every element's end state
+  Eigen::VectorXd u_lower, u_upper;                ///< on every stage's control
+  Eigen::VectorXd path_lower, path_upper;          ///< empty: (-inf, 0]
+  Eigen::VectorXd terminal_lower, terminal_upper;  ///< empty: 0
+  /** A clock state pinned to k H / N at the end of stage k, or -1. */
+  int clock_state = -1;
+  bool standard = false;  ///< standard time-stepping: fixed lengths, products per point
+  Relaxation relaxation = Relaxation::kScholtes;
+  /** Weight of the step equilibration (39) between the elements of a stage. */
+  double equilibration_weight = 1.0;
+  /** The weight times min(1, sigma): the equilibration regularises the lengths early and fades
+      (ocp_solve, whose polish imposes the exact equilibration); else it keeps its weight
+      (fesd_simulate, where it selects among the FESD solutions of a step). */
+  bool equilibration_fades = false;
+  bool exact_hessian = true;
+  /** Tests only: the Hessian handed to IPOPT is multiplied by this. */
+  double exact_hessian_scale = 1.0;
+};
+
+class HomotopySolver;
+
+/** One transcription: its unknowns at the current point, the relaxed NLP at sigma (given to
+    IPOPT by HomotopySolver), and the FESD equations' values and derivatives for the Newton and
+    sensitivity passes of fesd_simulate. The tableau, layout, setup and terms must outlive it. */
+class Transcription {
+ public:
+  /** @pre layout, setup and terms (may be null) consistent: setup.x0 has layout.d entries. */
+  Transcription(const ButcherTableau& tableau, const TranscriptionLayout& layout,
+                const TranscriptionSetup& setup, const TranscriptionTerms* terms);
+  ~Transcription();
+  Transcription(const Transcription&) = delete;
+  Transcription& operator=(const Transcription&) = delete;
+
+  const TranscriptionLayout& layout() const;
+  int constraints() const;
+  std::size_t jacobian_nonzeros() const;
+  std::size_t hessian_nonzeros() const;
+
+  /** The states at each element's start and end (x_n, x_{n+1}), for set_guess. */
+  using ElementEnds = std::function<std::pair<Eigen::VectorXd, Eigen::VectorXd>(int element)>;
+  /** The initial point: controls u (nu x N, or nu x 1 for every stage), each element's start and
+      end states (its stage values interpolate linearly, its algebraic variables from
+      PointDcs::initial, its end state is x_{n+1}) and the element lengths (relative when
+      time-scaled; empty for equal lengths). T starts at the horizon. The transcription starts
+      from x0 held with u = 0. */
+  void set_guess(const Eigen::MatrixXd& u, const ElementEnds& ends,
+                 const std::vector<double>& lengths);
+  const Eigen::VectorXd& solution() const;
+  void set_solution(const Eigen::VectorXd& w);
+
+  /** The caller's cost at w (T when time-optimal, stage and terminal costs); no equilibration,
+      no penalty. */
+  double cost(const Eigen::VectorXd& w) const;
+  /** The step equilibration summed over the element boundaries of every stage, at its weight
+      (without fading). */
+  double equilibration(const Eigen::VectorXd& w) const;
+  /** The largest aggregated complementarity product at w. */
+  double complementarity(const Eigen::VectorXd& w) const;
+  /** The sides of every switching function on element e (+1, -1, 0 sliding), from the largest
+      v of each pair over its points, with `tol` as zero. */
+  std::vector<int> sides(const Eigen::VectorXd& w, int e, double tol) const;
+  /** v of pair k at x0 ((17)). */
+  double start_v(int k) const;
+  /** Element e's local inputs at w (element.h). */
+  std::vector<double> element_inputs(const Eigen::VectorXd& w, int e) const;
+  /** The dense Jacobian of element e's rows against its local inputs at w; `values`, when
+      given, receives the rows' values. */
+  Eigen::MatrixXd element_jacobian(const Eigen::VectorXd& w, int e,
+                                   Eigen::VectorXd* values = nullptr) const;
+
+ private:
+  friend class HomotopySolver;
+  class Nlp;
+  // An IPOPT SmartPtr behind an opaque handle: no IPOPT type in this header.
+  struct Handle;
+  std::unique_ptr<Handle> handle_;
+};
+
+/** The process's CPU seconds (clock_gettime(CLOCK_PROCESS_CPUTIME_ID)), as HomotopyStep and
+    the results count them. */
+double process_cpu_seconds();
+
+/** bflow's IPOPT settings for one solver (fesd::set_ipopt_defaults) and the caller's options,
+    set after them and before every NLP, so that they win. */
+struct IpoptSettings {
+  std::string who = "fesd";  ///< the prefix of error messages
+  int print_level = 0;
+  bool exact_hessian = true;
+  int max_iterations = 3000;
+  std::vector<std::pair<std::string, std::string>> ipopt_string_options;
+  std::vector<std::pair<std::string, double>> ipopt_numeric_options;
+  std::vector<std::pair<std::string, int>> ipopt_integer_options;
+};
+
+/** IpoptSettings from FesdOptions or OcpOptions (their print_level, exact_hessian,
+    max_nlp_iterations and ipopt_*_options). */
+template <typename Options>
+IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
+  IpoptSettings s;
+  s.who = who;
+  s.print_level = options.print_level;
+  s.exact_hessian = options.exact_hessian;
+  s.max_iterations = options.max_nlp_iterations;
+  s.ipopt_string_options = options.ipopt_string_options;
+  s.ipopt_numeric_options = options.ipopt_numeric_options;
+  s.ipopt_integer_options = options.ipopt_integer_options;
+  return s;
+}
+
+/** The homotopy's schedule and stopping rules. Each relaxed NLP at sigma is solved to
+    tol = nlp_tolerance at sigma_final, max(nlp_tolerance, 1e-2 sigma) before; IPOPT's acceptable
+    level is acceptable_tol = max(acceptable_tol_min, acceptable_tol_factor tol), its constraint
+    violation min(acceptable_violation_max, max(tol, acceptable_violation_min,
+    acceptable_violation_sigma sigma)). */
+struct HomotopyRules {
+  double sigma_initial = 1.0, sigma_final = 1e-12, sigma_factor = 0.1;
+  bool superlinear = true;  ///< sigma <- min(factor sigma, sigma^1.5)
+  double nlp_tolerance = 1e-13;
+  /** Warm starts take the previous multipliers and stay at the bounds reached (bound pushes
+      1e-9); without, IPOPT initialises them itself from the previous point. */
+  bool warm_start = true;
+  /** A failed NLP after a solved one is retried from the last solution at sqrt(sigma sigma_last)
+      up to this many times. */
+  int max_retries = 6;
+  double mu_init_min = 1e-12;  ///< warm NLPs start at mu = max(mu_init_min, 1e-2 sigma)
+  double acceptable_tol_min = 1e-4, acceptable_tol_factor = 0.0;
+  double acceptable_violation_min = 1e-12, acceptable_violation_sigma = 0.0,
+         acceptable_violation_max = 1e19;
+  double acceptable_compl_inf_tol = 1e-4;
+  int acceptable_iter = 5;
+};
+
+/** HomotopyRules with the sigma schedule and nlp_tolerance of FesdOptions or OcpOptions, the
+    stopping rules at their defaults. */
+template <typename Options>
+HomotopyRules homotopy_schedule(const Options& options) {
+  HomotopyRules r;
+  r.sigma_initial = options.sigma_initial;
+  r.sigma_final = options.sigma_final;
+  r.sigma_factor = options.sigma_factor;
+  r.superlinear = options.superlinear;
+  r.nlp_tolerance = options.nlp_tolerance;
+  return r;
+}
+
+/** One NLP of a homotopy. */
+struct HomotopyStep {
+  int index = 0;
+  double sigma = 0.0;
+  double objective = 0.0;        ///< the caller's cost at the NLP's solution (Transcription::cost)
+  double complementarity = 0.0;  ///< largest aggregated complementarity product
+  int iterations = 0;            ///< IPOPT iterations of this NLP
+  double cpu_seconds = 0.0;
+  std::string ipopt_status;  ///< e.g. "Solve_Succeeded"
+  bool polish = false;       ///< the final solve with the active set fixed (sigma 0)
+};
+
+struct HomotopyOutcome {
+  std::vector<HomotopyStep> steps;
+  int iterations = 0;
+  /** Some NLP was solved; the transcription then holds the last solved one's solution. */
+  bool any_solved = false;
+  /** The NLP at sigma_final was solved. */
+  bool done = false;
+  double last_sigma = 0.0;  ///< sigma of the last solved NLP
+  /** IPOPT solved the last solved NLP only to its acceptable level. */
+  bool acceptable_only = false;
+  /** When not done: the failing NLP's IPOPT status, sigma and complementarity residual. */
+  bool infeasible = false;
+  std::string failed_status;
+  double failed_sigma = 0.0, failed_complementarity = 0.0;
+};
+
+struct PolishOutcome {
+  HomotopyStep step;
+  double cost_before = 0.0;
+  /** IPOPT solved it, every product is within the tolerance and the cost is not worse (1e-6
+      relative): the transcription holds the polished solution; else the one before. */
+  bool kept = false;
+};
+
+/** IPOPT for transcriptions: the relaxation homotopy and the polish.
+    @throws InvalidArgument (constructor) naming an option IPOPT does not take, or when IPOPT
+    fails to initialise. */
+class HomotopySolver {
+ public:
+  explicit HomotopySolver(const IpoptSettings& settings);
+  ~HomotopySolver();
+  HomotopySolver(const HomotopySolver&) = delete;
+  HomotopySolver& operator=(const HomotopySolver&) = delete;
+
+  /** The relaxed NLPs from rules.sigma_initial down to rules.sigma_final, each warm-started from
+      the previous solution; `on_step` is called after each. The first NLP starts from the
+      transcription's current point. */
+  HomotopyOutcome run(Transcription& nlp, const HomotopyRules& rules,
+                      const std::function<void(const HomotopyStep&)>& on_step = {});
+
+  /** The NLP once more with the active set of the current solution fixed (element sides at
+      `active_tol`): the zero member of every complementarity pair at its bound, equal lengths of
+      neighbouring elements of a stage with the same sides, no relaxation and no equilibration:
+      an exact FESD solution, kept only as PolishOutcome::kept says. `index` numbers its step. */
+  PolishOutcome polish(Transcription& nlp, double active_tol, double nlp_tolerance,
+                       double complementarity_tolerance, int index,
+                       const std::function<void(const HomotopyStep&)>& on_step = {});
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace fesd
+}  // namespace bflow
+
+#endif  // BFLOW_FESD_TRANSCRIPTION_H_

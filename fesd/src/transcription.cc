@@ -1,0 +1,956 @@
+#include "bflow/fesd/transcription.h"
+
+#include <time.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <IpIpoptApplication.hpp>
+#include <IpSolveStatistics.hpp>
+#include <IpTNLP.hpp>
+
+#include "bflow/core/errors.h"
+#include "bflow/fesd/ipopt_options.h"
+
+namespace bflow {
+namespace fesd {
+
+static_assert(std::numeric_limits<Ipopt::Index>::max() == kFesdMaxIndex,
+              "kFesdMaxIndex must be the largest value of IPOPT's Index");
+
+namespace {
+
+constexpr double kInfinity = 1e19;  // IPOPT's default nlp_upper_bound_inf
+
+// Lower or upper bound k of an optional bound vector.
+double bound(const Eigen::VectorXd& v, int k, double fallback) {
+  return v.size() == 0 ? fallback : std::clamp(v[k], -kInfinity, kInfinity);
+}
+
+const char* ipopt_status_name(Ipopt::ApplicationReturnStatus status) {
+  switch (status) {
+    case Ipopt::Solve_Succeeded:
+      return "Solve_Succeeded";
+    case Ipopt::Solved_To_Acceptable_Level:
+      return "Solved_To_Acceptable_Level";
+    case Ipopt::Infeasible_Problem_Detected:
+      return "Infeasible_Problem_Detected";
+    case Ipopt::Search_Direction_Becomes_Too_Small:
+      return "Search_Direction_Becomes_Too_Small";
+    case Ipopt::Diverging_Iterates:
+      return "Diverging_Iterates";
+    case Ipopt::User_Requested_Stop:
+      return "User_Requested_Stop";
+    case Ipopt::Feasible_Point_Found:
+      return "Feasible_Point_Found";
+    case Ipopt::Maximum_Iterations_Exceeded:
+      return "Maximum_Iterations_Exceeded";
+    case Ipopt::Restoration_Failed:
+      return "Restoration_Failed";
+    case Ipopt::Error_In_Step_Computation:
+      return "Error_In_Step_Computation";
+    case Ipopt::Maximum_CpuTime_Exceeded:
+      return "Maximum_CpuTime_Exceeded";
+    case Ipopt::Not_Enough_Degrees_Of_Freedom:
+      return "Not_Enough_Degrees_Of_Freedom";
+    case Ipopt::Invalid_Problem_Definition:
+      return "Invalid_Problem_Definition";
+    case Ipopt::Invalid_Option:
+      return "Invalid_Option";
+    case Ipopt::Invalid_Number_Detected:
+      return "Invalid_Number_Detected";
+    default:
+      return "IPOPT_error";
+  }
+}
+
+}  // namespace
+
+// The transcription as one IPOPT problem at relaxation sigma.
+class Transcription::Nlp final : public Ipopt::TNLP {
+ public:
+  using ElementEnds = Transcription::ElementEnds;
+  // A function of a few unknowns that enters the objective.
+  enum class TermKind { kStage, kTerminal, kEquilibration };
+  struct Term {
+    TermKind kind;
+    int stage;
+    std::vector<int> globals;
+    std::vector<double> constants;
+  };
+
+  Nlp(const ButcherTableau& tab, const TranscriptionLayout& layout, const TranscriptionSetup& setup,
+      const TranscriptionTerms* terms)
+      : tab_(tab), l_(layout), p_(setup), terms_(terms != nullptr ? *terms : no_terms_) {
+    const int d = l_.d, nu = l_.nu;
+    BFLOW_ASSERT(p_.x0.size() == d);
+    Eigen::VectorXd y0 = Eigen::VectorXd::Zero(d + nu);
+    y0.head(d) = p_.x0;
+    v_start_.resize(l_.npairs);
+    l_.dcs->start(y0.data(), v_start_.data());  // (17)
+    // Lengths: relative (T h) when time-scaled, else absolute.
+    unit_ = l_.scaled ? 1.0 : p_.horizon;
+    h0_ = unit_ / l_.elements;
+    element_globals_.resize(static_cast<std::size_t>(l_.elements));
+    for (int e = 0; e < l_.elements; ++e) {
+      std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
+      for (int k = 0; k < l_.local; ++k) g.push_back(l_.global(e, k));
+    }
+    // Objective terms.
+    if (terms_.has_stage_cost()) {
+      for (int e = 0; e < l_.elements; ++e) {
+        Term t{TermKind::kStage, e / l_.per_stage, {}, {}};
+        t.globals.push_back(l_.scaled ? TranscriptionLayout::kT : -1);
+        t.constants.push_back(1.0);
+        t.globals.push_back(l_.var(e, 0));
+        for (int k = 0; k < l_.s * d; ++k) t.globals.push_back(l_.var(e, 1 + k));
+        for (int j = 0; j < nu; ++j) t.globals.push_back(l_.u(t.stage, j));
+        t.constants.resize(t.globals.size(), 0.0);
+        objective_terms_.push_back(std::move(t));
+      }
+    }
+    if (terms_.has_terminal_cost()) {
+      Term t{TermKind::kTerminal, l_.stages - 1, {}, {}};
+      for (int i = 0; i < d; ++i) t.globals.push_back(l_.x_end(l_.elements - 1, i));
+      t.constants.assign(t.globals.size(), 0.0);
+      objective_terms_.push_back(std::move(t));
+    }
+    if (!p_.standard && p_.equilibration_weight > 0.0) {
+      for (int e = 0; e < l_.elements; ++e) {
+        if (e % l_.per_stage == 0) continue;  // only between elements of one stage
+        Term t{TermKind::kEquilibration, e / l_.per_stage, {}, {}};
+        t.globals.push_back(l_.var(e - 1, 0));
+        t.globals.push_back(l_.var(e, 0));
+        t.constants.assign(2, 0.0);
+        for (int k = 0; k < l_.npairs; ++k) {
+          const int g = l_.global(e - 1, d + k);
+          t.globals.push_back(g);
+          t.constants.push_back(g < 0 ? v_start_[k] : 0.0);
+        }
+        for (int f : {e - 1, e}) {
+          for (int k = 0; k < l_.points * l_.nz; ++k) {
+            t.globals.push_back(l_.var(f, l_.off_z + k));
+            t.constants.push_back(0.0);
+          }
+        }
+        objective_terms_.push_back(std::move(t));
+      }
+    }
+    // Constraint rows.
+    rows_elements_ = l_.elements * l_.rows_per_element();
+    rows_sums_ = p_.standard ? 0 : l_.stages;
+    npath_ = terms_.path_constraints();
+    nterm_ = terms_.terminal_constraints();
+    rows_path_ = (l_.elements + 1) * npath_;
+    constraints_ = rows_elements_ + rows_sums_ + rows_path_ + nterm_;
+    // Jacobian structure: each element row lists the inputs it reads (element_jacobian_pattern).
+    jac_pattern_ = element_jacobian_pattern(l_);
+    for (int e = 0; e < l_.elements; ++e) {
+      const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
+      for (int r = 0; r < l_.rows_per_element(); ++r) {
+        for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
+          const int col = g[static_cast<std::size_t>(c)];
+          if (col < 0) continue;
+          jac_rows_.push_back(e * l_.rows_per_element() + r);
+          jac_cols_.push_back(col);
+        }
+      }
+    }
+    for (int k = 0; k < rows_sums_; ++k) {
+      for (int n = 0; n < l_.per_stage; ++n) {
+        jac_rows_.push_back(rows_elements_ + k);
+        jac_cols_.push_back(l_.var(k * l_.per_stage + n, 0));
+      }
+    }
+    for (int b = 0; b <= l_.elements; ++b) {
+      const std::vector<int> g = path_globals(b);
+      for (int r = 0; r < npath_; ++r) {
+        for (int col : g) {
+          if (col < 0) continue;
+          jac_rows_.push_back(rows_elements_ + rows_sums_ + b * npath_ + r);
+          jac_cols_.push_back(col);
+        }
+      }
+    }
+    for (int r = 0; r < nterm_; ++r) {
+      for (int i = 0; i < d; ++i) {
+        jac_rows_.push_back(rows_elements_ + rows_sums_ + rows_path_ + r);
+        jac_cols_.push_back(l_.x_end(l_.elements - 1, i));
+      }
+    }
+    if (p_.exact_hessian) {
+      pieces_ = element_hessian_pieces(l_);
+      for (const std::vector<int>& g : element_globals_) {
+        for (const std::vector<int>& piece : pieces_) {
+          std::vector<int> globals;
+          for (int k : piece) globals.push_back(g[static_cast<std::size_t>(k)]);
+          hessian_.add_block(globals);
+        }
+      }
+      for (const Term& t : objective_terms_) hessian_.add_block(t.globals);
+      for (int b = 0; b <= l_.elements && npath_ > 0; ++b) hessian_.add_block(path_globals(b));
+      if (nterm_ > 0) hessian_.add_block(terminal_globals());
+    }
+    set_guess(Eigen::MatrixXd::Zero(nu, 1), [&](int) { return std::make_pair(p_.x0, p_.x0); }, {});
+  }
+
+  const TranscriptionLayout& layout() const { return l_; }
+  int constraints() const { return constraints_ + static_cast<int>(equal_.size()); }
+  std::size_t jacobian_nonzeros() const { return jac_rows_.size(); }
+  std::size_t hessian_nonzeros() const { return hessian_.size(); }
+  double start_v(int k) const { return v_start_[k]; }
+
+  // The active set read from the solution: which member of each complementarity pair is zero on
+  // every element (a member is fixed at its zero value through its bounds), plus equal lengths
+  // of neighbouring elements of a stage with the same sides.
+  void enter_polish(const std::vector<std::vector<int>>& sides) {
+    polish_ = true;
+    fixed_.clear();
+    equal_.clear();
+    const Eigen::VectorXd& w = w_;
+    const PointDcs& dcs = *l_.dcs;
+    const int P = l_.points;
+    std::vector<bool> u_fixed_prev(static_cast<std::size_t>(l_.npairs), false);
+    for (int e = 0; e < l_.elements; ++e) {
+      std::vector<bool> u_fixed(static_cast<std::size_t>(l_.npairs), false);
+      for (int k = 0; k < l_.npairs; ++k) {
+        const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+        if (p_.standard) {
+          for (int m = 0; m < P; ++m) {
+            const double um = PointDcs::member_u(pair, &w[l_.z(e, m, 0)]);
+            const double vm = w[l_.z(e, m, pair.v)];
+            if (um <= vm) {
+              fixed_.push_back({l_.z(e, m, pair.u), PointDcs::u_zero(pair)});
+            } else {
+              fixed_.push_back({l_.z(e, m, pair.v), 0.0});
+            }
+          }
+          continue;
+        }
+        double su = 0.0, sv = 0.0;
+        for (int m = 0; m < P; ++m) {
+          su += PointDcs::member_u(pair, &w[l_.z(e, m, 0)]);
+          sv += w[l_.z(e, m, pair.v)];
+        }
+        const double v0 = e == 0 ? v_start_[k] : w[l_.z(e - 1, P - 1, pair.v)];
+        const bool fix_u = su <= sv + v0 || (e == 0 && v0 > 0.0);
+        if (fix_u) {
+          u_fixed[static_cast<std::size_t>(k)] = true;
+          for (int m = 0; m < P; ++m)
+            fixed_.push_back({l_.z(e, m, pair.u), PointDcs::u_zero(pair)});
+          // Leaving a sliding arc: the selection is continuous there.
+          if (e > 0 && !u_fixed_prev[static_cast<std::size_t>(k)] &&
+              dcs.leaves_sliding(sides[static_cast<std::size_t>(e - 1)],
+                                 sides[static_cast<std::size_t>(e)], pair.group)) {
+            fixed_.push_back({l_.z(e - 1, P - 1, pair.u), PointDcs::u_zero(pair)});
+          }
+        } else {
+          for (int m = 0; m < P; ++m) fixed_.push_back({l_.z(e, m, pair.v), 0.0});
+          if (e > 0) fixed_.push_back({l_.z(e - 1, P - 1, pair.v), 0.0});
+        }
+      }
+      u_fixed_prev = std::move(u_fixed);
+      if (!p_.standard && e % l_.per_stage != 0 &&
+          sides[static_cast<std::size_t>(e)] == sides[static_cast<std::size_t>(e - 1)]) {
+        equal_.push_back(e);
+      }
+    }
+    for (const auto& [index, value] : fixed_) w_[index] = value;
+    const int base = constraints_;
+    polish_jac_.clear();
+    for (std::size_t r = 0; r < equal_.size(); ++r) {
+      polish_jac_.push_back({base + static_cast<int>(r), l_.var(equal_[r], 0)});
+      polish_jac_.push_back({base + static_cast<int>(r), l_.var(equal_[r] - 1, 0)});
+    }
+  }
+  void leave_polish() {
+    polish_ = false;
+    fixed_.clear();
+    equal_.clear();
+    polish_jac_.clear();
+  }
+  void set_sigma(double sigma) { sigma_ = sigma; }
+  void set_solution(const Eigen::VectorXd& w) { w_ = w; }
+  const Eigen::VectorXd& solution() const { return w_; }
+  // The last solved iterate, kept so that a failed solve can go back to it.
+  void save() { saved_ = {w_, z_l_, z_u_, lambda_}; }
+  void restore() {
+    w_ = saved_[0];
+    z_l_ = saved_[1];
+    z_u_ = saved_[2];
+    lambda_ = saved_[3];
+  }
+
+  // Inputs of element e at w (constants from x0).
+  template <typename T>
+  void element_inputs(const double* w, int e, std::vector<T>& in) const {
+    const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
+    in.resize(g.size());
+    for (int k = 0; k < l_.local; ++k) {
+      const int col = g[static_cast<std::size_t>(k)];
+      double value;
+      if (col >= 0) {
+        value = w[col];
+      } else if (k < l_.d) {
+        value = p_.x0[k];
+      } else {
+        value = v_start_[k - l_.d];
+      }
+      in[static_cast<std::size_t>(k)] = T(value);
+    }
+  }
+
+  Eigen::MatrixXd element_jacobian(const double* w, int e, Eigen::VectorXd* values) const {
+    std::vector<double> base;
+    element_inputs(w, e, base);
+    Eigen::MatrixXd jac;
+    dense_jacobian(
+        base, l_.rows_per_element(), jac,
+        [&](const JetChunk* in, JetChunk* out) {
+          element_residual(tab_, l_, p_.standard, in, out);
+        },
+        values);
+    return jac;
+  }
+
+  double cost(const double* w) const {
+    double value = p_.time_optimal ? w[TranscriptionLayout::kT] : 0.0;
+    std::vector<double> in;
+    for (const Term& t : objective_terms_) {
+      if (t.kind == TermKind::kEquilibration) continue;
+      gather(t, w, in);
+      value += term_value(t, in.data());
+    }
+    return value;
+  }
+
+  double equilibration(const double* w) const {
+    double value = 0.0;
+    std::vector<double> in;
+    for (const Term& t : objective_terms_) {
+      if (t.kind != TermKind::kEquilibration) continue;
+      gather(t, w, in);
+      value += p_.equilibration_weight * equilibration_term(l_, h0_, in.data());
+    }
+    return value;
+  }
+
+  double complementarity(const double* w) const {
+    double worst = 0.0;
+    std::vector<double> in, out(static_cast<std::size_t>(l_.rows_per_element()));
+    for (int e = 0; e < l_.elements; ++e) {
+      element_inputs(w, e, in);
+      element_residual(tab_, l_, p_.standard, in.data(), out.data());
+      for (int r = l_.equalities; r < l_.rows_per_element(); ++r) {
+        worst = std::max(worst, std::abs(out[static_cast<std::size_t>(r)]));
+      }
+    }
+    return worst;
+  }
+
+  void set_guess(const Eigen::MatrixXd& u_guess, const ElementEnds& ends,
+                 const std::vector<double>& lengths) {
+    const int d = l_.d, nu = l_.nu;
+    BFLOW_ASSERT(u_guess.rows() == nu);
+    BFLOW_ASSERT(lengths.empty() || static_cast<int>(lengths.size()) == l_.elements);
+    w_.setZero(l_.variables());
+    if (l_.scaled) w_[TranscriptionLayout::kT] = p_.horizon;
+    Eigen::VectorXd y(d + nu), z(l_.nz);
+    for (int k = 0; k < l_.stages; ++k) {
+      const Eigen::VectorXd uk = u_guess.col(u_guess.cols() == 1 ? 0 : k);
+      for (int j = 0; j < nu; ++j) w_[l_.u(k, j)] = uk[j];
+      for (int n = 0; n < l_.per_stage; ++n) {
+        const int e = k * l_.per_stage + n;
+        const auto [xa, xb] = ends(e);
+        BFLOW_ASSERT(xa.size() == d && xb.size() == d);
+        w_[l_.var(e, 0)] = lengths.empty() ? h0_ : lengths[static_cast<std::size_t>(e)];
+        y.tail(nu) = uk;
+        for (int m = 0; m < l_.points; ++m) {
+          const double c = m < l_.s ? tab_.c(m) : 1.0;
+          y.head(d) = (1.0 - c) * xa + c * xb;
+          if (m < l_.s) w_.segment(l_.var(e, 1 + m * d), d) = y.head(d);
+          l_.dcs->initial(y.data(), z.data());
+          w_.segment(l_.z(e, m, 0), l_.nz) = z;
+        }
+        w_.segment(l_.var(e, l_.off_x), d) = xb;
+      }
+    }
+  }
+
+  // --- Ipopt::TNLP ---
+  bool get_nlp_info(Ipopt::Index& n, Ipopt::Index& m, Ipopt::Index& nnz_jac, Ipopt::Index& nnz_hess,
+                    IndexStyleEnum& style) override {
+    n = l_.variables();
+    m = constraints();
+    nnz_jac = static_cast<Ipopt::Index>(jac_rows_.size() + polish_jac_.size());
+    nnz_hess = static_cast<Ipopt::Index>(hessian_.size());
+    style = C_STYLE;
+    return true;
+  }
+
+  bool get_bounds_info(Ipopt::Index n, Ipopt::Number* x_l, Ipopt::Number* x_u, Ipopt::Index,
+                       Ipopt::Number* g_l, Ipopt::Number* g_u) override {
+    std::fill(x_l, x_l + n, -kInfinity);
+    std::fill(x_u, x_u + n, kInfinity);
+    if (l_.scaled && p_.time_optimal) {
+      x_l[TranscriptionLayout::kT] = std::max(p_.T_min, 1e-9 * p_.horizon);
+      x_u[TranscriptionLayout::kT] = std::min(p_.T_max, kInfinity);
+    } else if (l_.scaled) {
+      x_l[TranscriptionLayout::kT] = x_u[TranscriptionLayout::kT] = p_.horizon;
+    }
+    for (int k = 0; k < l_.stages; ++k) {
+      for (int j = 0; j < l_.nu; ++j) {
+        x_l[l_.u(k, j)] = bound(p_.u_lower, j, -kInfinity);
+        x_u[l_.u(k, j)] = bound(p_.u_upper, j, kInfinity);
+      }
+    }
+    for (int e = 0; e < l_.elements; ++e) {
+      x_l[l_.var(e, 0)] = p_.standard ? h0_ : 0.0;
+      x_u[l_.var(e, 0)] = p_.standard ? h0_ : 2.0 * h0_;
+      for (int i = 0; i < l_.d; ++i) {
+        x_l[l_.x_end(e, i)] = bound(p_.x_lower, i, -kInfinity);
+        x_u[l_.x_end(e, i)] = bound(p_.x_upper, i, kInfinity);
+      }
+      if (p_.clock_state >= 0 && (e + 1) % l_.per_stage == 0) {
+        const double clock = (e + 1) / l_.per_stage * p_.horizon / l_.stages;
+        x_l[l_.x_end(e, p_.clock_state)] = x_u[l_.x_end(e, p_.clock_state)] = clock;
+      }
+      for (int m = 0; m < l_.points; ++m) {
+        for (int k = 0; k < l_.nz; ++k) {
+          x_l[l_.z(e, m, k)] = std::max(l_.dcs->lower(k), -kInfinity);
+          x_u[l_.z(e, m, k)] = std::min(l_.dcs->upper(k), kInfinity);
+        }
+      }
+      for (int r = 0; r < l_.rows_per_element(); ++r) {
+        const int row = e * l_.rows_per_element() + r;
+        const bool equality = r < l_.equalities;
+        g_l[row] = equality ? 0.0 : -kInfinity;
+        g_u[row] = equality                                               ? 0.0
+                   : (p_.relaxation == Relaxation::kScholtes && !polish_) ? sigma_
+                                                                          : kInfinity;
+      }
+    }
+    for (int k = 0; k < rows_sums_; ++k) {
+      g_l[rows_elements_ + k] = g_u[rows_elements_ + k] = unit_ / l_.stages;
+    }
+    for (int b = 0; b <= l_.elements; ++b) {
+      for (int r = 0; r < npath_; ++r) {
+        const int row = rows_elements_ + rows_sums_ + b * npath_ + r;
+        g_l[row] = bound(p_.path_lower, r, -kInfinity);
+        g_u[row] = bound(p_.path_upper, r, 0.0);
+      }
+    }
+    for (int r = 0; r < nterm_; ++r) {
+      const int row = rows_elements_ + rows_sums_ + rows_path_ + r;
+      g_l[row] = bound(p_.terminal_lower, r, 0.0);
+      g_u[row] = bound(p_.terminal_upper, r, 0.0);
+    }
+    for (const auto& [index, value] : fixed_) x_l[index] = x_u[index] = value;
+    for (std::size_t r = 0; r < equal_.size(); ++r) {
+      g_l[constraints_ + static_cast<int>(r)] = g_u[constraints_ + static_cast<int>(r)] = 0.0;
+    }
+    return true;
+  }
+
+  bool get_starting_point(Ipopt::Index n, bool init_x, Ipopt::Number* x, bool init_z,
+                          Ipopt::Number* z_l, Ipopt::Number* z_u, Ipopt::Index m, bool init_lambda,
+                          Ipopt::Number* lambda) override {
+    if (init_x) std::copy(w_.data(), w_.data() + n, x);
+    if (init_z) {
+      if (z_l_.size() != n) return false;
+      std::copy(z_l_.data(), z_l_.data() + n, z_l);
+      std::copy(z_u_.data(), z_u_.data() + n, z_u);
+    }
+    if (init_lambda) {
+      if (lambda_.size() != m) return false;
+      std::copy(lambda_.data(), lambda_.data() + m, lambda);
+    }
+    return true;
+  }
+
+  bool eval_f(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Number& value) override {
+    value = p_.time_optimal ? x[TranscriptionLayout::kT] : 0.0;
+    std::vector<double> in;
+    for (const Term& t : objective_terms_) {
+      if (polish_ && t.kind == TermKind::kEquilibration) continue;
+      gather(t, x, in);
+      value += term_value(t, in.data());
+    }
+    if (penalty()) {
+      std::vector<double> out(static_cast<std::size_t>(l_.rows_per_element()));
+      for (int e = 0; e < l_.elements; ++e) {
+        element_inputs(x, e, in);
+        element_residual(tab_, l_, p_.standard, in.data(), out.data());
+        for (int r = l_.equalities; r < l_.rows_per_element(); ++r) {
+          value += out[static_cast<std::size_t>(r)] / sigma_;
+        }
+      }
+    }
+    return true;
+  }
+
+  bool eval_grad_f(Ipopt::Index n, const Ipopt::Number* x, bool, Ipopt::Number* grad) override {
+    std::fill(grad, grad + n, 0.0);
+    if (p_.time_optimal) grad[TranscriptionLayout::kT] = 1.0;
+    std::vector<double> in;
+    for (const Term& t : objective_terms_) {
+      if (polish_ && t.kind == TermKind::kEquilibration) continue;
+      gather(t, x, in);
+      add_gradient(
+          t.globals, in, 1.0, [&](const JetChunk* v) { return term_value(t, v); }, grad);
+    }
+    if (penalty()) {
+      std::vector<JetChunk> out(static_cast<std::size_t>(l_.rows_per_element()));
+      for (int e = 0; e < l_.elements; ++e) {
+        element_inputs(x, e, in);
+        add_gradient(
+            element_globals_[static_cast<std::size_t>(e)], in, 1.0 / sigma_,
+            [&](const JetChunk* v) {
+              element_residual(tab_, l_, p_.standard, v, out.data());
+              JetChunk sum(0.0);
+              for (int r = l_.equalities; r < l_.rows_per_element(); ++r)
+                sum += out[static_cast<std::size_t>(r)];
+              return sum;
+            },
+            grad);
+      }
+    }
+    return true;
+  }
+
+  bool eval_g(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Index, Ipopt::Number* g) override {
+    std::vector<double> in;
+    for (int e = 0; e < l_.elements; ++e) {
+      element_inputs(x, e, in);
+      element_residual(tab_, l_, p_.standard, in.data(), g + e * l_.rows_per_element());
+    }
+    for (int k = 0; k < rows_sums_; ++k) {
+      double sum = 0.0;
+      for (int n = 0; n < l_.per_stage; ++n) sum += x[l_.var(k * l_.per_stage + n, 0)];
+      g[rows_elements_ + k] = sum;
+    }
+    for (int b = 0; b <= l_.elements && npath_ > 0; ++b) {
+      path_inputs(x, b, in);
+      terms_.path(in.data(), in.data() + l_.d, g + rows_elements_ + rows_sums_ + b * npath_);
+    }
+    if (nterm_ > 0) {
+      terminal_inputs(x, in);
+      terms_.terminal(in.data(), g + rows_elements_ + rows_sums_ + rows_path_);
+    }
+    for (std::size_t r = 0; r < equal_.size(); ++r) {
+      g[constraints_ + static_cast<int>(r)] = x[l_.var(equal_[r], 0)] - x[l_.var(equal_[r] - 1, 0)];
+    }
+    return true;
+  }
+
+  bool eval_jac_g(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Index, Ipopt::Index nele,
+                  Ipopt::Index* rows, Ipopt::Index* cols, Ipopt::Number* values) override {
+    if (values == nullptr) {
+      const Ipopt::Index own = static_cast<Ipopt::Index>(jac_rows_.size());
+      for (Ipopt::Index k = 0; k < own; ++k) {
+        rows[k] = jac_rows_[static_cast<std::size_t>(k)];
+        cols[k] = jac_cols_[static_cast<std::size_t>(k)];
+      }
+      for (Ipopt::Index k = own; k < nele; ++k) {
+        rows[k] = polish_jac_[static_cast<std::size_t>(k - own)].first;
+        cols[k] = polish_jac_[static_cast<std::size_t>(k - own)].second;
+      }
+      return true;
+    }
+    Ipopt::Index k = 0;
+    std::vector<double> base;
+    const int rpe = l_.rows_per_element();
+    Eigen::MatrixXd jac;
+    for (int e = 0; e < l_.elements; ++e) {
+      element_inputs(x, e, base);
+      dense_jacobian(base, rpe, jac, [&](const JetChunk* in, JetChunk* out) {
+        element_residual(tab_, l_, p_.standard, in, out);
+      });
+      const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
+      for (int r = 0; r < rpe; ++r) {
+        for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
+          if (g[static_cast<std::size_t>(c)] >= 0) values[k++] = jac(r, c);
+        }
+      }
+    }
+    for (int s = 0; s < rows_sums_ * l_.per_stage; ++s) values[k++] = 1.0;
+    for (int b = 0; b <= l_.elements && npath_ > 0; ++b) {
+      path_inputs(x, b, base);
+      dense_jacobian(base, npath_, jac,
+                     [&](const JetChunk* in, JetChunk* out) { terms_.path(in, in + l_.d, out); });
+      const std::vector<int> g = path_globals(b);
+      for (int r = 0; r < npath_; ++r) {
+        for (std::size_t c = 0; c < g.size(); ++c) {
+          if (g[c] >= 0) values[k++] = jac(r, static_cast<Eigen::Index>(c));
+        }
+      }
+    }
+    if (nterm_ > 0) {
+      terminal_inputs(x, base);
+      dense_jacobian(base, nterm_, jac,
+                     [&](const JetChunk* in, JetChunk* out) { terms_.terminal(in, out); });
+      for (int r = 0; r < nterm_; ++r) {
+        for (int i = 0; i < l_.d; ++i) values[k++] = jac(r, i);
+      }
+    }
+    for (std::size_t r = 0; r < equal_.size(); ++r) {
+      values[k++] = 1.0;
+      values[k++] = -1.0;
+    }
+    BFLOW_ASSERT(k == nele);
+    return true;
+  }
+
+  bool eval_h(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Number obj_factor, Ipopt::Index,
+              const Ipopt::Number* lambda, bool, Ipopt::Index nele, Ipopt::Index* rows,
+              Ipopt::Index* cols, Ipopt::Number* values) override {
+    if (values == nullptr) {
+      for (Ipopt::Index k = 0; k < nele; ++k) {
+        rows[k] = hessian_.rows()[static_cast<std::size_t>(k)];
+        cols[k] = hessian_.cols()[static_cast<std::size_t>(k)];
+      }
+      return true;
+    }
+    std::fill(values, values + nele, 0.0);
+    std::vector<double> base, weights(static_cast<std::size_t>(l_.rows_per_element()));
+    for (int e = 0; e < l_.elements; ++e) {
+      element_inputs(x, e, base);
+      const double* lam = lambda + e * l_.rows_per_element();
+      std::copy(lam, lam + l_.rows_per_element(), weights.begin());
+      if (penalty()) {
+        for (int r = l_.equalities; r < l_.rows_per_element(); ++r)
+          weights[static_cast<std::size_t>(r)] += obj_factor / sigma_;
+      }
+      add_element_hessian(tab_, l_, p_.standard, pieces_,
+                          element_globals_[static_cast<std::size_t>(e)], base, weights.data(),
+                          hessian_, values);
+    }
+    for (const Term& t : objective_terms_) {
+      if (polish_ && t.kind == TermKind::kEquilibration) continue;
+      gather(t, x, base);
+      hessian_.add(
+          t.globals, base, 1, &obj_factor,
+          [&](const auto* in, auto* out) { out[0] = term_value(t, in); }, values);
+    }
+    for (int b = 0; b <= l_.elements && npath_ > 0; ++b) {
+      path_inputs(x, b, base);
+      hessian_.add(
+          path_globals(b), base, npath_, lambda + rows_elements_ + rows_sums_ + b * npath_,
+          [&](const auto* in, auto* out) { terms_.path(in, in + l_.d, out); }, values);
+    }
+    if (nterm_ > 0) {
+      terminal_inputs(x, base);
+      hessian_.add(
+          terminal_globals(), base, nterm_, lambda + rows_elements_ + rows_sums_ + rows_path_,
+          [&](const auto* in, auto* out) { terms_.terminal(in, out); }, values);
+    }
+    if (p_.exact_hessian_scale != 1.0) {
+      for (Ipopt::Index k = 0; k < nele; ++k) values[k] *= p_.exact_hessian_scale;
+    }
+    return true;
+  }
+
+  void finalize_solution(Ipopt::SolverReturn, Ipopt::Index n, const Ipopt::Number* x,
+                         const Ipopt::Number* z_l, const Ipopt::Number* z_u, Ipopt::Index m,
+                         const Ipopt::Number*, const Ipopt::Number* lambda, Ipopt::Number,
+                         const Ipopt::IpoptData*, Ipopt::IpoptCalculatedQuantities*) override {
+    w_ = Eigen::Map<const Eigen::VectorXd>(x, n);
+    z_l_ = Eigen::Map<const Eigen::VectorXd>(z_l, n);
+    z_u_ = Eigen::Map<const Eigen::VectorXd>(z_u, n);
+    lambda_ = Eigen::Map<const Eigen::VectorXd>(lambda, m);
+  }
+
+ private:
+  bool penalty() const { return p_.relaxation == Relaxation::kL1Penalty && !polish_; }
+
+  void gather(const Term& t, const double* w, std::vector<double>& out) const {
+    out.resize(t.globals.size());
+    for (std::size_t k = 0; k < t.globals.size(); ++k) {
+      out[k] = t.globals[k] >= 0 ? w[t.globals[k]] : t.constants[k];
+    }
+  }
+
+  // Path constraints at boundary b (0: x0 with u_0; b < N_e: the start of element b with its
+  // stage's control; N_e: x(T) with u_{N-1}): inputs [x (d), u (nu)], -1 for x0.
+  std::vector<int> path_globals(int b) const {
+    std::vector<int> g;
+    for (int i = 0; i < l_.d; ++i) g.push_back(b == 0 ? -1 : l_.x_end(b - 1, i));
+    const int stage = std::min(b, l_.elements - 1) / l_.per_stage;
+    for (int j = 0; j < l_.nu; ++j) g.push_back(l_.u(stage, j));
+    return g;
+  }
+  template <typename T>
+  void path_inputs(const double* w, int b, std::vector<T>& in) const {
+    const std::vector<int> g = path_globals(b);
+    in.resize(g.size());
+    for (std::size_t k = 0; k < g.size(); ++k) {
+      in[k] = T(g[k] >= 0 ? w[g[k]] : p_.x0[static_cast<Eigen::Index>(k)]);
+    }
+  }
+  std::vector<int> terminal_globals() const {
+    std::vector<int> g;
+    for (int i = 0; i < l_.d; ++i) g.push_back(l_.x_end(l_.elements - 1, i));
+    return g;
+  }
+  template <typename T>
+  void terminal_inputs(const double* w, std::vector<T>& in) const {
+    in.resize(static_cast<std::size_t>(l_.d));
+    for (int i = 0; i < l_.d; ++i)
+      in[static_cast<std::size_t>(i)] = T(w[l_.x_end(l_.elements - 1, i)]);
+  }
+
+  // The value of an objective term from its inputs.
+  template <typename T>
+  T term_value(const Term& t, const T* in) const {
+    switch (t.kind) {
+      case TermKind::kStage: {
+        // [T (or 1), h, X_1..X_s, u]
+        const T* stage = in + 2;
+        const T* u = in + 2 + l_.s * l_.d;
+        T sum(0.0);
+        for (int m = 0; m < l_.s; ++m)
+          sum += tab_.b(m) * terms_.stage_cost(t.stage, stage + m * l_.d, u);
+        return in[0] * in[1] * sum;
+      }
+      case TermKind::kTerminal:
+        return terms_.terminal_cost(in);
+      case TermKind::kEquilibration: {
+        const double fade = p_.equilibration_fades ? std::min(1.0, sigma_) : 1.0;
+        return fade * p_.equilibration_weight * equilibration_term(l_, h0_, in);
+      }
+    }
+    return T(0.0);
+  }
+
+  const ButcherTableau& tab_;
+  const TranscriptionLayout& l_;
+  const TranscriptionSetup& p_;
+  const TranscriptionTerms no_terms_;
+  const TranscriptionTerms& terms_;
+  Eigen::VectorXd v_start_;
+  double unit_ = 1.0, h0_ = 1.0;
+  double sigma_ = 1.0;
+  std::vector<std::vector<int>> element_globals_;
+  std::vector<Term> objective_terms_;
+  int rows_elements_ = 0, rows_sums_ = 0, rows_path_ = 0, npath_ = 0, nterm_ = 0;
+  int constraints_ = 0;
+  std::vector<Ipopt::Index> jac_rows_, jac_cols_;
+  HessianBlocks hessian_;
+  std::vector<std::vector<int>> pieces_;       // an element's Hessian pieces (local indices)
+  std::vector<std::vector<int>> jac_pattern_;  // per element row: the local inputs it reads
+  bool polish_ = false;
+  std::vector<std::pair<int, double>> fixed_;
+  std::vector<int> equal_;
+  std::vector<std::pair<int, int>> polish_jac_;
+  Eigen::VectorXd w_, z_l_, z_u_, lambda_;
+  std::array<Eigen::VectorXd, 4> saved_;
+};
+
+double process_cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
+struct Transcription::Handle {
+  Ipopt::SmartPtr<Nlp> nlp;
+};
+
+Transcription::Transcription(const ButcherTableau& tableau, const TranscriptionLayout& layout,
+                             const TranscriptionSetup& setup, const TranscriptionTerms* terms)
+    : handle_(new Handle{new Nlp(tableau, layout, setup, terms)}) {}
+Transcription::~Transcription() = default;
+const TranscriptionLayout& Transcription::layout() const { return handle_->nlp->layout(); }
+int Transcription::constraints() const { return handle_->nlp->constraints(); }
+std::size_t Transcription::jacobian_nonzeros() const { return handle_->nlp->jacobian_nonzeros(); }
+std::size_t Transcription::hessian_nonzeros() const { return handle_->nlp->hessian_nonzeros(); }
+void Transcription::set_guess(const Eigen::MatrixXd& u, const ElementEnds& ends,
+                              const std::vector<double>& lengths) {
+  handle_->nlp->set_guess(u, ends, lengths);
+}
+const Eigen::VectorXd& Transcription::solution() const { return handle_->nlp->solution(); }
+void Transcription::set_solution(const Eigen::VectorXd& w) { handle_->nlp->set_solution(w); }
+double Transcription::cost(const Eigen::VectorXd& w) const { return handle_->nlp->cost(w.data()); }
+double Transcription::equilibration(const Eigen::VectorXd& w) const {
+  return handle_->nlp->equilibration(w.data());
+}
+double Transcription::complementarity(const Eigen::VectorXd& w) const {
+  return handle_->nlp->complementarity(w.data());
+}
+double Transcription::start_v(int k) const { return handle_->nlp->start_v(k); }
+std::vector<double> Transcription::element_inputs(const Eigen::VectorXd& w, int e) const {
+  std::vector<double> in;
+  handle_->nlp->element_inputs(w.data(), e, in);
+  return in;
+}
+Eigen::MatrixXd Transcription::element_jacobian(const Eigen::VectorXd& w, int e,
+                                                Eigen::VectorXd* values) const {
+  return handle_->nlp->element_jacobian(w.data(), e, values);
+}
+
+std::vector<int> Transcription::sides(const Eigen::VectorXd& w, int e, double tol) const {
+  const TranscriptionLayout& l = layout();
+  std::vector<double> vmax(static_cast<std::size_t>(l.npairs), 0.0);
+  for (int k = 0; k < l.npairs; ++k) {
+    const int v = l.dcs->pairs()[static_cast<std::size_t>(k)].v;
+    for (int m = 0; m < l.points; ++m) {
+      vmax[static_cast<std::size_t>(k)] =
+          std::max(vmax[static_cast<std::size_t>(k)], w[l.z(e, m, v)]);
+    }
+  }
+  return l.dcs->sides(vmax, tol);
+}
+
+struct HomotopySolver::Impl {
+  IpoptSettings settings;
+  Ipopt::SmartPtr<Ipopt::IpoptApplication> app;
+
+  // One NLP at the options set on `app`, recorded in `steps`.
+  HomotopyStep solve(Transcription::Nlp& nlp, double sigma, bool polish, int index,
+                     Ipopt::ApplicationReturnStatus& status) {
+    apply_ipopt_options(*app, settings, settings.who);
+    const double start = process_cpu_seconds();
+    status = app->OptimizeTNLP(&nlp);
+    HomotopyStep step;
+    step.index = index;
+    step.sigma = sigma;
+    step.polish = polish;
+    step.iterations = Ipopt::IsValid(app->Statistics()) ? app->Statistics()->IterationCount() : 0;
+    step.cpu_seconds = process_cpu_seconds() - start;
+    step.ipopt_status = ipopt_status_name(status);
+    step.objective = nlp.cost(nlp.solution().data());
+    step.complementarity = nlp.complementarity(nlp.solution().data());
+    return step;
+  }
+};
+
+HomotopySolver::HomotopySolver(const IpoptSettings& settings) : impl_(new Impl) {
+  impl_->settings = settings;
+  impl_->app = IpoptApplicationFactory();
+  impl_->app->RethrowNonIpoptException(false);
+  set_ipopt_defaults(*impl_->app, settings.print_level, settings.exact_hessian,
+                     settings.max_iterations);
+  apply_ipopt_options(*impl_->app, settings, settings.who);
+  if (impl_->app->Initialize() != Ipopt::Solve_Succeeded) {
+    throw InvalidArgument(settings.who + ": IPOPT failed to initialise");
+  }
+}
+HomotopySolver::~HomotopySolver() = default;
+
+HomotopyOutcome HomotopySolver::run(Transcription& transcription, const HomotopyRules& rules,
+                                    const std::function<void(const HomotopyStep&)>& on_step) {
+  Transcription::Nlp& nlp = *transcription.handle_->nlp;
+  Ipopt::OptionsList& o = *impl_->app->Options();
+  HomotopyOutcome out;
+  double sigma = rules.sigma_initial, last_sigma = sigma;
+  bool first = true;
+  int retries = 0;
+  while (true) {
+    nlp.set_sigma(sigma);
+    const bool final_nlp = sigma <= rules.sigma_final;
+    // Intermediate problems only need to be solved to the accuracy sigma allows.
+    const double tol =
+        final_nlp ? rules.nlp_tolerance : std::max(rules.nlp_tolerance, 1e-2 * sigma);
+    o.SetNumericValue("tol", tol);
+    o.SetNumericValue("acceptable_tol",
+                      std::max(rules.acceptable_tol_min, rules.acceptable_tol_factor * tol));
+    o.SetNumericValue("acceptable_constr_viol_tol",
+                      std::min(rules.acceptable_violation_max,
+                               std::max({tol, rules.acceptable_violation_min,
+                                         rules.acceptable_violation_sigma * sigma})));
+    o.SetNumericValue("acceptable_compl_inf_tol", rules.acceptable_compl_inf_tol);
+    o.SetIntegerValue("acceptable_iter", rules.acceptable_iter);
+    o.SetStringValue("warm_start_init_point", !first && rules.warm_start ? "yes" : "no");
+    if (!first) {
+      o.SetNumericValue("mu_init", std::max(rules.mu_init_min, 1e-2 * sigma));
+      o.SetNumericValue("warm_start_bound_push", 1e-9);
+      o.SetNumericValue("warm_start_mult_bound_push", 1e-9);
+      o.SetNumericValue("warm_start_slack_bound_push", 1e-9);
+    } else {
+      o.SetNumericValue("mu_init", 0.1);
+    }
+    Ipopt::ApplicationReturnStatus status;
+    HomotopyStep step = impl_->solve(nlp, sigma, false, static_cast<int>(out.steps.size()), status);
+    out.iterations += step.iterations;
+    out.steps.push_back(step);
+    if (on_step) on_step(step);
+    // A square problem (every unknown pinned) is reported as Feasible_Point_Found.
+    const bool solved = status == Ipopt::Solve_Succeeded ||
+                        status == Ipopt::Solved_To_Acceptable_Level ||
+                        status == Ipopt::Feasible_Point_Found;
+    if (!solved && out.any_solved && retries < rules.max_retries) {
+      // Too large a step in sigma: back to the last solution, half the step (in log sigma).
+      ++retries;
+      nlp.restore();
+      sigma = std::sqrt(sigma * last_sigma);
+      continue;
+    }
+    if (!solved) {
+      out.infeasible = status == Ipopt::Infeasible_Problem_Detected;
+      out.failed_status = step.ipopt_status;
+      out.failed_sigma = sigma;
+      out.failed_complementarity = step.complementarity;
+      if (out.any_solved) nlp.restore();
+      return out;
+    }
+    out.any_solved = true;
+    first = false;
+    nlp.save();
+    out.last_sigma = last_sigma = sigma;
+    out.acceptable_only = status == Ipopt::Solved_To_Acceptable_Level;
+    if (final_nlp) {
+      out.done = true;
+      return out;
+    }
+    double next = rules.sigma_factor * sigma;
+    if (rules.superlinear) next = std::min(next, std::pow(sigma, 1.5));
+    // Round-off must not leave one more NLP just above sigma_final.
+    if (next < rules.sigma_final * (1.0 + 1e-9)) next = rules.sigma_final;
+    sigma = std::max(next, rules.sigma_final);
+  }
+}
+
+PolishOutcome HomotopySolver::polish(Transcription& transcription, double active_tol,
+                                     double nlp_tolerance, double complementarity_tolerance,
+                                     int index,
+                                     const std::function<void(const HomotopyStep&)>& on_step) {
+  Transcription::Nlp& nlp = *transcription.handle_->nlp;
+  const TranscriptionLayout& l = nlp.layout();
+  Ipopt::OptionsList& o = *impl_->app->Options();
+  std::vector<std::vector<int>> sides;
+  for (int e = 0; e < l.elements; ++e)
+    sides.push_back(transcription.sides(nlp.solution(), e, active_tol));
+  PolishOutcome out;
+  out.cost_before = nlp.cost(nlp.solution().data());
+  nlp.save();
+  nlp.enter_polish(sides);
+  o.SetNumericValue("tol", nlp_tolerance);
+  o.SetNumericValue("acceptable_tol", nlp_tolerance);
+  o.SetStringValue("warm_start_init_point", "no");
+  o.SetNumericValue("mu_init", 1e-9);
+  o.SetNumericValue("bound_push", 1e-12);
+  o.SetNumericValue("bound_frac", 1e-12);
+  Ipopt::ApplicationReturnStatus status;
+  out.step = impl_->solve(nlp, 0.0, true, index, status);
+  if (on_step) on_step(out.step);
+  const double slack = 1e-6 * (1.0 + std::abs(out.cost_before));
+  // A polish with as many equations as free unknowns (every control pinned, e.g. by a clock
+  // constraint) is a square system, which IPOPT reports as Feasible_Point_Found.
+  out.kept = (status == Ipopt::Solve_Succeeded || status == Ipopt::Feasible_Point_Found) &&
+             out.step.complementarity <= complementarity_tolerance &&
+             out.step.objective <= out.cost_before + slack;
+  if (!out.kept) nlp.restore();
+  nlp.leave_polish();
+  // The IPOPT defaults again for a later solve.
+  o.SetNumericValue("bound_push", 1e-2);
+  o.SetNumericValue("bound_frac", 1e-2);
+  return out;
+}
+
+}  // namespace fesd
+}  // namespace bflow
