@@ -141,6 +141,21 @@ struct IpoptCounts {
   double symbolic = 0.0, hessian = 0.0, overall = 0.0;  // CPU seconds
 };
 
+// The split of an IPOPT solve's CPU (`cpu` seconds over `iterations` IPOPT iterations) from its
+// log: KKT factorisations per iteration (IPOPT's trial factorisations, and every MUMPS numeric
+// factorisation), seconds per factorisation, the Hessian and the rest per iteration.
+template <typename State>
+void split_counters(State& state, const IpoptCounts& c, int iterations, double cpu) {
+  if (iterations <= 0) return;
+  const double it = iterations;
+  state.counters["factorizations_per_iteration"] = static_cast<double>(c.trial_factorizations) / it;
+  state.counters["mumps_factorizations_per_iteration"] = static_cast<double>(c.factorizations) / it;
+  state.counters["seconds_per_factorization"] =
+      c.factorizations > 0 ? c.factorization / static_cast<double>(c.factorizations) : 0.0;
+  state.counters["hessian_seconds_per_iteration"] = c.hessian / it;
+  state.counters["rest_seconds_per_iteration"] = (cpu - c.factorization - c.hessian) / it;
+}
+
 class IpoptLog {
  public:
   IpoptLog() {

@@ -50,14 +50,7 @@ bflow_bench::IpoptFlags g_ipopt_flags;  // from the command line, for every row
 void log_counters(benchmark::State& state, const bflow_bench::IpoptCounts& c, int iterations,
                   double cpu) {
   if (iterations <= 0) return;
-  state.counters["factorizations_per_iteration"] =
-      static_cast<double>(c.trial_factorizations) / iterations;
-  state.counters["mumps_factorizations_per_iteration"] =
-      static_cast<double>(c.factorizations) / iterations;
-  state.counters["seconds_per_factorization"] =
-      c.factorizations > 0 ? c.factorization / static_cast<double>(c.factorizations) : 0.0;
-  state.counters["hessian_seconds_per_iteration"] = c.hessian / iterations;
-  state.counters["rest_seconds_per_iteration"] = (cpu - c.factorization - c.hessian) / iterations;
+  bflow_bench::split_counters(state, c, iterations, cpu);
   state.counters["symbolic_seconds"] = c.symbolic;
   state.counters["ipopt_overall_seconds"] = c.overall;
 }

@@ -84,19 +84,9 @@ OcpResult solve(benchmark::State& state, bflow::DcsFormulation formulation) {
   }
   state.SetComplexityN(state.range(0));
   const bflow_bench::IpoptCounts c = log.read();
-  if (r.ipopt_iterations > 0) {
-    const double it = r.ipopt_iterations;
-    double nlp_cpu = 0.0;
-    for (const bflow::OcpHomotopyStep& s : r.homotopy) nlp_cpu += s.cpu_seconds;
-    state.counters["factorizations_per_iteration"] =
-        static_cast<double>(c.trial_factorizations) / it;
-    state.counters["mumps_factorizations_per_iteration"] =
-        static_cast<double>(c.factorizations) / it;
-    state.counters["seconds_per_factorization"] =
-        c.factorizations > 0 ? c.factorization / static_cast<double>(c.factorizations) : 0.0;
-    state.counters["hessian_seconds_per_iteration"] = c.hessian / it;
-    state.counters["rest_seconds_per_iteration"] = (nlp_cpu - c.factorization - c.hessian) / it;
-  }
+  double nlp_cpu = 0.0;
+  for (const bflow::OcpHomotopyStep& s : r.homotopy) nlp_cpu += s.cpu_seconds;
+  bflow_bench::split_counters(state, c, r.ipopt_iterations, nlp_cpu);
   state.counters["cpu_total"] = r.cpu_seconds;
   state.counters["nlps"] = static_cast<double>(r.homotopy.size());
   return r;

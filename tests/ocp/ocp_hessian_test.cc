@@ -156,19 +156,11 @@ Checked check(const OcpModel& model, const OcpProblem& problem, OcpOptions o, do
 }
 
 void expect_passes(const Checked& c, const std::string& what) {
-  EXPECT_TRUE(c.out.second_order_started) << what;
-  EXPECT_TRUE(c.out.no_errors) << what;
-  EXPECT_FALSE(c.out.errors) << what << ": " << c.out.flagged_objective << " obj_hess and "
-                             << c.out.flagged_constraint << " constr_hess entries flagged, first:\n"
-                             << c.out.first_flagged;
+  bflow::testing::expect_checker_passes(c.out, what);
 }
 
 void expect_reported(const Checked& c, const std::string& what) {
-  EXPECT_TRUE(c.out.second_order_started) << what;
-  EXPECT_TRUE(c.out.errors) << what;
-  EXPECT_FALSE(c.out.no_errors) << what;
-  EXPECT_EQ(c.out.flagged_first_order, 0) << what << ": only the Hessian was scaled\n"
-                                          << c.out.first_flagged;
+  bflow::testing::expect_checker_reports(c.out, what);
 }
 
 // The Hessian as it is must pass, and times 1.001 must be reported. Returns the negative

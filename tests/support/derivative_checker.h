@@ -24,6 +24,8 @@
 #include <sstream>
 #include <string>
 
+#include <gtest/gtest.h>
+
 namespace bflow::testing {
 
 struct CheckerOutput {
@@ -84,6 +86,24 @@ inline CheckerOutput parse_checker_output(const std::string& text) {
     }
   }
   return out;
+}
+
+// The checker ran its second-order part and flagged nothing.
+inline void expect_checker_passes(const CheckerOutput& out, const std::string& what) {
+  EXPECT_TRUE(out.second_order_started) << what;
+  EXPECT_TRUE(out.no_errors) << what;
+  EXPECT_FALSE(out.errors) << what << ": " << out.flagged_objective << " obj_hess and "
+                           << out.flagged_constraint << " constr_hess entries flagged, first:\n"
+                           << out.first_flagged;
+}
+
+// A negative control (only the Hessian perturbed): errors reported, no first derivative flagged.
+inline void expect_checker_reports(const CheckerOutput& out, const std::string& what) {
+  EXPECT_TRUE(out.second_order_started) << what;
+  EXPECT_TRUE(out.errors) << what;
+  EXPECT_FALSE(out.no_errors) << what;
+  EXPECT_EQ(out.flagged_first_order, 0) << what << ": only the Hessian was scaled\n"
+                                        << out.first_flagged;
 }
 
 }  // namespace bflow::testing
