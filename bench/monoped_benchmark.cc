@@ -89,25 +89,27 @@ void BM_Monoped(benchmark::State& state, bflow::DcsFormulation formulation) {
 
 constexpr int kIterations = 40;
 
-template <bflow::TimeFreezingRegions kRegions>
-void BM_MonopedIteration(benchmark::State& state, bflow::DcsFormulation formulation) {
+// The monoped's first NLP (sigma = sigma_initial) with `configure` applied to its options, timed
+// per IPOPT iteration; false (the state skipped) when IPOPT took no iteration.
+template <bflow::TimeFreezingRegions kRegions, typename Configure>
+bool first_nlp(benchmark::State& state, bflow::DcsFormulation formulation, Configure configure,
+               OcpResult& r) {
   const auto model = bflow::adapt_ocp(bflow::examples::monoped_model<kRegions>());
   const MonopedTask task;
   const bflow::OcpProblem problem = task.problem();
   bflow::OcpOptions o = MonopedTask::options(static_cast<int>(state.range(0)));
   o.formulation = formulation;
   o.sigma_final = o.sigma_initial;  // one NLP
-  o.max_nlp_iterations = kIterations;
   o.polish = false;
+  configure(o);
   const bflow_bench::IpoptLog log;
   log.apply_to(o);
   g_ipopt_flags.apply_to(o);
-  OcpResult r;
   for (auto _ : state) {
     r = bflow::ocp_solve(model, problem, o);
     if (r.homotopy.empty() || r.homotopy.front().iterations == 0) {
       state.SkipWithError(("no IPOPT iteration: " + r.message).c_str());
-      return;
+      return false;
     }
     state.SetIterationTime(r.homotopy.front().cpu_seconds / r.homotopy.front().iterations);
   }
@@ -115,46 +117,39 @@ void BM_MonopedIteration(benchmark::State& state, bflow::DcsFormulation formulat
   state.counters["ipopt_iterations"] = nlp.iterations;
   state.counters["cpu_per_iteration"] = nlp.cpu_seconds / nlp.iterations;
   state.counters["unknowns"] = r.unknowns;
+  log_counters(state, log.read(), nlp.iterations, nlp.cpu_seconds);
+  state.SetLabel(nlp.ipopt_status);
+  return true;
+}
+
+// The first kIterations IPOPT iterations of the sigma = 1 NLP.
+template <bflow::TimeFreezingRegions kRegions>
+void BM_MonopedIteration(benchmark::State& state, bflow::DcsFormulation formulation) {
+  OcpResult r;
+  if (!first_nlp<kRegions>(
+          state, formulation, [](bflow::OcpOptions& o) { o.max_nlp_iterations = kIterations; },
+          r)) {
+    return;
+  }
   state.counters["constraints"] = r.constraints;
   state.counters["jacobian_nonzeros"] = r.jacobian_nonzeros;
   state.counters["hessian_nonzeros"] = r.hessian_nonzeros;
-  log_counters(state, log.read(), nlp.iterations, nlp.cpu_seconds);
-  state.SetLabel(nlp.ipopt_status);
 }
 
 // The first NLP (sigma = sigma_initial) to its end, with the tolerances the homotopy gives it
 // (tol = 1e-2 sigma; ocp_solve's last NLP gets nlp_tolerance, so that is set to it).
 template <bflow::TimeFreezingRegions kRegions>
 void BM_MonopedFirstNlp(benchmark::State& state, bflow::DcsFormulation formulation) {
-  const auto model = bflow::adapt_ocp(bflow::examples::monoped_model<kRegions>());
-  const MonopedTask task;
-  const bflow::OcpProblem problem = task.problem();
-  bflow::OcpOptions o = MonopedTask::options(static_cast<int>(state.range(0)));
-  o.formulation = formulation;
-  o.sigma_final = o.sigma_initial;  // one NLP
-  o.nlp_tolerance = 1e-2 * o.sigma_initial;
-  o.polish = false;
-  const bflow_bench::IpoptLog log;
-  log.apply_to(o);
-  g_ipopt_flags.apply_to(o);
   OcpResult r;
-  for (auto _ : state) {
-    r = bflow::ocp_solve(model, problem, o);
-    if (r.homotopy.empty() || r.homotopy.front().iterations == 0) {
-      state.SkipWithError(("no IPOPT iteration: " + r.message).c_str());
-      return;
-    }
-    state.SetIterationTime(r.homotopy.front().cpu_seconds / r.homotopy.front().iterations);
+  if (!first_nlp<kRegions>(
+          state, formulation,
+          [](bflow::OcpOptions& o) { o.nlp_tolerance = 1e-2 * o.sigma_initial; }, r)) {
+    return;
   }
   const bflow::OcpHomotopyStep& nlp = r.homotopy.front();
-  state.counters["ipopt_iterations"] = nlp.iterations;
   state.counters["cpu_total"] = nlp.cpu_seconds;
-  state.counters["cpu_per_iteration"] = nlp.cpu_seconds / nlp.iterations;
   state.counters["objective"] = nlp.objective;
   state.counters["complementarity"] = nlp.complementarity;
-  state.counters["unknowns"] = r.unknowns;
-  log_counters(state, log.read(), nlp.iterations, nlp.cpu_seconds);
-  state.SetLabel(nlp.ipopt_status);
 }
 }  // namespace
 

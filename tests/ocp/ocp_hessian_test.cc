@@ -33,6 +33,8 @@ namespace bflow {
 namespace {
 
 using bflow::testing::CheckerOutput;
+using bflow::testing::expect_checker_passes;
+using bflow::testing::expect_checker_reports;
 using bflow::testing::parse_checker_output;
 
 // Three states, two controls, three switching functions; nonlinear in x and u, and multi-affine
@@ -155,21 +157,13 @@ Checked check(const OcpModel& model, const OcpProblem& problem, OcpOptions o, do
   return c;
 }
 
-void expect_passes(const Checked& c, const std::string& what) {
-  bflow::testing::expect_checker_passes(c.out, what);
-}
-
-void expect_reported(const Checked& c, const std::string& what) {
-  bflow::testing::expect_checker_reports(c.out, what);
-}
-
 // The Hessian as it is must pass, and times 1.001 must be reported. Returns the negative
 // control, whose flagged entries say what was compared.
 Checked pass_and_control(const OcpModel& model, const OcpProblem& p, const OcpOptions& o,
                          const std::string& what, double sigma = 0.1, Probe probe = {}) {
-  expect_passes(check(model, p, o, 1.0, sigma, probe), what);
+  expect_checker_passes(check(model, p, o, 1.0, sigma, probe).out, what);
   Checked control = check(model, p, o, 1.001, sigma, probe);
-  expect_reported(control, what + ", Hessian x 1.001");
+  expect_checker_reports(control.out, what + ", Hessian x 1.001");
   return control;
 }
 
@@ -220,11 +214,12 @@ TEST(OcpHessian, StepFormulationOnRadauAndGaussLegendre) {
                                             std::tuple{CollocationScheme::kGaussLegendre, 2, 2},
                                             std::tuple{CollocationScheme::kGaussLegendre, 1, 2},
                                             std::tuple{CollocationScheme::kRadauIIA, 3, 1}}) {
-    expect_passes(check(model, p, shape(stages, 1, scheme, n_s)), "step, " + name(scheme, n_s));
+    expect_checker_passes(check(model, p, shape(stages, 1, scheme, n_s)).out,
+                          "step, " + name(scheme, n_s));
   }
   const OcpOptions o = shape(2, 1, CollocationScheme::kRadauIIA, 2);
   const Checked control = check(model, p, o, 1.001);
-  expect_reported(control, "step, Hessian x 1.001");
+  expect_checker_reports(control.out, "step, Hessian x 1.001");
   const Rows rows = rows_of(control, o, CurvedAll::kPath, CurvedAll::kTerminal);
   EXPECT_GT(control.out.flagged_objective, 0);
   EXPECT_TRUE(flagged_in(control.out, 0, rows.elements_end));
@@ -240,12 +235,12 @@ TEST(OcpHessian, LiftedStepFormulation) {
   const auto model = adapt_ocp(CurvedAll{});
   const OcpProblem p = with_constraint_bounds(Curved::problem());
   for (const auto scheme : {CollocationScheme::kRadauIIA, CollocationScheme::kGaussLegendre}) {
-    expect_passes(check(model, p, shape(1, 1, scheme, 2, DcsFormulation::kStep, 2)),
-                  "lifted, " + name(scheme, 2));
+    expect_checker_passes(check(model, p, shape(1, 1, scheme, 2, DcsFormulation::kStep, 2)).out,
+                          "lifted, " + name(scheme, 2));
   }
   const OcpOptions o = shape(1, 1, CollocationScheme::kRadauIIA, 2, DcsFormulation::kStep, 2);
   const Checked control = check(model, p, o, 1.001);
-  expect_reported(control, "lifted, Hessian x 1.001");
+  expect_checker_reports(control.out, "lifted, Hessian x 1.001");
   EXPECT_TRUE(flagged_in(control.out, 0, rows_of(control, o, 2, 2).elements_end));
 }
 
@@ -258,8 +253,9 @@ TEST(OcpHessian, StewartFormulation) {
   const OcpProblem p = with_constraint_bounds(Curved::problem());
   for (const auto& [scheme, n_s, elements] : {std::tuple{CollocationScheme::kGaussLegendre, 2, 1},
                                               std::tuple{CollocationScheme::kRadauIIA, 1, 2}}) {
-    expect_passes(check(model, p, shape(1, elements, scheme, n_s, DcsFormulation::kStewart)),
-                  "Stewart, " + name(scheme, n_s));
+    expect_checker_passes(
+        check(model, p, shape(1, elements, scheme, n_s, DcsFormulation::kStewart)).out,
+        "Stewart, " + name(scheme, n_s));
   }
   const OcpOptions o = shape(1, 1, CollocationScheme::kRadauIIA, 2, DcsFormulation::kStewart);
   const Checked control = pass_and_control(model, p, o, "Stewart, Radau IIA 2");
@@ -365,14 +361,16 @@ TEST(OcpHessian, MonopedTimeFreezing) {
   const Rows rows = rows_of(step, o, 1, 0);
   EXPECT_GT(step.out.flagged_objective, 0);
   EXPECT_TRUE(flagged_in(step.out, rows.path_begin, rows.terminal_begin));
-  expect_passes(
+  expect_checker_passes(
       check(unions, p, shape(1, 1, CollocationScheme::kRadauIIA, 1, DcsFormulation::kStep, 2), 1.0,
-            0.1, probe),
+            0.1, probe)
+          .out,
       "monoped, lifted");
   const auto base_sets = adapt_ocp(examples::monoped_model<TimeFreezingRegions::kBaseSets>());
-  expect_passes(
+  expect_checker_passes(
       check(base_sets, p, shape(1, 1, CollocationScheme::kRadauIIA, 1, DcsFormulation::kStewart),
-            1.0, 0.1, probe),
+            1.0, 0.1, probe)
+          .out,
       "monoped, Stewart");
 }
 

@@ -235,8 +235,9 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
                          const double* lambda, Blocks& hessian, double* values) {
   const PointDcs& dcs = *l.dcs;
   const int d = l.d, nu = l.nu;
-  std::vector<int> piece_globals;
-  std::vector<double> piece_base;
+  // Scratch kept per thread: this runs for every element of every Hessian evaluation.
+  thread_local std::vector<int> piece_globals;
+  thread_local std::vector<double> piece_base, w;
   const auto gather = [&](const std::vector<int>& piece) {
     piece_globals.resize(piece.size());
     piece_base.resize(piece.size());
@@ -245,7 +246,7 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
       piece_base[k] = local[static_cast<std::size_t>(piece[k])];
     }
   };
-  std::vector<double> w(static_cast<std::size_t>(d));
+  w.resize(static_cast<std::size_t>(d));
   const double one = 1.0;
   for (int k = 0; k < l.s; ++k) {
     for (int i = 0; i < d; ++i) {
