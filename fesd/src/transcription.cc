@@ -848,11 +848,11 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
   Ipopt::OptionsList& o = *impl_->app->Options();
   HomotopyOutcome out;
   double sigma = rules.sigma_initial, last_sigma = sigma;
-  bool first = true;
+  bool first = true, finishing = false;
   int retries = 0;
   while (true) {
     nlp.set_sigma(sigma);
-    const bool final_nlp = sigma <= rules.sigma_final;
+    const bool final_nlp = sigma <= rules.sigma_final || finishing;
     // Intermediate problems only need to be solved to the accuracy sigma allows.
     const double tol =
         final_nlp ? rules.nlp_tolerance : std::max(rules.nlp_tolerance, 1e-2 * sigma);
@@ -903,9 +903,17 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
     nlp.save();
     out.last_sigma = last_sigma = sigma;
     out.acceptable_only = status == Ipopt::Solved_To_Acceptable_Level;
-    if (final_nlp) {
+    const bool within =
+        rules.stop_complementarity > 0.0 && step.complementarity <= rules.stop_complementarity;
+    if (final_nlp || (within && tol <= rules.nlp_tolerance)) {
       out.done = true;
+      out.stopped_early = sigma > rules.sigma_final;
       return out;
+    }
+    if (within) {
+      // Solved only to the accuracy sigma allows: once more at nlp_tolerance.
+      finishing = true;
+      continue;
     }
     double next = rules.sigma_factor * sigma;
     if (rules.superlinear) next = std::min(next, std::pow(sigma, 1.5));

@@ -551,6 +551,8 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   rules.acceptable_violation_max = 1e-2;
   rules.acceptable_compl_inf_tol = 1e-2;  // IPOPT's default
   rules.acceptable_iter = 15;
+  if (options.stop_at_complementarity)
+    rules.stop_complementarity = options.complementarity_tolerance;
   const auto on_step = [&](const OcpHomotopyStep& step) {
     result.ipopt_iterations += step.iterations;
     result.homotopy.push_back(step);
@@ -568,7 +570,14 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     }
   }
 
-  const double active_tol = std::clamp(std::sqrt(options.sigma_final), 1e-9, 1e-4);
+  if (outcome.stopped_early) {
+    result.notes.push_back("the homotopy stopped at sigma = " + number(outcome.last_sigma) +
+                           ": its complementarity residual is within the tolerance " +
+                           number(options.complementarity_tolerance));
+  }
+  // The active set is read at the last sigma (sigma_final unless the homotopy stopped earlier).
+  const double active_tol =
+      std::clamp(std::sqrt(outcome.done ? outcome.last_sigma : options.sigma_final), 1e-9, 1e-4);
   bool polished = false;
   if (outcome.done && options.polish) {
     // The active set of the last NLP, fixed: an exact FESD solution without relaxation.

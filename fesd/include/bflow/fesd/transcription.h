@@ -248,6 +248,10 @@ struct HomotopyRules {
          acceptable_violation_max = 1e19;
   double acceptable_compl_inf_tol = 1e-4;
   int acceptable_iter = 5;
+  /** > 0: the homotopy ends at the first NLP whose complementarity residual is at most this
+      (nosnoc's rule), re-solved at nlp_tolerance at the same sigma when it was solved more
+      loosely; sigma_final then only bounds it. 0: every NLP down to sigma_final. */
+  double stop_complementarity = 0.0;
 };
 
 /** HomotopyRules with the sigma schedule and nlp_tolerance of FesdOptions or OcpOptions, the
@@ -280,8 +284,11 @@ struct HomotopyOutcome {
   int iterations = 0;
   /** Some NLP was solved; the transcription then holds the last solved one's solution. */
   bool any_solved = false;
-  /** The NLP at sigma_final was solved. */
+  /** The NLP at sigma_final was solved, or (stop_complementarity) one whose residual is within
+      it, at nlp_tolerance. */
   bool done = false;
+  /** Done above sigma_final by stop_complementarity. */
+  bool stopped_early = false;
   double last_sigma = 0.0;  ///< sigma of the last solved NLP
   /** IPOPT solved the last solved NLP only to its acceptable level. */
   bool acceptable_only = false;

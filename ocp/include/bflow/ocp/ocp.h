@@ -370,6 +370,11 @@ struct OcpOptions {
       solution. It is kept only when IPOPT solves it and its cost is not worse (by 1e-6
       relative); OcpResult::polished and notes say what happened. */
   bool polish = true;
+  /** End the homotopy at the first NLP whose complementarity residual is at most
+      complementarity_tolerance (nosnoc's rule; an NLP solved more loosely than nlp_tolerance is
+      solved once more at the same sigma), instead of going down to sigma_final, which then
+      only bounds the homotopy. OcpResult::notes says where it stopped. */
+  bool stop_at_complementarity = false;
   int max_nlp_iterations = 3000;  ///< per NLP of the homotopy
   int print_level = 0;            ///< IPOPT's print_level
   /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
