@@ -883,7 +883,8 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
     const bool solved = status == Ipopt::Solve_Succeeded ||
                         status == Ipopt::Solved_To_Acceptable_Level ||
                         status == Ipopt::Feasible_Point_Found;
-    if (!solved && out.any_solved && retries < rules.max_retries) {
+    // (A failed re-solve at nlp_tolerance is not retried: its sigma is the last solved one.)
+    if (!solved && out.any_solved && !finishing && retries < rules.max_retries) {
       // Too large a step in sigma: back to the last solution, half the step (in log sigma).
       ++retries;
       nlp.restore();
