@@ -1,14 +1,15 @@
-// The hopping monoped of [F] Section 7.2 (monoped_ocp.h, docs/ocp.md): one whole ocp_solve,
-// homotopy and polish, with the options of `bflow ocp --example monoped`
-// (examples::MonopedTask::options), against the number N of control stages, in the Heaviside
+// The hopping monoped of [F] Section 7.2 (monoped_ocp.h, docs/ocp.md): one whole ocp_solve
+// with the options of `bflow ocp --example monoped` (nosnoc's setup,
+// examples::MonopedTask::options), against the number N of control stages, in the Heaviside
 // step formulation (three regions) and in Stewart's (eight base sets): the paper's Figure 10.
 //
 //   BM_Monoped/<formulation>/<N>   N = 30, 40, ..., 90, both formulations at each N in turn
 //
 // Each solve runs once. The reported time is the CPU time per IPOPT iteration (manual time); the
 // CPU column is the CPU time of the whole homotopy. Counters: IPOPT iterations, the distance of
-// q(T) to the target, the clock at the end, the hops, the complementarity residual and
-// "solved" (1 or 0); the label is "solved" or the status and its message (a failed solve keeps
+// q(T) to the target, the clock at the end, the hops, the complementarity residual, the
+// objective, IPOPT's KKT error, acceptable_stop (1 when IPOPT stopped at its acceptable level)
+// and "solved" (1 or 0); the label is "solved" or the status and its message (a failed solve keeps
 // its row: its cost is part of the figure).
 //
 //   BM_MonopedIteration/<formulation>/<N>   the cost of an IPOPT iteration alone: the first NLP
@@ -60,11 +61,11 @@ using bflow::examples::MonopedTask;
 
 template <bflow::TimeFreezingRegions kRegions>
 void BM_Monoped(benchmark::State& state, bflow::DcsFormulation formulation) {
-  const auto model = bflow::adapt_ocp(bflow::examples::monoped_model<kRegions>());
-  const MonopedTask task;
-  const bflow::OcpProblem problem = task.problem();
-  bflow::OcpOptions o = MonopedTask::options(static_cast<int>(state.range(0)));
-  o.formulation = formulation;
+  const auto model = bflow::adapt_ocp(bflow::examples::monoped_free_model<kRegions>());
+  const MonopedTask task;  // nosnoc's setup
+  const int stages = static_cast<int>(state.range(0));
+  const bflow::OcpProblem problem = task.problem(stages);
+  bflow::OcpOptions o = task.options(stages, formulation);
   g_ipopt_flags.apply_to(o);
   OcpResult r;
   for (auto _ : state) {
@@ -83,6 +84,9 @@ void BM_Monoped(benchmark::State& state, bflow::DcsFormulation formulation) {
     state.counters["hops"] = MonopedTask::hops(r.x_grid);
   }
   state.counters["complementarity"] = r.max_complementarity;
+  state.counters["objective"] = r.objective;
+  state.counters["kkt_error"] = r.kkt_error;
+  state.counters["acceptable_stop"] = r.ipopt_status == "Solved_To_Acceptable_Level" ? 1.0 : 0.0;
   state.counters["solved"] = r.ok() ? 1.0 : 0.0;
   state.SetLabel(r.ok() ? "solved" : std::string(bflow::to_string(r.status)) + ": " + r.message);
 }
@@ -95,10 +99,11 @@ template <bflow::TimeFreezingRegions kRegions, typename Configure>
 bool first_nlp(benchmark::State& state, bflow::DcsFormulation formulation, Configure configure,
                OcpResult& r) {
   const auto model = bflow::adapt_ocp(bflow::examples::monoped_model<kRegions>());
-  const MonopedTask task;
-  const bflow::OcpProblem problem = task.problem();
-  bflow::OcpOptions o = MonopedTask::options(static_cast<int>(state.range(0)));
-  o.formulation = formulation;
+  MonopedTask task;  // the strict setup, as the iteration's cost was first measured
+  task.setup = bflow::examples::MonopedSetup::kStrict;
+  const int stages = static_cast<int>(state.range(0));
+  const bflow::OcpProblem problem = task.problem(stages);
+  bflow::OcpOptions o = task.options(stages, formulation);
   o.sigma_final = o.sigma_initial;  // one NLP
   o.polish = false;
   configure(o);

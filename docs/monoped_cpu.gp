@@ -5,17 +5,18 @@ set encoding utf8
 set terminal pngcairo size 1200,480 enhanced font 'Sans,12'
 set output 'monoped_cpu.png'
 set datafile separator ','
-set multiplot layout 1,2 title 'The monoped of [F] Section 7.2 on 2 cores with MUMPS (filled: solved, open: not solved)'
+set multiplot layout 1,2 title 'The monoped of [F] Section 7.2 on 2 cores with MUMPS (filled: solved with two hops or more, open: not)'
 set grid lc rgb '#dddddd'
 set key top left
 set xlabel 'N (control stages)'
 set xrange [25:95]
 set ylabel 'CPU time of the homotopy [s]'
-plot 'monoped_cpu.csv' using (strcol(2) eq 'step' && $3 == 1 ? $1 : NaN):6 with points pt 7 ps 1.3 lc rgb '#1f77b4' title 'step', \
-     '' using (strcol(2) eq 'step' && $3 == 0 ? $1 : NaN):6 with points pt 6 ps 1.3 lc rgb '#1f77b4' notitle, \
-     '' using (strcol(2) eq 'stewart' && $3 == 1 ? $1 : NaN):6 with points pt 5 ps 1.3 lc rgb '#d62728' title 'Stewart', \
-     '' using (strcol(2) eq 'stewart' && $3 == 0 ? $1 : NaN):6 with points pt 4 ps 1.3 lc rgb '#d62728' notitle
+ok(f) = strcol(1) eq f && strcol(3) eq 'solved' && $4 >= 2
+plot 'monoped_cpu.csv' skip 1 using (ok('step') ? $2 : NaN):8 with points pt 7 ps 1.3 lc rgb '#1f77b4' title 'step', \
+     '' skip 1 using (strcol(1) eq 'step' && !ok('step') ? $2 : NaN):8 with points pt 6 ps 1.3 lc rgb '#1f77b4' notitle, \
+     '' skip 1 using (ok('stewart') ? $2 : NaN):8 with points pt 5 ps 1.3 lc rgb '#d62728' title 'Stewart', \
+     '' skip 1 using (strcol(1) eq 'stewart' && !ok('stewart') ? $2 : NaN):8 with points pt 4 ps 1.3 lc rgb '#d62728' notitle
 set ylabel 'CPU time per IPOPT iteration [ms]'
-plot 'monoped_cpu.csv' using (strcol(2) eq 'step' ? $1 : NaN):7 with linespoints pt 7 ps 1.3 lc rgb '#1f77b4' title 'step', \
-     '' using (strcol(2) eq 'stewart' ? $1 : NaN):7 with linespoints pt 5 ps 1.3 lc rgb '#d62728' title 'Stewart'
+plot 'monoped_cpu.csv' skip 1 using (strcol(1) eq 'step' ? $2 : NaN):9 with linespoints pt 7 ps 1.3 lc rgb '#1f77b4' title 'step', \
+     '' skip 1 using (strcol(1) eq 'stewart' ? $2 : NaN):9 with linespoints pt 5 ps 1.3 lc rgb '#d62728' title 'Stewart'
 unset multiplot

@@ -207,6 +207,8 @@ struct OcpCommandOptions {
   std::string formulation = "step";     ///< step or stewart
   bool standard = false;                ///< standard time-stepping, no switch detection
   std::string relaxation = "scholtes";  ///< scholtes or l1
+  /** The monoped's setup (examples::MonopedSetup): nosnoc (not given) or strict. */
+  std::optional<std::string> setup;
   /** Relaxation parameters and IPOPT's tolerance of the last NLP, finite and > 0 with
       sigma_final <= sigma0; not given: the defaults of bflow::OcpOptions. */
   std::optional<double> sigma0, sigma_final, tol;

@@ -65,17 +65,12 @@ class OptionError : public std::runtime_error {
 // Calls f(model, problem) with the example's model and data (the monoped's model depends on the
 // formulation: three regions for the step formulation, the eight base sets for Stewart's).
 template <typename F>
-auto with_example(const std::string& name, DcsFormulation formulation, F&& f) {
+auto with_example(const std::string& name, const examples::MonopedTask& monoped,
+                  DcsFormulation formulation, int stages, F&& f) {
   if (name == "turbo-car") {
     return f(adapt_ocp(examples::TurboCar{}), examples::TurboCar::problem());
   }
-  if (name == "monoped") {
-    const OcpProblem problem = examples::MonopedTask{}.problem();
-    if (formulation == DcsFormulation::kStewart) {
-      return f(adapt_ocp(examples::monoped_model<TimeFreezingRegions::kBaseSets>()), problem);
-    }
-    return f(adapt_ocp(examples::monoped_model<TimeFreezingRegions::kUnions>()), problem);
-  }
+  if (name == "monoped") return examples::with_monoped(monoped, formulation, stages, f);
   return f(adapt_ocp(examples::BrakingBlock{}), examples::BrakingBlock::problem());
 }
 
@@ -260,6 +255,7 @@ OrderedJson homotopy_json(const std::vector<OcpHomotopyStep>& steps) {
     j["iterations"] = s.iterations;
     j["cpu_seconds"] = s.cpu_seconds;
     j["status"] = s.ipopt_status;
+    j["kkt_error"] = std::isfinite(s.kkt_error) ? OrderedJson(s.kkt_error) : OrderedJson(nullptr);
     j["polish"] = s.polish;
     list.push_back(j);
   }
@@ -454,16 +450,30 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
       report_error(err, "--example: unknown example " + quote(options.example) + "; use " + names);
       return kExitBadInput;
     }
-    // The monoped starts from the published experiment's homotopy (MonopedTask::options).
-    OcpOptions o = options.example == "monoped" ? examples::MonopedTask::options(stages_of(options))
-                                                : OcpOptions{};
+    DcsFormulation formulation;
     try {
-      o.formulation = parse_dcs_formulation(options.formulation);
+      formulation = parse_dcs_formulation(options.formulation);
     } catch (const InvalidArgument&) {
       report_error(err, "--formulation: unknown formulation " + quote(options.formulation) +
                             ": use step or stewart");
       return kExitBadInput;
     }
+    examples::MonopedTask monoped;
+    if (options.setup) {
+      if (options.example != "monoped") {
+        fail("--setup", "only the monoped has setups, not " + quote(options.example));
+      }
+      try {
+        monoped.setup = examples::parse_monoped_setup(*options.setup);
+      } catch (const InvalidArgument&) {
+        fail("--setup", "unknown setup " + quote(*options.setup) + "; use nosnoc or strict");
+      }
+    }
+    // The monoped starts from its setup's options (MonopedTask::options), nosnoc's by default.
+    OcpOptions o = options.example == "monoped"
+                       ? monoped.options(std::max(stages_of(options), 1), formulation)
+                       : OcpOptions{};
+    o.formulation = formulation;
     try {
       o.scheme = parse_collocation_scheme(options.scheme);
     } catch (const InvalidArgument&) {
@@ -485,10 +495,11 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
         err << progress_line(s) << '\n' << std::flush;
       };
     }
-    with_example(options.example, o.formulation, [&](const OcpModel& model, const OcpProblem&) {
-      check_size(model, options, o);
-      return 0;
-    });
+    with_example(options.example, monoped, o.formulation, o.stages,
+                 [&](const OcpModel& model, const OcpProblem&) {
+                   check_size(model, options, o);
+                   return 0;
+                 });
     // A directory that cannot take the plots, or holds something other than a file where a
     // plot's file goes, is refused before the solve.
     if (options.plot) {
@@ -509,7 +520,8 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
     }
 
     return with_example(
-        options.example, o.formulation, [&](const OcpModel& model, const OcpProblem& problem) {
+        options.example, monoped, o.formulation, o.stages,
+        [&](const OcpModel& model, const OcpProblem& problem) {
           const OcpResult r = ocp_solve(model, problem, o);
           const std::string notice = spurious_notice(options, r);
           std::vector<std::string> notes = r.notes;
@@ -520,6 +532,9 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
           j["nfe"] = options.nfe;
           j["status"] = to_string(r.status);
           j["message"] = r.message;
+          if (options.example == "monoped") j["setup"] = to_string(monoped.setup);
+          j["ipopt_status"] = r.ipopt_status;
+          j["kkt_error"] = std::isfinite(r.kkt_error) ? OrderedJson(r.kkt_error) : nullptr;
           j["notes"] = notes;
           j["objective"] = r.objective;
           j["T"] = r.T;

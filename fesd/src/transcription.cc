@@ -11,6 +11,7 @@
 #include <vector>
 
 #include <IpIpoptApplication.hpp>
+#include <IpIpoptCalculatedQuantities.hpp>
 #include <IpSolveStatistics.hpp>
 #include <IpTNLP.hpp>
 
@@ -76,7 +77,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
  public:
   using ElementEnds = Transcription::ElementEnds;
   // A function of a few unknowns that enters the objective.
-  enum class TermKind { kStage, kTerminal, kEquilibration };
+  enum class TermKind { kStage, kStageEnd, kTerminal, kEquilibration, kStepDeviation };
   struct Term {
     TermKind kind;
     int stage;
@@ -112,6 +113,21 @@ class Transcription::Nlp final : public Ipopt::TNLP {
         for (int j = 0; j < nu; ++j) t.globals.push_back(l_.u(t.stage, j));
         t.constants.resize(t.globals.size(), 0.0);
         objective_terms_.push_back(std::move(t));
+      }
+    }
+    if (terms_.has_stage_end_cost()) {
+      for (int k = 0; k < l_.stages; ++k) {
+        Term t{TermKind::kStageEnd, k, {}, {}};
+        for (int i = 0; i < d; ++i) t.globals.push_back(l_.x_end((k + 1) * l_.per_stage - 1, i));
+        for (int j = 0; j < nu; ++j) t.globals.push_back(l_.u(k, j));
+        t.constants.assign(t.globals.size(), 0.0);
+        objective_terms_.push_back(std::move(t));
+      }
+    }
+    if (!p_.standard && p_.step_deviation_weight > 0.0) {
+      for (int e = 0; e < l_.elements; ++e) {
+        objective_terms_.push_back(
+            Term{TermKind::kStepDeviation, e / l_.per_stage, {l_.var(e, 0)}, {0.0}});
       }
     }
     if (terms_.has_terminal_cost()) {
@@ -277,8 +293,17 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   void set_sigma(double sigma) { sigma_ = sigma; }
   void set_solution(const Eigen::VectorXd& w) { w_ = w; }
   const Eigen::VectorXd& solution() const { return w_; }
+  double kkt_error() const { return kkt_error_; }
+  double constraint_violation() const { return constraint_violation_; }
   // The last solved iterate, kept so that a failed solve can go back to it.
   void save() { saved_ = {w_, z_l_, z_u_, lambda_}; }
+  // A warm start from the primal point only: every multiplier 0 (IPOPT pushes the bounds' up to
+  // warm_start_mult_bound_push).
+  void forget_multipliers() {
+    z_l_.setZero();
+    z_u_.setZero();
+    lambda_.setZero();
+  }
   void restore() {
     w_ = saved_[0];
     z_l_ = saved_[1];
@@ -322,7 +347,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     double value = p_.time_optimal ? w[TranscriptionLayout::kT] : 0.0;
     std::vector<double> in;
     for (const Term& t : objective_terms_) {
-      if (t.kind == TermKind::kEquilibration) continue;
+      if (t.kind == TermKind::kEquilibration || t.kind == TermKind::kStepDeviation) continue;
       gather(t, w, in);
       value += term_value(t, in.data());
     }
@@ -374,7 +399,11 @@ class Transcription::Nlp final : public Ipopt::TNLP {
           const double c = m < l_.s ? tab_.c(m) : 1.0;
           y.head(d) = (1.0 - c) * xa + c * xb;
           if (m < l_.s) w_.segment(l_.var(e, 1 + m * d), d) = y.head(d);
-          l_.dcs->initial(y.data(), z.data());
+          if (p_.neutral_algebraic_guess) {
+            l_.dcs->neutral(z.data());
+          } else {
+            l_.dcs->initial(y.data(), z.data());
+          }
           w_.segment(l_.z(e, m, 0), l_.nz) = z;
         }
         w_.segment(l_.var(e, l_.off_x), d) = xb;
@@ -658,7 +687,12 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   void finalize_solution(Ipopt::SolverReturn, Ipopt::Index n, const Ipopt::Number* x,
                          const Ipopt::Number* z_l, const Ipopt::Number* z_u, Ipopt::Index m,
                          const Ipopt::Number*, const Ipopt::Number* lambda, Ipopt::Number,
-                         const Ipopt::IpoptData*, Ipopt::IpoptCalculatedQuantities*) override {
+                         const Ipopt::IpoptData*, Ipopt::IpoptCalculatedQuantities* cq) override {
+    kkt_error_ = constraint_violation_ = std::numeric_limits<double>::infinity();
+    if (cq != nullptr) {
+      kkt_error_ = cq->curr_nlp_error();
+      constraint_violation_ = cq->unscaled_curr_nlp_constraint_violation(Ipopt::NORM_MAX);
+    }
     w_ = Eigen::Map<const Eigen::VectorXd>(x, n);
     z_l_ = Eigen::Map<const Eigen::VectorXd>(z_l, n);
     z_u_ = Eigen::Map<const Eigen::VectorXd>(z_u, n);
@@ -717,8 +751,14 @@ class Transcription::Nlp final : public Ipopt::TNLP {
           sum += tab_.b(m) * terms_.stage_cost(t.stage, stage + m * l_.d, u);
         return in[0] * in[1] * sum;
       }
+      case TermKind::kStageEnd:
+        return terms_.stage_end_cost(t.stage, in, in + l_.d);
       case TermKind::kTerminal:
         return terms_.terminal_cost(in);
+      case TermKind::kStepDeviation: {
+        const T e = p_.horizon / unit_ * (in[0] - T(h0_));
+        return p_.step_deviation_weight * e * e;
+      }
       case TermKind::kEquilibration: {
         const double fade = p_.equilibration_fades ? std::min(1.0, sigma_) : 1.0;
         return fade * p_.equilibration_weight * equilibration_term(l_, h0_, in);
@@ -748,6 +788,8 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   std::vector<int> equal_;
   std::vector<std::pair<int, int>> polish_jac_;
   Eigen::VectorXd w_, z_l_, z_u_, lambda_;
+  double kkt_error_ = std::numeric_limits<double>::infinity();
+  double constraint_violation_ = std::numeric_limits<double>::infinity();
   std::array<Eigen::VectorXd, 4> saved_;
 };
 
@@ -825,6 +867,8 @@ struct HomotopySolver::Impl {
     step.ipopt_status = ipopt_status_name(status);
     step.objective = nlp.cost(nlp.solution().data());
     step.complementarity = nlp.complementarity(nlp.solution().data());
+    step.kkt_error = nlp.kkt_error();
+    step.constraint_violation = nlp.constraint_violation();
     return step;
   }
 };
@@ -867,10 +911,15 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
     o.SetIntegerValue("acceptable_iter", rules.acceptable_iter);
     o.SetStringValue("warm_start_init_point", !first && rules.warm_start ? "yes" : "no");
     if (!first) {
-      o.SetNumericValue("mu_init", std::max(rules.mu_init_min, 1e-2 * sigma));
-      o.SetNumericValue("warm_start_bound_push", 1e-9);
-      o.SetNumericValue("warm_start_mult_bound_push", 1e-9);
-      o.SetNumericValue("warm_start_slack_bound_push", 1e-9);
+      o.SetNumericValue("mu_init", rules.later_mu_init > 0.0
+                                       ? rules.later_mu_init
+                                       : std::max(rules.mu_init_min, 1e-2 * sigma));
+      // With the multipliers the point stays at its bounds; without, IPOPT's pushes (1e-3).
+      const double push = rules.warm_start_multipliers ? 1e-9 : 1e-3;
+      o.SetNumericValue("warm_start_bound_push", push);
+      o.SetNumericValue("warm_start_mult_bound_push", push);
+      o.SetNumericValue("warm_start_slack_bound_push", push);
+      if (rules.warm_start && !rules.warm_start_multipliers) nlp.forget_multipliers();
     } else {
       o.SetNumericValue("mu_init", 0.1);
     }

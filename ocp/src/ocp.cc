@@ -186,6 +186,20 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
         ", max_nlp_iterations = " + std::to_string(o.max_nlp_iterations) +
         ": tolerances must be positive, the weight >= 0, iterations >= 1");
   }
+  if (!(o.step_deviation_weight >= 0.0 && std::isfinite(o.step_deviation_weight)) ||
+      !(o.acceptable_tolerance >= 0.0 && std::isfinite(o.acceptable_tolerance)) ||
+      o.acceptable_iterations < 0 || !(o.later_mu_init >= 0.0 && std::isfinite(o.later_mu_init))) {
+    throw InvalidArgument("ocp: step_deviation_weight = " + number(o.step_deviation_weight) +
+                          ", acceptable_tolerance = " + number(o.acceptable_tolerance) +
+                          ", acceptable_iterations = " + std::to_string(o.acceptable_iterations) +
+                          ", later_mu_init = " + number(o.later_mu_init) +
+                          ": each must be finite and >= 0");
+  }
+  if (o.tracking == OcpTracking::kStageEnds && p.time_optimal && p.track_R.size() > 0) {
+    throw InvalidArgument(
+        "ocp: tracking at the stage ends weighs by the fixed stage length T / N (time_optimal "
+        "is set)");
+  }
   if (!std::isfinite(o.exact_hessian_scale)) {
     throw InvalidArgument("ocp: exact_hessian_scale = " + number(o.exact_hessian_scale) +
                           " must be finite");
@@ -200,16 +214,19 @@ double bound(const Eigen::VectorXd& v, int k, double fallback) {
 using OcpLayout = fesd::TranscriptionLayout;
 
 // The OCP's costs and constraints as seen by the transcription: the Lagrange term plus the
-// tracking of x_ref (per stage, at its middle) and u_ref, the Mayer term plus the terminal
-// tracking, the path and terminal constraints.
+// tracking of x_ref and u_ref (by quadrature with x_ref at each stage's middle, or at the
+// stage ends), the Mayer term plus the terminal tracking, the path and terminal constraints.
 class OcpTerms final : public fesd::TranscriptionTerms {
  public:
-  OcpTerms(const OcpModel& model, const OcpProblem& problem, int stages)
-      : model_(model), p_(problem) {
+  OcpTerms(const OcpModel& model, const OcpProblem& problem, int stages, OcpTracking tracking)
+      : model_(model),
+        p_(problem),
+        at_ends_(tracking == OcpTracking::kStageEnds),
+        stage_length_(problem.horizon / stages) {
     const int d = model_.states();
     if (p_.x_ref) {
       for (int k = 0; k < stages; ++k) {
-        Eigen::VectorXd r = p_.x_ref((k + 0.5) * p_.horizon / stages);
+        Eigen::VectorXd r = p_.x_ref((k + (at_ends_ ? 1.0 : 0.5)) * p_.horizon / stages);
         check_vector(r, d, "x_ref(t)", false);
         x_ref_.push_back(r);
       }
@@ -217,9 +234,9 @@ class OcpTerms final : public fesd::TranscriptionTerms {
       check_vector(x_ref_end_, d, "x_ref(T)", false);
     }
   }
-  bool has_stage_cost() const override {
-    return model_.has_lagrange() || p_.track_Q.size() > 0 || p_.track_R.size() > 0;
-  }
+  bool tracks() const { return p_.track_Q.size() > 0 || p_.track_R.size() > 0; }
+  bool has_stage_cost() const override { return model_.has_lagrange() || (tracks() && !at_ends_); }
+  bool has_stage_end_cost() const override { return tracks() && at_ends_; }
   bool has_terminal_cost() const override {
     return model_.has_mayer() || p_.track_Q_terminal.size() > 0;
   }
@@ -229,6 +246,9 @@ class OcpTerms final : public fesd::TranscriptionTerms {
 #define BFLOW_OCP_TERMS(T)                                                         \
   T stage_cost(int stage, const T* x, const T* u) const override {                 \
     return stage_value(stage, x, u);                                               \
+  }                                                                                \
+  T stage_end_cost(int stage, const T* x, const T* u) const override {             \
+    return stage_length_ * tracking_value(stage, x, u);                            \
   }                                                                                \
   T terminal_cost(const T* x) const override { return terminal_value(x); }         \
   void path(const T* x, const T* u, T* g) const override { model_.path(x, u, g); } \
@@ -242,6 +262,12 @@ class OcpTerms final : public fesd::TranscriptionTerms {
   template <typename T>
   T stage_value(int stage, const T* x, const T* u) const {
     T value = model_.lagrange(x, u);
+    if (!at_ends_) value += tracking_value(stage, x, u);
+    return value;
+  }
+  template <typename T>
+  T tracking_value(int stage, const T* x, const T* u) const {
+    T value(0.0);
     if (p_.track_Q.size() > 0) {
       const Eigen::VectorXd& r = x_ref_[static_cast<std::size_t>(stage)];
       for (Eigen::Index i = 0; i < r.size(); ++i) {
@@ -267,6 +293,8 @@ class OcpTerms final : public fesd::TranscriptionTerms {
 
   const OcpModel& model_;
   const OcpProblem& p_;
+  bool at_ends_ = false;
+  double stage_length_ = 0.0;
   std::vector<Eigen::VectorXd> x_ref_;
   Eigen::VectorXd x_ref_end_;
 };
@@ -474,9 +502,11 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
                                                                      : fesd::Relaxation::kScholtes;
   setup.equilibration_weight = options.equilibration_weight;
   setup.equilibration_fades = true;
+  setup.step_deviation_weight = options.step_deviation_weight;
+  setup.neutral_algebraic_guess = options.neutral_algebraic_guess;
   setup.exact_hessian = options.exact_hessian;
   setup.exact_hessian_scale = options.exact_hessian_scale;
-  const OcpTerms terms(model, problem, options.stages);
+  const OcpTerms terms(model, problem, options.stages, options.tracking);
 
   // Controls of the guess: given, or 0 clamped into the bounds.
   Eigen::MatrixXd u_guess = problem.guess_u;
@@ -539,6 +569,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   fesd::HomotopySolver solver(fesd::ipopt_settings(options, "ocp"));
   fesd::HomotopyRules rules = fesd::homotopy_schedule(options);
   rules.warm_start = options.warm_start;
+  rules.warm_start_multipliers = options.warm_start_multipliers;
   rules.mu_init_min = 1e-11;
   rules.acceptable_tol_min = 1e-6;
   rules.acceptable_tol_factor = 1e3;
@@ -550,7 +581,14 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   rules.acceptable_violation_sigma = 0.1;
   rules.acceptable_violation_max = 1e-2;
   rules.acceptable_compl_inf_tol = 1e-2;  // IPOPT's default
-  rules.acceptable_iter = 15;
+  rules.acceptable_iter = options.acceptable_iterations;
+  if (options.acceptable_tolerance > 0.0) {
+    // A fixed acceptable level, with IPOPT's default constraint violation for it.
+    rules.acceptable_tol_min = options.acceptable_tolerance;
+    rules.acceptable_tol_factor = 0.0;
+    rules.acceptable_violation_min = rules.acceptable_violation_max = 1e-2;
+  }
+  rules.later_mu_init = options.later_mu_init;
   if (options.stop_at_complementarity)
     rules.stop_complementarity = options.complementarity_tolerance;
   const auto on_step = [&](const OcpHomotopyStep& step) {
@@ -602,11 +640,23 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   // The result from the last solved NLP (or the last iterate when none was solved).
   const Eigen::VectorXd& w = nlp.solution();
   result.max_complementarity = nlp.complementarity(w);
+  // The last solved NLP (the polish when kept): how IPOPT stopped and its KKT error.
+  const OcpHomotopyStep* last = nullptr;
+  for (const OcpHomotopyStep& step : result.homotopy) {
+    if (step.polish ? polished : step.sigma == outcome.last_sigma) last = &step;
+  }
+  if (last != nullptr) {
+    result.ipopt_status = last->ipopt_status;
+    result.kkt_error = last->kkt_error;
+  }
   if (outcome.done) {
-    if (!polished && outcome.acceptable_only) {
+    // An acceptable stop still solves the NLP when its KKT error is within nlp_tolerance
+    // (acceptable_tolerance <= nlp_tolerance, nosnoc's setup).
+    if (!polished && outcome.acceptable_only && !(result.kkt_error <= options.nlp_tolerance)) {
       result.status = OcpStatus::kAcceptableOnly;
       result.message = "IPOPT solved the last NLP (sigma = " + number(outcome.last_sigma) +
-                       ") only to its acceptable level";
+                       ") only to its acceptable level (KKT error " + number(result.kkt_error) +
+                       " above nlp_tolerance " + number(options.nlp_tolerance) + ")";
     } else if (!(result.max_complementarity <= options.complementarity_tolerance)) {
       result.status = OcpStatus::kComplementarityNotReached;
       result.message = "the complementarity residual " + number(result.max_complementarity) +

@@ -298,6 +298,14 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
        "error: --formulation: unknown formulation \"heaviside\": use step or stewart"},
       {"relaxation", [](OcpCommandOptions& o) { o.relaxation = "smooth"; },
        "error: --relaxation: unknown relaxation \"smooth\"; use scholtes or l1"},
+      {"setup", [](OcpCommandOptions& o) { o.setup = "nosnoc"; },
+       "error: --setup: only the monoped has setups, not \"turbo-car\""},
+      {"monoped setup",
+       [](OcpCommandOptions& o) {
+         o.example = "monoped";
+         o.setup = "loose";
+       },
+       "error: --setup: unknown setup \"loose\"; use nosnoc or strict"},
       {"sigma0", [](OcpCommandOptions& o) { o.sigma0 = 0.0; },
        "error: --sigma0: the initial relaxation parameter must be finite and > 0, got 0"},
       {"sigma0 nan", [](OcpCommandOptions& o) { o.sigma0 = std::nan(""); },
@@ -403,6 +411,8 @@ TEST(OcpCommandTest, MonopedReportsHopsAndThePhysicalEnd) {
   EXPECT_THAT(r.err, StartsWith("error: ocp: complementarity_not_reached: "));
   const nlohmann::json& j = r.json;
   ASSERT_EQ(j["status"], "complementarity_not_reached");
+  EXPECT_EQ(j["setup"], "nosnoc");
+  EXPECT_FALSE(j["ipopt_status"].get<std::string>().empty());
   EXPECT_EQ(j["N"], 3);
   ASSERT_EQ(j["x"].size(), 4u);
   ASSERT_EQ(j["x"][3].size(), 9u);

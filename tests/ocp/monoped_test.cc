@@ -277,7 +277,9 @@ TEST(MonopedOcp, ProblemAndSizes) {
     EXPECT_NEAR(x[1], knots[k][1], 1e-15);
     EXPECT_EQ(x[8], 0.75 * k);
   }
-  const OcpProblem p = MonopedTask{}.problem();
+  MonopedTask strict;
+  strict.setup = MonopedSetup::kStrict;
+  const OcpProblem p = strict.problem(30);
   EXPECT_EQ(p.x0.size(), 9);
   EXPECT_EQ(p.clock_state, 8);
   EXPECT_EQ(p.x_ref(3.0).head(8), (Eigen::VectorXd(8) << 3, 0.4, 0, 0, 0, 0, 0, 0).finished());
@@ -297,6 +299,90 @@ TEST(MonopedOcp, ProblemAndSizes) {
   EXPECT_LT(s_step.unknowns, s_stewart.unknowns);
   std::printf("N = 30: step %lld unknowns, Stewart %lld\n", static_cast<long long>(s_step.unknowns),
               static_cast<long long>(s_stewart.unknowns));
+}
+
+// The not-a-knot spline reproduces every cubic exactly (the not-a-knot conditions hold for
+// it, and the interpolant is unique), on uneven knots too; measured 4.4e-16 against the cubic,
+// bound 1e-13. A natural spline (M_0 = M_n = 0) would miss this cubic's end curvatures.
+TEST(MonopedOcp, NotAKnotSplineReproducesCubics) {
+  const auto cubic = [](double t) { return 0.3 - 1.2 * t + 2.5 * t * t - 0.7 * t * t * t; };
+  const Eigen::VectorXd knots = (Eigen::VectorXd(5) << -0.5, 0.1, 0.4, 1.3, 2.0).finished();
+  Eigen::VectorXd values(5);
+  for (int i = 0; i < 5; ++i) values[i] = cubic(knots[i]);
+  double worst = 0.0;
+  for (int k = 0; k <= 50; ++k) {
+    const double t = -0.6 + 2.7 * k / 50.0;
+    worst = std::max(worst, std::abs(not_a_knot_spline(knots, values, t) - cubic(t)));
+  }
+  std::printf("cubic: %.1e\n", worst);
+  EXPECT_LT(worst, 1e-13);
+  EXPECT_THROW(not_a_knot_spline(knots.head(3), values.head(3), 0.0), InvalidArgument);
+  EXPECT_THROW(not_a_knot_spline(knots.reverse(), values, 0.0), InvalidArgument);
+}
+
+// The not-a-knot spline in another representation: the four power-basis coefficients of each
+// of the n pieces, from interpolation at both ends of every piece, continuity of the first and
+// second derivatives at the inner knots and of the third at the second and the second-to-last
+// knot (4n equations), solved densely.
+double spline_by_coefficients(const Eigen::VectorXd& t, const Eigen::VectorXd& y, double at) {
+  const int n = static_cast<int>(t.size()) - 1;
+  Eigen::MatrixXd A = Eigen::MatrixXd::Zero(4 * n, 4 * n);
+  Eigen::VectorXd b = Eigen::VectorXd::Zero(4 * n);
+  // Piece i: sum_p c_{i,p} (s - t_i)^p; its p-th derivative's row at s.
+  const auto row = [&](int i, double s, int derivative) {
+    Eigen::RowVectorXd r = Eigen::RowVectorXd::Zero(4 * n);
+    const double d = s - t[i];
+    for (int p = derivative; p < 4; ++p) {
+      double factor = 1.0;
+      for (int k = 0; k < derivative; ++k) factor *= p - k;
+      r[4 * i + p] = factor * std::pow(d, p - derivative);
+    }
+    return r;
+  };
+  int e = 0;
+  for (int i = 0; i < n; ++i) {
+    A.row(e) = row(i, t[i], 0);
+    b[e++] = y[i];
+    A.row(e) = row(i, t[i + 1], 0);
+    b[e++] = y[i + 1];
+  }
+  for (int i = 1; i < n; ++i) {
+    for (int derivative : {1, 2})
+      A.row(e++) = row(i - 1, t[i], derivative) - row(i, t[i], derivative);
+  }
+  A.row(e++) = row(0, t[1], 3) - row(1, t[1], 3);
+  A.row(e++) = row(n - 2, t[n - 1], 3) - row(n - 1, t[n - 1], 3);
+  const Eigen::VectorXd c = A.fullPivLu().solve(b);
+  int i = 0;
+  while (i + 1 < n && at > t[i + 1]) ++i;
+  return row(i, at, 0).dot(c);
+}
+
+// nosnoc's reference passes through its knots (q_x = 3 s, q_z alternating 0.4 / 0.6, v_x = (0,
+// 1, 1, 1, 0) at s = t / T = 0, 1/4, ..., 1, the clock t) and between them is the spline of the
+// coefficient representation above: measured 1.1e-16, bound 1e-14.
+TEST(MonopedOcp, SplineReferencePassesThroughNosnocsKnots) {
+  const Eigen::VectorXd knots = (Eigen::VectorXd(5) << 0.0, 0.25, 0.5, 0.75, 1.0).finished();
+  const Eigen::VectorXd qz = (Eigen::VectorXd(5) << 0.4, 0.6, 0.4, 0.6, 0.4).finished();
+  const Eigen::VectorXd vx = (Eigen::VectorXd(5) << 0.0, 1.0, 1.0, 1.0, 0.0).finished();
+  for (int k = 0; k < 5; ++k) {
+    const Eigen::VectorXd x = MonopedTask::spline_reference(0.75 * k);
+    EXPECT_NEAR(x[0], 0.75 * k, 1e-14) << k;
+    EXPECT_NEAR(x[1], qz[k], 1e-14) << k;
+    EXPECT_NEAR(x[4], vx[k], 1e-14) << k;
+    EXPECT_EQ(x[8], 0.75 * k);
+    EXPECT_EQ(x[2], 0.0);
+  }
+  double worst = 0.0;
+  for (int k = 0; k <= 40; ++k) {
+    const double s = k / 40.0;
+    const Eigen::VectorXd x = MonopedTask::spline_reference(3.0 * s);
+    worst =
+        std::max({worst, std::abs(x[1] - spline_by_coefficients(knots, qz, s)),
+                  std::abs(x[4] - spline_by_coefficients(knots, vx, s)), std::abs(x[0] - 3.0 * s)});
+  }
+  std::printf("spline reference: %.1e\n", worst);
+  EXPECT_LT(worst, 1e-14);
 }
 
 // Hops are flight phases that start from the ground. With both angles 0 the leg hangs straight,
@@ -319,6 +405,51 @@ TEST(MonopedOcp, HopsCountFlightPhasesFromTheGround) {
   EXPECT_EQ(MonopedTask::hops(x, 1e-4, 1e-3), 3);
   EXPECT_THROW(MonopedTask::hops(x.topRows(8)), InvalidArgument);
   EXPECT_THROW(MonopedTask::hops(x, 1e-2, 1e-3), InvalidArgument);
+}
+
+// The monoped's OCP solved: standing. From the published start (the straight leg vertical on
+// the ground, at rest) with the reference held at that state, nosnoc's setup over a short
+// horizon T = 0.3 (N = 3 stages, the stage-wise clock constraint, the speed of time free in
+// [0.99, 100]), the homotopy allowed down to sigma = 1e-6: at the setup's 1e-4 the residual is
+// still 6.8e-5 (the products follow sigma, 0.7 sigma at every NLP), and stopping at 1e-5 takes
+// sigma = 1e-5. Gravity acts through the foot, so the robot stands with zero torques: the
+// optimum is u = 0, x = x0 throughout, cost 0 (the closed form), reached only if contact holds
+// the robot up (without the auxiliary dynamics it falls g T^2 / 2 = 0.44 m). Measured (6 NLPs,
+// 27 IPOPT iterations): cost 3.5e-11, largest |q - q0| on the grid 1.8e-7, |u| 1.7e-10, clock
+// error 0, complementarity 8.5e-6; bounds 3e-9, 2e-5, 2e-8, 1e-12 and the tolerance 1e-5.
+TEST(MonopedOcp, StandsStillWithoutTorques) {
+  const int stages = 3;
+  const MonopedTask task;  // nosnoc's setup
+  OcpProblem p = task.problem(stages);
+  p.horizon = 0.3;
+  const Eigen::VectorXd x0 = p.x0;
+  p.x_ref = [x0](double t) {
+    Eigen::VectorXd x = x0;
+    x[8] = t;
+    return x;
+  };
+  OcpOptions o = task.options(stages);
+  o.sigma_final = 1e-6;
+  const OcpResult r =
+      ocp_solve(adapt_ocp(monoped_free_model<TimeFreezingRegions::kUnions>()), p, o);
+  ASSERT_EQ(r.status, OcpStatus::kSolved) << r.message;
+  double q_error = 0.0;
+  for (Eigen::Index j = 0; j < r.x_grid.cols(); ++j) {
+    q_error = std::max(q_error, (r.x_grid.col(j).head(4) - x0.head(4)).cwiseAbs().maxCoeff());
+  }
+  const double u_max = r.u.topRows(2).cwiseAbs().maxCoeff();
+  const double clock_error = std::abs(r.x_stages(8, stages) - 0.3);
+  std::printf(
+      "standing: cost %.1e, q %.1e, u %.1e, clock %.1e, complementarity %.1e, %d "
+      "iterations, %s\n",
+      r.objective, q_error, u_max, clock_error, r.max_complementarity, r.ipopt_iterations,
+      r.ipopt_status.c_str());
+  EXPECT_LT(r.objective, 3e-9);
+  EXPECT_LT(q_error, 2e-5);
+  EXPECT_LT(u_max, 2e-8);
+  EXPECT_LT(clock_error, 1e-12);
+  EXPECT_LE(r.max_complementarity, 1e-5);
+  EXPECT_LE(r.kkt_error, 1e-5);
 }
 
 }  // namespace

@@ -352,8 +352,9 @@ TEST(OcpHessian, TurboCarAndBrakingBlockWithGaussLegendre) {
 // 3e-7 (used; the guess moved by up to 0.5 in every unknown, the speed of time in [1, 1.5]):
 // 9.6e-6.
 TEST(OcpHessian, MonopedTimeFreezing) {
-  const examples::MonopedTask task;
-  const OcpProblem p = task.problem();
+  examples::MonopedTask task;
+  task.setup = examples::MonopedSetup::kStrict;  // with the foot's path constraint
+  const OcpProblem p = task.problem(2);
   const Probe probe{0.5, 3e-7};
   const auto unions = adapt_ocp(examples::monoped_model<TimeFreezingRegions::kUnions>());
   const OcpOptions o = shape(2, 1, CollocationScheme::kRadauIIA, 1);

@@ -4,6 +4,7 @@
 // engine.
 #include "bflow/ocp/ocp.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <string>
@@ -369,11 +370,12 @@ TEST(OcpInput, BadDataIsRefusedWithTheValues) {
   EXPECT_EQ(message(TurboCar::problem(), o), "ocp: sigma_factor = 1.5 must lie in (0, 1)");
 }
 
-// A fixed-horizon problem with a Mayer cost, tracking and a path constraint: the braking block
-// asked to stop at p = 1 by a terminal penalty, with the force bounded by a path constraint
-// |u| <= 1.2 through g(x, u) = u^2 <= 1.44. Checked against the same problem with the bound
-// as a plain control bound (an independent representation of the same NLP). Measured: the
-// objectives differ by 2.3e-11 (bound 2e-9), the controls by 5.4e-10 (bound 5e-8).
+// A path constraint: the braking block asked to stop at p = 1 by a terminal penalty, with the
+// force bounded by a path constraint |u| <= 1.2 through g(x, u) = u^2 <= 1.44. Checked against
+// the same problem with the bound as a plain control bound (an independent representation of
+// the same NLP). Both share the Mayer term, so this checks the path constraint only; the Mayer
+// cost is checked against a closed form in OcpFeatures.MayerCostReachesTheExactOptimum.
+// Measured: the objectives differ by 2.3e-11 (bound 2e-9), the controls by 5.4e-10 (bound 5e-8).
 struct BoundedBlock : BrakingBlock {
   static constexpr int kPath = 1;
   template <typename T>
@@ -419,7 +421,8 @@ namespace {
 
 // Least-squares tracking of x_ref = 0 and u_ref = 0 with Q = diag(0, 1), R = 1 is the braking
 // block's own Lagrange cost v^2 + u^2: the same NLP written another way. Measured: the same
-// objective and controls to the last bit (bounds 2e-14 and 1e-14).
+// objective and controls to the last bit (bounds 2e-14 and 1e-14). Nonzero references are
+// checked against a closed form in OcpFeatures.TrackingOfNonzeroReferencesIsExact.
 struct UntrackedBlock {
   static constexpr int kStates = 2, kControls = 1, kSwitches = 1;
   template <typename T>
@@ -446,6 +449,148 @@ TEST(OcpFeatures, TrackingEqualsTheLagrangeCost) {
   ASSERT_TRUE(own.ok()) << own.message;
   EXPECT_NEAR(tracked.objective, own.objective, 2e-14);
   EXPECT_LT((tracked.u - own.u).lpNorm<Eigen::Infinity>(), 1e-14);
+}
+
+// A scalar integrator x' = u whose switching function c = x + 10 stays positive (alpha = 1 and
+// the field does not depend on it), for tracking with exact quadrature.
+struct Integrator {
+  static constexpr int kStates = 1, kControls = 1, kSwitches = 1;
+  template <typename T>
+  void switching(const T* x, T* c) const {
+    c[0] = x[0] + T(10.0);
+  }
+  template <typename T>
+  void field(const T*, const T* u, const T*, T* xdot) const {
+    xdot[0] = u[0];
+  }
+};
+
+// Tracking of nonzero references against the exact optimum of the discrete problem. x' = u,
+// x(0) = 1/2, T = 2, N = 2 stages of length 1 with u_k constant; Q = 3, R = 1, Q_T = 1,
+// x_ref(t) = t^2, u_ref = 3/2. The transcription takes x_ref at the stages' middles, r_0 =
+// x_ref(1/2) = 1/4 and r_1 = x_ref(3/2) = 9/4, and x_ref(T) = 4 in the terminal term; it
+// integrates the stage cost by the Radau IIA 2 quadrature of each element, exact for the
+// quadratic (x - r_k)^2 as collocation reproduces x = x_k + u_k s exactly, so whatever the
+// element lengths the NLP's cost is exactly
+//   J(u_0, u_1) = sum_k [Q int_0^1 (e_k + u_k s)^2 ds + R (u_k - u_ref)^2] + Q_T (x_2 - 4)^2,
+//   e_0 = x_0 - r_0 = 1/4,  e_1 = x_0 + u_0 - r_1 = u_0 - 7/4,  x_2 = x_0 + u_0 + u_1,
+// with int_0^1 (e + u s)^2 ds = e^2 + e u + u^2 / 3. It is quadratic, its stationarity
+//   dJ/du_0 = Q (e_0 + 2 u_0 / 3) + Q (2 e_1 + u_1) + 2 R (u_0 - u_ref) + 2 Q_T (x_2 - 4) = 0,
+//   dJ/du_1 = Q (e_1 + 2 u_1 / 3) + 2 R (u_1 - u_ref) + 2 Q_T (x_2 - 4) = 0
+// reads [12 5; 5 6] (u_0, u_1) = (79/4, 61/4) (positive definite), so
+//   u_0 = 169/188, u_1 = 337/188, x(1) = 263/188, x(2) = 150/47, J* = 673/188.
+// Measured (OpenBLAS): controls and states on the grid 7.2e-13 (bounds 2e-11), objective 0
+// (bound 2e-14). x_ref at the stages' starts instead would give u = (46, 322) / 188.
+TEST(OcpFeatures, TrackingOfNonzeroReferencesIsExact) {
+  OcpProblem p;
+  p.x0 = Eigen::VectorXd::Constant(1, 0.5);
+  p.horizon = 2.0;
+  p.track_Q = Eigen::VectorXd::Constant(1, 3.0);
+  p.track_R = Eigen::VectorXd::Constant(1, 1.0);
+  p.track_Q_terminal = Eigen::VectorXd::Constant(1, 1.0);
+  p.x_ref = [](double t) { return Eigen::VectorXd::Constant(1, t * t); };
+  p.u_ref = Eigen::VectorXd::Constant(1, 1.5);
+  OcpOptions options;
+  options.stages = 2;
+  const OcpResult r = ocp_solve(adapt_ocp(Integrator{}), p, options);
+  ASSERT_EQ(r.status, OcpStatus::kSolved) << r.message;
+  const double u0 = 169.0 / 188.0, u1 = 337.0 / 188.0;
+  const auto x = [&](double t) { return t <= 1.0 ? 0.5 + u0 * t : 263.0 / 188.0 + u1 * (t - 1.0); };
+  const double u_error = std::max(std::abs(r.u(0, 0) - u0), std::abs(r.u(0, 1) - u1));
+  double x_error = 0.0;
+  for (std::size_t i = 0; i < r.grid.size(); ++i) {
+    x_error = std::max(x_error, std::abs(r.x_grid(0, static_cast<Eigen::Index>(i)) - x(r.grid[i])));
+  }
+  const double j_error = std::abs(r.objective - 673.0 / 188.0);
+  std::printf("tracking: control error %.2e, state error %.2e, objective error %.2e\n", u_error,
+              x_error, j_error);
+  EXPECT_LT(u_error, 2e-11);
+  EXPECT_LT(x_error, 2e-11);
+  EXPECT_NEAR(r.x_stages(0, 2), 150.0 / 47.0, 2e-11);
+  EXPECT_LT(j_error, 2e-14);
+}
+
+// x' = u for x < 1 and 2 u for x > 1 (c = x - 1, x' = (1 + a) u), with the control effort
+// int u^2 dt as its Lagrange cost; the Mayer cost R(x(T)) = (x(T) - 5)^2 comes from mayer() or
+// from terminal tracking.
+struct SwitchedIntegrator {
+  static constexpr int kStates = 1, kControls = 1, kSwitches = 1;
+  template <typename T>
+  void switching(const T* x, T* c) const {
+    c[0] = x[0] - T(1.0);
+  }
+  template <typename T>
+  void field(const T*, const T* u, const T* a, T* xdot) const {
+    xdot[0] = (T(1.0) + a[0]) * u[0];
+  }
+  template <typename T>
+  T lagrange(const T*, const T* u) const {
+    return u[0] * u[0];
+  }
+};
+struct MayerSwitchedIntegrator : SwitchedIntegrator {
+  template <typename T>
+  T mayer(const T* x) const {
+    return (x[0] - T(5.0)) * (x[0] - T(5.0));
+  }
+};
+
+// A Mayer cost against the exact optimum: the switched integrator above from x(0) = 0 on T = 2,
+// minimising int_0^T u^2 dt + (x(T) - 5)^2. Not crossing x = 1 costs at least (1 - 5)^2 = 16.
+// Crossing at tau, the field does not depend on x on either side, so by Jensen's inequality u
+// is constant on each arc, u = 1 / tau before and u_2 after:
+//   J(tau, u_2) = 1 / tau + (T - tau) u_2^2 + (x(T) - 5)^2,  x(T) = 1 + 2 u_2 (T - tau).
+// dJ/du_2 = 0 gives u_2 = 2 (5 - x(T)); with it dJ/dtau = -1 / tau^2 + u_2^2 = 0, so u_2 = 1 /
+// tau (u constant, as the Hamiltonian's continuity at the switch says), x(T) = 4 / tau - 1, and
+// 1 / tau = 2 (6 - 4 / tau) gives tau = 3/4, u = 4/3, x(T) = 13/3, J* = 32/9 + 4/9 = 4.
+// The discrete problem (N = 2 stages of N_FE = 2 elements, the crossing inside the first
+// stage) holds this u, and FESD puts the switch on an element boundary, where x is linear on
+// each side and u^2 constant, so its optimum is the same. The terminal tracking Q_T = 1 of
+// x_ref(T) = 5 is the same cost (x_ref(t) = 5 t / 2 is taken at T only, as track_Q is empty).
+// Measured (OpenBLAS), mayer() and tracking alike: controls 3.2e-11, switch time 1.8e-11, states
+// on the grid 6.5e-11 (bounds 1e-9, 1e-9, 2e-9), objective 4.4e-16 (bound 2e-14).
+// The homotopy reaches other stationary points of the discrete problem where the crossing is
+// hard to place. (1) On a stage boundary: for (x(T) - 3)^2 (tau = 9/8, u = 8/9, J* = 16/9) at
+// N = 2 or 4, it ends at u = 1, then 4/5 from the switch at t = 1, J = 9/5, which is no local
+// minimum (u_0 = 1 - delta, crossing at 1 + 5 delta / 4, costs 9/5 - 2 delta / 5 + 5 delta^2).
+// (2) Behind the element length bound 2 h_0: with N_FE = 3 and targets 4.7, 5.05, 5.2, 5.4 or
+// 5.5 in place of 5 it ends with a single element of length 2 h_0 = 2/3 before the switch
+// (u_0 = 3/2). With N_FE = 2 (2 h_0 is a whole stage) every target from 3.7 to 7 in steps of 0.1
+// reached its closed form; 3.6 (tau = 0.978) ended as in (1).
+TEST(OcpFeatures, MayerCostReachesTheExactOptimum) {
+  OcpProblem p;
+  p.x0 = Eigen::VectorXd::Constant(1, 0.0);
+  p.horizon = 2.0;
+  OcpProblem tracked = p;
+  tracked.track_Q_terminal = Eigen::VectorXd::Constant(1, 1.0);
+  tracked.x_ref = [](double t) { return Eigen::VectorXd::Constant(1, 2.5 * t); };
+  OcpOptions options;
+  options.stages = 2;
+  options.elements = 2;
+  const OcpResult results[] = {ocp_solve(adapt_ocp(MayerSwitchedIntegrator{}), p, options),
+                               ocp_solve(adapt_ocp(SwitchedIntegrator{}), tracked, options)};
+  const double tau = 0.75, u = 4.0 / 3.0;
+  const auto x = [&](double t) { return t <= tau ? u * t : 1.0 + 2.0 * u * (t - tau); };
+  for (const OcpResult& r : results) {
+    SCOPED_TRACE(&r == &results[0] ? "mayer()" : "track_Q_terminal");
+    ASSERT_EQ(r.status, OcpStatus::kSolved) << r.message;
+    const double u_error = (r.u.array() - u).abs().maxCoeff();
+    ASSERT_EQ(r.switch_times.size(), 1u);
+    const double tau_error = std::abs(r.switch_times[0] - tau);
+    double x_error = 0.0;
+    for (std::size_t i = 0; i < r.grid.size(); ++i) {
+      x_error =
+          std::max(x_error, std::abs(r.x_grid(0, static_cast<Eigen::Index>(i)) - x(r.grid[i])));
+    }
+    const double j_error = std::abs(r.objective - 4.0);
+    std::printf("Mayer: control error %.2e, switch time %.2e, states %.2e, objective %.2e\n",
+                u_error, tau_error, x_error, j_error);
+    EXPECT_LT(u_error, 1e-9);
+    EXPECT_LT(tau_error, 1e-9);
+    EXPECT_LT(x_error, 2e-9);
+    EXPECT_NEAR(r.x_stages(0, 2), 13.0 / 3.0, 2e-9);
+    EXPECT_LT(j_error, 2e-14);
+  }
 }
 
 // The other initial guesses reach the same optimum of the braking block: the exact trajectory

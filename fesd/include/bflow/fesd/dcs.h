@@ -244,6 +244,25 @@ class PointDcs {
     signs_.multipliers(z, theta);
   }
 
+  // A guess that favours no side (nosnoc's initialisation): a = 1/2 and lambda+- = 1/2 with the
+  // lifted theta and beta consistent with a; Stewart: theta = 1/n_f, lambda = 1, mu = 0.
+  void neutral(double* z) const {
+    if (kind_ == Kind::kStewart) {
+      for (int i = 0; i < nf_; ++i) {
+        z[i] = 1.0 / nf_;
+        z[nf_ + i] = 1.0;
+      }
+      z[2 * nf_] = 0.0;
+      return;
+    }
+    for (int j = 0; j < nc_; ++j) z[j] = z[nc_ + j] = z[2 * nc_ + j] = 0.5;
+    if (kind_ != Kind::kLifted) return;
+    double* theta = z + 3 * nc_;
+    double* beta = theta + nf_;
+    lifting_.betas(z, beta);
+    signs_.multipliers(z, theta);
+  }
+
   // Sides of the switching functions (+1, -1, 0 = on the surface) on an element whose pairs'
   // largest v are vmax: v > tol marks the other member zero.
   std::vector<int> sides(const std::vector<double>& vmax, double tol) const {

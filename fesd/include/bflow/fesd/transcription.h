@@ -27,6 +27,7 @@
 #define BFLOW_FESD_TRANSCRIPTION_H_
 
 #include <functional>
+#include <limits>
 #include <memory>
 #include <string>
 #include <utility>
@@ -87,6 +88,9 @@ class TranscriptionTerms {
   virtual ~TranscriptionTerms() = default;
   /** The stage cost: T h_n sum_m b_m l_k(X_nm, u_k) summed over the elements of stage k. */
   virtual bool has_stage_cost() const { return false; }
+  /** A cost at every stage's end: e_k(x_{k+1}, u_k) added once per stage (a rectangle rule in
+      place of the stage cost's quadrature). */
+  virtual bool has_stage_end_cost() const { return false; }
   /** The terminal cost m(x(T)). */
   virtual bool has_terminal_cost() const { return false; }
   /** Path constraints g(x, u) at every element boundary, bounds from TranscriptionSetup. */
@@ -94,10 +98,11 @@ class TranscriptionTerms {
   /** Terminal constraints r(x(T)), bounds from TranscriptionSetup. */
   virtual int terminal_constraints() const { return 0; }
 
-#define BFLOW_TRANSCRIPTION_TERMS(T)                                                           \
-  virtual T stage_cost(int /*stage*/, const T* /*x*/, const T* /*u*/) const { return T(0.0); } \
-  virtual T terminal_cost(const T* /*x*/) const { return T(0.0); }                             \
-  virtual void path(const T* /*x*/, const T* /*u*/, T* /*g*/) const {}                         \
+#define BFLOW_TRANSCRIPTION_TERMS(T)                                                               \
+  virtual T stage_cost(int /*stage*/, const T* /*x*/, const T* /*u*/) const { return T(0.0); }     \
+  virtual T stage_end_cost(int /*stage*/, const T* /*x*/, const T* /*u*/) const { return T(0.0); } \
+  virtual T terminal_cost(const T* /*x*/) const { return T(0.0); }                                 \
+  virtual void path(const T* /*x*/, const T* /*u*/, T* /*g*/) const {}                             \
   virtual void terminal(const T* /*x*/, T* /*r*/) const {}
   BFLOW_TRANSCRIPTION_TERMS(double)
   BFLOW_TRANSCRIPTION_TERMS(JetChunk)
@@ -132,6 +137,13 @@ struct TranscriptionSetup {
       (ocp_solve, whose polish imposes the exact equilibration); else it keeps its weight
       (fesd_simulate, where it selects among the FESD solutions of a step). */
   bool equilibration_fades = false;
+  /** rho_h sum_n (H (h_n - h_0))^2 over every element, H h_n its length in units of the horizon
+      H and h_0 the uniform length (nosnoc's heuristic_mean step equilibration); 0: none. It keeps
+      its weight through the homotopy. */
+  double step_deviation_weight = 0.0;
+  /** The guess's algebraic variables favour no side (PointDcs::neutral: a = lambda = 1/2) in
+      place of the sides of the guessed states (PointDcs::initial). */
+  bool neutral_algebraic_guess = false;
   bool exact_hessian = true;
   /** Tests only: the Hessian handed to IPOPT is multiplied by this. */
   double exact_hessian_scale = 1.0;
@@ -239,10 +251,15 @@ struct HomotopyRules {
   /** Warm starts take the previous multipliers and stay at the bounds reached (bound pushes
       1e-9); without, IPOPT initialises them itself from the previous point. */
   bool warm_start = true;
+  /** With warm_start: also the previous multipliers; without, every multiplier starts at 0
+      (pushed to 1e-3 for the bounds, IPOPT's warm-start pushes of 1e-3 for the point). */
+  bool warm_start_multipliers = true;
   /** A failed NLP after a solved one is retried from the last solution at sqrt(sigma sigma_last)
       up to this many times. */
   int max_retries = 6;
   double mu_init_min = 1e-12;  ///< warm NLPs start at mu = max(mu_init_min, 1e-2 sigma)
+  /** > 0: every NLP after the first starts at this mu instead (IPOPT's default is 0.1). */
+  double later_mu_init = 0.0;
   double acceptable_tol_min = 1e-4, acceptable_tol_factor = 0.0;
   double acceptable_violation_min = 1e-12, acceptable_violation_sigma = 0.0,
          acceptable_violation_max = 1e19;
@@ -276,7 +293,12 @@ struct HomotopyStep {
   int iterations = 0;            ///< IPOPT iterations of this NLP
   double cpu_seconds = 0.0;
   std::string ipopt_status;  ///< e.g. "Solve_Succeeded"
-  bool polish = false;       ///< the final solve with the active set fixed (sigma 0)
+  /** IPOPT's overall optimality error of its final point, the scaled measure it compares with
+      tol (and acceptable_tol); infinity when IPOPT gave none. */
+  double kkt_error = std::numeric_limits<double>::infinity();
+  /** The final point's largest constraint violation, unscaled. */
+  double constraint_violation = std::numeric_limits<double>::infinity();
+  bool polish = false;  ///< the final solve with the active set fixed (sigma 0)
 };
 
 struct HomotopyOutcome {

@@ -332,6 +332,15 @@ enum class OcpRelaxation {
   kL1Penalty,  ///< (1 / sigma) sum of products added to the objective (elastic)
 };
 
+/** How least-squares tracking (OcpProblem::track_Q, track_R) enters the cost. */
+enum class OcpTracking {
+  /** Integrated by each element's collocation quadrature, x_ref at the middle of each stage. */
+  kQuadrature,
+  /** (T / N) [(x_{k+1} - x_ref(t_{k+1}))' diag(Q) (.) + (u_k - u_ref)' diag(R) (.)] at the end
+      t_{k+1} of every stage k (nosnoc's least-squares cost; fixed horizon). */
+  kStageEnds,
+};
+
 /** One NLP of the homotopy (fesd/transcription.h). */
 using OcpHomotopyStep = fesd::HomotopyStep;
 
@@ -357,6 +366,17 @@ struct OcpOptions {
       min(1, sigma): it regularises the element lengths early and fades, so that it does not
       bias the optimum; the polish imposes the exact equilibration instead. */
   double equilibration_weight = 0.0;
+  /** rho_h of rho_h sum_n (h_n - h_0)^2 over every element, h_n in units of time and h_0 =
+      T / (N N_FE) (nosnoc's heuristic_mean step equilibration); unlike equilibration_weight it
+      keeps its weight at every sigma and so biases the optimum towards uniform elements. Every
+      element length lies in [0, 2 h_0] in any case. */
+  double step_deviation_weight = 0.0;
+  /** How the tracking cost is discretised. */
+  OcpTracking tracking = OcpTracking::kQuadrature;
+  /** The guess's algebraic variables favour no side: Heaviside step a = lambda+ = lambda- = 1/2
+      (the lifted theta and beta consistent with it), Stewart theta = 1/n_f, lambda = 1, mu = 0
+      (nosnoc's initialisation); else they follow the sides of the guessed states. */
+  bool neutral_algebraic_guess = false;
   bool exact_hessian = true;  ///< else IPOPT's limited-memory approximation
   /** Every NLP but the first starts from the previous solution. With warm_start it also takes
       the previous multipliers and stays at the bounds it reached (IPOPT's warm start, bound
@@ -364,6 +384,10 @@ struct OcpOptions {
       (its own initialisation), which keeps an NLP centred when the smaller sigma cuts into the
       previous solution (the monoped of docs/ocp.md needs it). */
   bool warm_start = true;
+  /** With warm_start, whether the previous multipliers come along. Without them (nosnoc's warm
+      start of the primal point only) every multiplier starts at 0, IPOPT pushes the point 1e-3
+      into its bounds and the bound multipliers to 1e-3. */
+  bool warm_start_multipliers = true;
   /** After the homotopy, solve once more with the last NLP's active set fixed (the zero member
       of every complementarity pair at its bound, equal lengths of neighbouring elements of a
       stage with the same sides, no relaxation and no equilibration penalty): an exact FESD
@@ -375,6 +399,16 @@ struct OcpOptions {
       solved once more at the same sigma), instead of going down to sigma_final, which then
       only bounds the homotopy. OcpResult::notes says where it stopped. */
   bool stop_at_complementarity = false;
+  /** > 0: IPOPT's acceptable level (acceptable_tol) on every NLP, with IPOPT's default
+      acceptable constraint violation 1e-2; 0: bflow's rule, max(1e-6, 1e3 tol) with a violation
+      that follows sigma. An acceptable stop counts as solved when IPOPT's KKT error is within
+      nlp_tolerance (OcpResult::kkt_error), so acceptable_tolerance <= nlp_tolerance makes it one
+      (nosnoc's setup: both 1e-5). */
+  double acceptable_tolerance = 0.0;
+  int acceptable_iterations = 15;  ///< IPOPT's acceptable_iter
+  /** > 0: IPOPT's mu_init on every NLP after the first (IPOPT's default 0.1, as nosnoc); 0:
+      max(1e-11, 1e-2 sigma), a start near the previous solution's barrier. */
+  double later_mu_init = 0.0;
   int max_nlp_iterations = 3000;  ///< per NLP of the homotopy
   int print_level = 0;            ///< IPOPT's print_level
   /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
@@ -394,11 +428,12 @@ struct OcpOptions {
 };
 
 enum class OcpStatus {
-  kSolved,                     ///< last NLP solved, complementarity residual <= tolerance
+  /** Last NLP solved (KKT error <= nlp_tolerance), complementarity residual <= tolerance. */
+  kSolved,
   kComplementarityNotReached,  ///< last NLP solved, residual above the tolerance
-  kAcceptableOnly,             ///< last NLP solved only to IPOPT's acceptable level
-  kNlpFailed,                  ///< IPOPT failed on some NLP of the homotopy (result: last good)
-  kInfeasible,                 ///< IPOPT found the NLP locally infeasible
+  kAcceptableOnly,  ///< last NLP stopped at IPOPT's acceptable level, KKT error > nlp_tolerance
+  kNlpFailed,       ///< IPOPT failed on some NLP of the homotopy (result: last good)
+  kInfeasible,      ///< IPOPT found the NLP locally infeasible
 };
 const char* to_string(OcpStatus status);  ///< "solved", "complementarity_not_reached", ...
 
@@ -421,6 +456,11 @@ struct OcpResult {
   /** Per element and switching function: +1, -1 or 0 (sliding), as FesdResult::active_sets. */
   std::vector<std::vector<int>> active_sets;
   double max_complementarity = 0.0;
+  /** How IPOPT ended the NLP the result comes from ("Solve_Succeeded",
+      "Solved_To_Acceptable_Level", ...) and that NLP's KKT error (HomotopyStep::kkt_error):
+      "solved" needs kkt_error <= nlp_tolerance whichever way IPOPT stopped. */
+  std::string ipopt_status;
+  double kkt_error = std::numeric_limits<double>::infinity();
   /** The result is the polished solution (active set fixed, every product zero). */
   bool polished = false;
   std::vector<OcpHomotopyStep> homotopy;
