@@ -418,11 +418,12 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->type_name("X");
     ocp->add_option(
            "--sigma-final", numbers.ocp_sigma_final,
-           "Final relaxation sigma, > 0 and <= --sigma0 (default 1e-10; 1e-7 for the monoped)")
+           "Final relaxation sigma, > 0 and <= --sigma0 (default 1e-10; monoped: 1e-4 for "
+           "--setup nosnoc, 0.4^14 with stewart, 1e-7 for --setup strict)")
         ->type_name("X");
     ocp->add_option("--tol", numbers.ocp_tol,
-                    "IPOPT's tolerance for the last NLP, >= 1e-14 (default 1e-10; 1e-6 for the "
-                    "monoped)")
+                    "IPOPT's tolerance for the last NLP, >= 1e-14 (default 1e-10; monoped: 1e-5 "
+                    "for --setup nosnoc, 1e-6 for --setup strict)")
         ->type_name("X");
     ocp->add_flag("--trajectory", ocp_options.trajectory,
                   "Add every element boundary, the states there, the step sizes and active sets");
