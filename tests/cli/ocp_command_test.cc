@@ -248,10 +248,11 @@ TEST(OcpCommandTest, BrakingBlockFarFromItsOptimumIsNoticed) {
   EXPECT_EQ("warning: " + r.json["notes"].back().get<std::string>(), err[0]);
 }
 
-// One control stage cannot bring the car to rest at q = 200: IPOPT fails on the first NLP (its
-// restoration phase fails; with a denser Hessian structure it reported the NLP infeasible).
-// Exit code 1, the JSON all the same, the progress line and then one error line naming the
-// status and IPOPT's.
+// One control stage cannot bring the car to rest at q = 200: IPOPT fails on some NLP of the
+// homotopy (which one depends on round-off: measured, the sigma = 100 NLP stops at IPOPT's
+// acceptable level, the steps towards sigma = 10 end in Restoration_Failed and the retries give
+// up at sigma = 56.2). Exit code 1, the JSON all the same, one progress line per NLP and then one
+// error line naming the status, IPOPT's status and the sigma of the NLP that failed.
 TEST(OcpCommandTest, AnUnsolvedProblemExitsWithOne) {
   OcpCommandOptions o;
   o.example = "turbo-car";
@@ -265,12 +266,14 @@ TEST(OcpCommandTest, AnUnsolvedProblemExitsWithOne) {
   EXPECT_TRUE(r.json["exact"]["switch_times_error"].is_null());
   const std::vector<std::string> err = lines(r.err);
   ASSERT_EQ(err.size(), r.json["homotopy"].size() + 1) << r.err;
-  const std::string ipopt = r.json["homotopy"].back()["status"].get<std::string>();
+  const nlohmann::json& failed = r.json["homotopy"].back();
+  const std::string ipopt = failed["status"].get<std::string>();
   EXPECT_NE(ipopt, "Solve_Succeeded");
-  EXPECT_THAT(err[0], ::testing::EndsWith(ipopt));
+  EXPECT_NE(ipopt, "Solved_To_Acceptable_Level");
+  EXPECT_THAT(err[err.size() - 2], ::testing::EndsWith(ipopt));
   EXPECT_EQ(err.back(), "error: ocp: " + status + ": " + r.json["message"].get<std::string>());
   EXPECT_THAT(err.back(), StartsWith("error: ocp: " + status + ": IPOPT returned " + ipopt +
-                                     " at sigma = 100 "));
+                                     " at sigma = " + failed["sigma"].dump() + " "));
 }
 
 TEST(OcpCommandTest, BadOptionsAreNamed) {
