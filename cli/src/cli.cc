@@ -416,10 +416,9 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     ocp->add_option("--sigma0", numbers.ocp_sigma0,
                     "Initial relaxation sigma, > 0 (default 100; 1 for the monoped)")
         ->type_name("X");
-    ocp->add_option(
-           "--sigma-final", numbers.ocp_sigma_final,
-           "Final relaxation sigma, > 0 and <= --sigma0 (default 1e-10; monoped: 1e-4 for "
-           "--setup nosnoc, 0.4^14 with stewart, 1e-7 for --setup strict)")
+    ocp->add_option("--sigma-final", numbers.ocp_sigma_final,
+                    "Final relaxation sigma, > 0 and <= --sigma0 (default 1e-10; monoped: 1e-4 for "
+                    "--setup nosnoc, 0.4^14 with stewart, 1e-7 for --setup strict)")
         ->type_name("X");
     ocp->add_option("--tol", numbers.ocp_tol,
                     "IPOPT's tolerance for the last NLP, >= 1e-14 (default 1e-10; monoped: 1e-5 "
