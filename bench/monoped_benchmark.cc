@@ -29,12 +29,17 @@
 //
 // IPOPT options for every row: --ipopt-int=name=value, --ipopt-num=..., --ipopt-str=...
 // (repeatable; bench/ipopt_flags.h); the context records them and the BLAS and LAPACK loaded.
+// --budget=K bounds each BM_Monoped row's homotopy to K IPOPT iterations in all
+// (OcpOptions::max_total_iterations; counter "budget"). A row's label is its status (and
+// message) and, after " | ", its homotopy: "sigma objective complementarity iterations status"
+// per NLP, "; " between them.
 //
 //   build-bench/bench/monoped_benchmark   (scripts/bench --monoped stores the JSON and draws
 //                                          docs/monoped_cpu.png; scripts/bench
 //                                          --monoped-iteration runs the second family only)
 #include <benchmark/benchmark.h>
 
+#include <cstdio>
 #include <string>
 
 #include <Eigen/Core>
@@ -46,6 +51,35 @@
 namespace {
 
 bflow_bench::IpoptFlags g_ipopt_flags;  // from the command line, for every row
+int g_budget = 0;  // --budget=K: OcpOptions::max_total_iterations of every BM_Monoped row
+
+// Takes --budget=K out of argv (before benchmark::Initialize).
+int take_budget(int& argc, char** argv) {
+  int budget = 0, kept = 1;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg.rfind("--budget=", 0) == 0) {
+      budget = std::stoi(arg.substr(9));
+    } else {
+      argv[kept++] = argv[i];
+    }
+  }
+  argc = kept;
+  return budget;
+}
+
+// The homotopy as "sigma objective complementarity iterations status" per NLP, "; " between.
+std::string homotopy_path(const bflow::OcpResult& r) {
+  std::string path;
+  char line[160];
+  for (const bflow::OcpHomotopyStep& s : r.homotopy) {
+    std::snprintf(line, sizeof line, "%s%.3g %.6g %.2g %d %s", path.empty() ? "" : "; ",
+                  s.polish ? 0.0 : s.sigma, s.objective, s.complementarity, s.iterations,
+                  s.ipopt_status.c_str());
+    path += line;
+  }
+  return path;
+}
 
 // The counters read from IPOPT's log of the solve (`iterations` IPOPT iterations, `cpu` seconds).
 void log_counters(benchmark::State& state, const bflow_bench::IpoptCounts& c, int iterations,
@@ -67,6 +101,7 @@ void BM_Monoped(benchmark::State& state, bflow::DcsFormulation formulation) {
   const bflow::OcpProblem problem = task.problem(stages);
   bflow::OcpOptions o = task.options(stages, formulation);
   g_ipopt_flags.apply_to(o);
+  o.max_total_iterations = g_budget;
   OcpResult r;
   for (auto _ : state) {
     r = bflow::ocp_solve(model, problem, o);
@@ -88,7 +123,10 @@ void BM_Monoped(benchmark::State& state, bflow::DcsFormulation formulation) {
   state.counters["kkt_error"] = r.kkt_error;
   state.counters["acceptable_stop"] = r.ipopt_status == "Solved_To_Acceptable_Level" ? 1.0 : 0.0;
   state.counters["solved"] = r.ok() ? 1.0 : 0.0;
-  state.SetLabel(r.ok() ? "solved" : std::string(bflow::to_string(r.status)) + ": " + r.message);
+  state.counters["budget"] = g_budget;
+  state.SetLabel((r.ok() ? std::string("solved")
+                         : std::string(bflow::to_string(r.status)) + ": " + r.message) +
+                 " | " + homotopy_path(r));
 }
 
 constexpr int kIterations = 40;
@@ -162,6 +200,7 @@ void BM_MonopedFirstNlp(benchmark::State& state, bflow::DcsFormulation formulati
 // takes minutes) still compares them.
 int main(int argc, char** argv) {
   g_ipopt_flags = bflow_bench::take_ipopt_flags(argc, argv);
+  g_budget = take_budget(argc, argv);
   for (int n = 30; n <= 90; n += 10) {
     for (const bool stewart : {false, true}) {
       const std::string name =

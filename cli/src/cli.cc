@@ -193,7 +193,8 @@ is printed as one "warning: ocp: ..." line on stderr.)";
 struct NumericTexts {
   std::optional<std::string> max_input_bytes, max_output_bytes;
   std::optional<std::string> fesd_stages, fesd_nfe, fesd_nsim, fesd_t, fesd_lifting;
-  std::optional<std::string> ocp_n, ocp_nfe, ocp_stages, ocp_sigma0, ocp_sigma_final, ocp_tol;
+  std::optional<std::string> ocp_n, ocp_nfe, ocp_stages, ocp_sigma0, ocp_sigma_final, ocp_tol,
+      ocp_max_iterations;
 };
 
 int read_int(const std::string& text, const char* option) {
@@ -225,6 +226,8 @@ void read_numbers(const NumericTexts& t, JumpOptions& jump, FesdCommandOptions& 
   if (t.ocp_sigma0) ocp.sigma0 = read_double(*t.ocp_sigma0, "--sigma0");
   if (t.ocp_sigma_final) ocp.sigma_final = read_double(*t.ocp_sigma_final, "--sigma-final");
   if (t.ocp_tol) ocp.tol = read_double(*t.ocp_tol, "--tol");
+  if (t.ocp_max_iterations)
+    ocp.max_iterations = read_int(*t.ocp_max_iterations, "--max-iterations");
 }
 
 // Refuses an option of `command` given with an empty value ("--N ''"), which CLI11 would take
@@ -424,6 +427,11 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                     "IPOPT's tolerance for the last NLP, >= 1e-14 (default 1e-10; monoped: 1e-5 "
                     "for --setup nosnoc, 1e-6 for --setup strict)")
         ->type_name("X");
+    ocp->add_option("--max-iterations", numbers.ocp_max_iterations,
+                    "IPOPT iterations of the whole homotopy, >= 0; when they run out the status "
+                    "is budget_exhausted with the last solved NLP's result (default 0: no limit "
+                    "but 3000 per NLP, 10000 for the monoped)")
+        ->type_name("K");
     ocp->add_flag("--trajectory", ocp_options.trajectory,
                   "Add every element boundary, the states there, the step sizes and active sets");
     ocp->add_option("--plot", ocp_options.plot,

@@ -212,6 +212,9 @@ struct OcpCommandOptions {
   /** Relaxation parameters and IPOPT's tolerance of the last NLP, finite and > 0 with
       sigma_final <= sigma0; not given: the defaults of bflow::OcpOptions. */
   std::optional<double> sigma0, sigma_final, tol;
+  /** --max-iterations: IPOPT iterations of the whole homotopy, >= 0 (0: no limit but IPOPT's
+      per NLP); not given: bflow::OcpOptions::max_total_iterations of the example. */
+  std::optional<int> max_iterations;
   bool trajectory = false;  ///< add every element boundary, the states there, h, active sets
   /** Directory (created if missing) for ocp_states.png, ocp_controls.png, ocp_switching.png
       and their data and gnuplot scripts; not given: no plots. */

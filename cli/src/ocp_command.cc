@@ -127,6 +127,10 @@ void check_ranges(const OcpCommandOptions& options, const OcpOptions& defaults) 
         format_number(sigma0) + (options.sigma0 ? "" : " (the default of --sigma0)");
     fail("--sigma-final", format_number(sigma_final) + " is above the initial " + sigma0_text);
   }
+  if (options.max_iterations && *options.max_iterations < 0) {
+    fail("--max-iterations", "the iteration budget must be >= 0 (0: no limit), got " +
+                                 std::to_string(*options.max_iterations));
+  }
   if (options.plot && options.plot->empty()) fail("--plot", "the directory name is empty");
 }
 
@@ -490,6 +494,7 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
     if (options.sigma0) o.sigma_initial = *options.sigma0;
     if (options.sigma_final) o.sigma_final = *options.sigma_final;
     if (options.tol) o.nlp_tolerance = *options.tol;
+    if (options.max_iterations) o.max_total_iterations = *options.max_iterations;
     if (!options.quiet) {
       o.progress = [&err](const OcpHomotopyStep& s) {
         err << progress_line(s) << '\n' << std::flush;

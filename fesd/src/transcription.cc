@@ -300,9 +300,9 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   // A warm start from the primal point only: every multiplier 0 (IPOPT pushes the bounds' up to
   // warm_start_mult_bound_push).
   void forget_multipliers() {
-    z_l_.setZero();
-    z_u_.setZero();
-    lambda_.setZero();
+    z_l_.setZero(l_.variables());
+    z_u_.setZero(l_.variables());
+    lambda_.setZero(constraints_);
   }
   void restore() {
     w_ = saved_[0];
@@ -896,10 +896,25 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
   int retries = 0;
   while (true) {
     nlp.set_sigma(sigma);
+    if (rules.max_total_iterations > 0) {
+      const int left = rules.max_total_iterations - out.iterations;
+      if (left <= 0) {
+        out.budget_exhausted = true;
+        out.failed_status =
+            "no iterations left of the budget of " + std::to_string(rules.max_total_iterations);
+        out.failed_sigma = sigma;
+        out.failed_complementarity = nlp.complementarity(nlp.solution().data());
+        return out;
+      }
+      o.SetIntegerValue("max_iter", std::min(impl_->settings.max_iterations, left));
+    } else {
+      o.SetIntegerValue("max_iter", impl_->settings.max_iterations);
+    }
     const bool final_nlp = sigma <= rules.sigma_final || finishing;
     // Intermediate problems only need to be solved to the accuracy sigma allows.
     const double tol =
-        final_nlp ? rules.nlp_tolerance : std::max(rules.nlp_tolerance, 1e-2 * sigma);
+        final_nlp ? rules.nlp_tolerance
+                  : std::max(rules.nlp_tolerance, rules.intermediate_tolerance_factor * sigma);
     o.SetNumericValue("tol", tol);
     o.SetNumericValue("acceptable_tol",
                       std::max(rules.acceptable_tol_min, rules.acceptable_tol_factor * tol));
@@ -909,8 +924,17 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
                                          rules.acceptable_violation_sigma * sigma})));
     o.SetNumericValue("acceptable_compl_inf_tol", rules.acceptable_compl_inf_tol);
     o.SetIntegerValue("acceptable_iter", rules.acceptable_iter);
-    o.SetStringValue("warm_start_init_point", !first && rules.warm_start ? "yes" : "no");
-    if (!first) {
+    const bool zero_start = first && rules.first_from_zero_multipliers;
+    o.SetStringValue("warm_start_init_point",
+                     (!first && rules.warm_start) || zero_start ? "yes" : "no");
+    if (zero_start) {
+      // nosnoc's start: IPOPT's warm start from the guess with every multiplier 0.
+      o.SetNumericValue("mu_init", 0.1);
+      o.SetNumericValue("warm_start_bound_push", 1e-3);
+      o.SetNumericValue("warm_start_mult_bound_push", 1e-3);
+      o.SetNumericValue("warm_start_slack_bound_push", 1e-3);
+      nlp.forget_multipliers();
+    } else if (!first) {
       o.SetNumericValue("mu_init", rules.later_mu_init > 0.0
                                        ? rules.later_mu_init
                                        : std::max(rules.mu_init_min, 1e-2 * sigma));
@@ -932,8 +956,26 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
     const bool solved = status == Ipopt::Solve_Succeeded ||
                         status == Ipopt::Solved_To_Acceptable_Level ||
                         status == Ipopt::Feasible_Point_Found;
+    const bool out_of_budget =
+        !solved && rules.max_total_iterations > 0 && out.iterations >= rules.max_total_iterations;
+    const auto next_sigma = [&rules](double current) {
+      double next = rules.sigma_factor * current;
+      if (rules.superlinear) next = std::min(next, std::pow(current, 1.5));
+      // Round-off must not leave one more NLP just above sigma_final.
+      if (next < rules.sigma_final * (1.0 + 1e-9)) next = rules.sigma_final;
+      return std::max(next, rules.sigma_final);
+    };
+    if (!solved && !out_of_budget && rules.continue_after_failure && !final_nlp && !finishing &&
+        status != Ipopt::Invalid_Number_Detected) {
+      // nosnoc's rule: the failed NLP's last iterate starts the next, smaller sigma.
+      out.continued.push_back(sigma);
+      first = false;
+      sigma = next_sigma(sigma);
+      continue;
+    }
     // (A failed re-solve at nlp_tolerance is not retried: its sigma is the last solved one.)
-    if (!solved && out.any_solved && !finishing && retries < rules.max_retries) {
+    if (!solved && !out_of_budget && !rules.continue_after_failure && out.any_solved &&
+        !finishing && retries < rules.max_retries) {
       // Too large a step in sigma: back to the last solution, half the step (in log sigma).
       ++retries;
       nlp.restore();
@@ -942,7 +984,11 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
     }
     if (!solved) {
       out.infeasible = status == Ipopt::Infeasible_Problem_Detected;
-      out.failed_status = step.ipopt_status;
+      out.budget_exhausted = out_of_budget;
+      out.failed_status = out_of_budget ? step.ipopt_status + " (the budget of " +
+                                              std::to_string(rules.max_total_iterations) +
+                                              " iterations used up)"
+                                        : step.ipopt_status;
       out.failed_sigma = sigma;
       out.failed_complementarity = step.complementarity;
       if (out.any_solved) nlp.restore();
@@ -965,11 +1011,7 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
       finishing = true;
       continue;
     }
-    double next = rules.sigma_factor * sigma;
-    if (rules.superlinear) next = std::min(next, std::pow(sigma, 1.5));
-    // Round-off must not leave one more NLP just above sigma_final.
-    if (next < rules.sigma_final * (1.0 + 1e-9)) next = rules.sigma_final;
-    sigma = std::max(next, rules.sigma_final);
+    sigma = next_sigma(sigma);
   }
 }
 
@@ -989,6 +1031,7 @@ PolishOutcome HomotopySolver::polish(Transcription& transcription, double active
   nlp.enter_polish(sides);
   o.SetNumericValue("tol", nlp_tolerance);
   o.SetNumericValue("acceptable_tol", nlp_tolerance);
+  o.SetIntegerValue("max_iter", impl_->settings.max_iterations);
   o.SetStringValue("warm_start_init_point", "no");
   o.SetNumericValue("mu_init", 1e-9);
   o.SetNumericValue("bound_push", 1e-12);

@@ -27,6 +27,8 @@ const char* to_string(OcpStatus status) {
       return "nlp_failed";
     case OcpStatus::kInfeasible:
       return "infeasible";
+    case OcpStatus::kBudgetExhausted:
+      return "budget_exhausted";
   }
   return "unknown";
 }
@@ -188,12 +190,16 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
   }
   if (!(o.step_deviation_weight >= 0.0 && std::isfinite(o.step_deviation_weight)) ||
       !(o.acceptable_tolerance >= 0.0 && std::isfinite(o.acceptable_tolerance)) ||
-      o.acceptable_iterations < 0 || !(o.later_mu_init >= 0.0 && std::isfinite(o.later_mu_init))) {
-    throw InvalidArgument("ocp: step_deviation_weight = " + number(o.step_deviation_weight) +
-                          ", acceptable_tolerance = " + number(o.acceptable_tolerance) +
-                          ", acceptable_iterations = " + std::to_string(o.acceptable_iterations) +
-                          ", later_mu_init = " + number(o.later_mu_init) +
-                          ": each must be finite and >= 0");
+      o.acceptable_iterations < 0 || o.max_total_iterations < 0 ||
+      !(o.later_mu_init >= 0.0 && std::isfinite(o.later_mu_init)) ||
+      !(o.intermediate_tolerance_factor >= 0.0 && std::isfinite(o.intermediate_tolerance_factor))) {
+    throw InvalidArgument(
+        "ocp: step_deviation_weight = " + number(o.step_deviation_weight) +
+        ", acceptable_tolerance = " + number(o.acceptable_tolerance) +
+        ", acceptable_iterations = " + std::to_string(o.acceptable_iterations) +
+        ", max_total_iterations = " + std::to_string(o.max_total_iterations) +
+        ", later_mu_init = " + number(o.later_mu_init) + ", intermediate_tolerance_factor = " +
+        number(o.intermediate_tolerance_factor) + ": each must be finite and >= 0");
   }
   if (o.tracking == OcpTracking::kStageEnds && p.time_optimal && p.track_R.size() > 0) {
     throw InvalidArgument(
@@ -570,6 +576,9 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   fesd::HomotopyRules rules = fesd::homotopy_schedule(options);
   rules.warm_start = options.warm_start;
   rules.warm_start_multipliers = options.warm_start_multipliers;
+  rules.first_from_zero_multipliers = options.first_from_zero_multipliers;
+  rules.max_total_iterations = options.max_total_iterations;
+  rules.continue_after_failure = options.continue_after_failure;
   rules.mu_init_min = 1e-11;
   rules.acceptable_tol_min = 1e-6;
   rules.acceptable_tol_factor = 1e3;
@@ -589,6 +598,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     rules.acceptable_violation_min = rules.acceptable_violation_max = 1e-2;
   }
   rules.later_mu_init = options.later_mu_init;
+  rules.intermediate_tolerance_factor = options.intermediate_tolerance_factor;
   if (options.stop_at_complementarity)
     rules.stop_complementarity = options.complementarity_tolerance;
   const auto on_step = [&](const OcpHomotopyStep& step) {
@@ -599,15 +609,27 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   };
   const fesd::HomotopyOutcome outcome = solver.run(nlp, rules, on_step);
   if (!outcome.done) {
-    result.status = outcome.infeasible ? OcpStatus::kInfeasible : OcpStatus::kNlpFailed;
-    result.message = "IPOPT returned " + outcome.failed_status +
-                     " at sigma = " + number(outcome.failed_sigma) + " (complementarity residual " +
-                     number(outcome.failed_complementarity) + ")";
+    result.status = outcome.budget_exhausted ? OcpStatus::kBudgetExhausted
+                    : outcome.infeasible     ? OcpStatus::kInfeasible
+                                             : OcpStatus::kNlpFailed;
+    result.message = outcome.budget_exhausted
+                         ? "the budget of " + std::to_string(options.max_total_iterations) +
+                               " IPOPT iterations (max_total_iterations) ran out at sigma = " +
+                               number(outcome.failed_sigma) + " (complementarity residual " +
+                               number(outcome.failed_complementarity) + ")"
+                         : "IPOPT returned " + outcome.failed_status +
+                               " at sigma = " + number(outcome.failed_sigma) +
+                               " (complementarity residual " +
+                               number(outcome.failed_complementarity) + ")";
     if (outcome.any_solved) {
       result.message += "; the result is the solution at sigma = " + number(outcome.last_sigma);
     }
   }
 
+  for (const double sigma : outcome.continued) {
+    result.notes.push_back("the NLP at sigma = " + number(sigma) +
+                           " was not solved; its last iterate started the next sigma");
+  }
   if (outcome.stopped_early) {
     result.notes.push_back("the homotopy stopped at sigma = " + number(outcome.last_sigma) +
                            ": its complementarity residual is within the tolerance " +

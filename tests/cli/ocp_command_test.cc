@@ -15,6 +15,7 @@
 #include <Eigen/Core>
 #include <nlohmann/json.hpp>
 
+#include "bflow/core/errors.h"
 #include "bflow/examples/monoped_ocp.h"
 #include "cli_commands.h"
 
@@ -143,19 +144,22 @@ TEST(OcpCommandTest, TurboCarFindsTheExactTimeAndSwitches) {
   EXPECT_THAT(progress.back(), StartsWith("ocp: polish         objective 13.3333  "));
 }
 
-// Standard time-stepping cannot put the switches on element boundaries: with N = 10 its best
-// time is 20 (measured to 2e-11), far from 40/3.
+// Standard time-stepping cannot put the switches on element boundaries: its solved runs end
+// far from 40/3. Which stationary point a run reaches depends on round-off (the BLAS kernels of
+// the machine): at N = 20 measured T = 18.46 on one machine and 20.0 on an AVX-512 one, and
+// N = 10 solved (T = 20) on the first and ended infeasible on the second.
 TEST(OcpCommandTest, StandardTimeSteppingMissesTheOptimum) {
   OcpCommandOptions o;
   o.example = "turbo-car";
-  o.n = 10;
+  o.n = 20;
   o.standard = true;
   o.quiet = true;
   const Outcome r = solve(o);
   ASSERT_EQ(r.code, kExitOk) << r.err;
   EXPECT_EQ(r.err, "");
-  EXPECT_GT(r.json["exact"]["T_error"].get<double>(), 1.0);
-  EXPECT_NEAR(r.json["T"].get<double>(), 20.0, 1e-6);
+  EXPECT_EQ(r.json["status"], "solved");
+  EXPECT_GT(r.json["T"].get<double>(), 40.0 / 3.0 + 1.0);
+  EXPECT_EQ(r.json["exact"]["T_error"].get<double>(), r.json["T"].get<double>() - 40.0 / 3.0);
 }
 
 // With --sigma0 1 the homotopy at N = 5 ends at another stationary point of the MPCC (measured
@@ -272,8 +276,27 @@ TEST(OcpCommandTest, AnUnsolvedProblemExitsWithOne) {
   EXPECT_NE(ipopt, "Solved_To_Acceptable_Level");
   EXPECT_THAT(err[err.size() - 2], ::testing::EndsWith(ipopt));
   EXPECT_EQ(err.back(), "error: ocp: " + status + ": " + r.json["message"].get<std::string>());
-  EXPECT_THAT(err.back(), StartsWith("error: ocp: " + status + ": IPOPT returned " + ipopt +
-                                     " at sigma = " + failed["sigma"].dump() + " "));
+  EXPECT_THAT(err.back(),
+              StartsWith("error: ocp: " + status + ": IPOPT returned " + ipopt +
+                         " at sigma = " + format_number(failed["sigma"].get<double>()) + " "));
+}
+
+// --max-iterations: the turbo car at N = 5 needs about 600 IPOPT iterations; with 100 the
+// homotopy ends at the budget: status budget_exhausted, exit code 1, exactly 100 iterations
+// spent, and the error line names the budget.
+TEST(OcpCommandTest, AnIterationBudgetEndsTheHomotopy) {
+  OcpCommandOptions o;
+  o.example = "turbo-car";
+  o.n = 5;
+  o.max_iterations = 100;
+  const Outcome r = solve(o);
+  EXPECT_EQ(r.code, kExitFailure);
+  EXPECT_EQ(r.json["status"], "budget_exhausted");
+  EXPECT_EQ(r.json["ipopt_iterations"].get<int>(), 100);
+  const std::vector<std::string> err = lines(r.err);
+  ASSERT_FALSE(err.empty());
+  EXPECT_THAT(err.back(), StartsWith("error: ocp: budget_exhausted: the budget of 100 IPOPT "
+                                     "iterations (max_total_iterations) ran out at sigma = "));
 }
 
 TEST(OcpCommandTest, BadOptionsAreNamed) {
@@ -327,6 +350,8 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
        "error: --sigma0: 1e-12 is below the final 1e-10 (the default of --sigma-final)"},
       {"tol", [](OcpCommandOptions& o) { o.tol = 0.0; },
        "error: --tol: the NLP tolerance must be finite and > 0, got 0"},
+      {"max-iterations", [](OcpCommandOptions& o) { o.max_iterations = -3; },
+       "error: --max-iterations: the iteration budget must be >= 0 (0: no limit), got -3"},
       {"plot", [](OcpCommandOptions& o) { o.plot = ""; },
        "error: --plot: the directory name is empty"},
       {"N above IPOPT's indices", [](OcpCommandOptions& o) { o.n = 1000000000; },

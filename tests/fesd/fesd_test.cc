@@ -3,6 +3,7 @@
 #include "bflow/fesd/fesd.h"
 
 #include <cmath>
+#include <cstdio>
 #include <string>
 
 #include <gmock/gmock.h>
@@ -102,8 +103,21 @@ TEST(FesdTest, IrmaSwitchStepByNewtonAgreesWithTheHomotopy) {
   ASSERT_EQ(slow.switch_times.size(), 1u);
   // Measured: switch times 1.6e-9 apart, x 1.2e-11 apart; against the closed form the switch
   // is 9.5e-9 early and x is off by 1.9e-6 (Radau IIA 2, order 3, h = 5/3).
+  std::printf(
+      "against the closed form: Newton switch %.1e, x %.1e; homotopy switch %.1e, x %.1e "
+      "(%d steps at IPOPT's acceptable level)\n",
+      std::abs(fast.switch_times[0] - exact.switches[0].t),
+      (fast.x_end - exact.x).cwiseAbs().maxCoeff(),
+      std::abs(slow.switch_times[0] - exact.switches[0].t),
+      (slow.x_end - exact.x).cwiseAbs().maxCoeff(), slow.acceptable_only_steps);
   EXPECT_NEAR(fast.switch_times[0], slow.switch_times[0], 1e-8);
-  EXPECT_LE((fast.x_end - slow.x_end).cwiseAbs().maxCoeff(), 3e-10);
+  // Where IPOPT solves the homotopy's last NLP, both are the same discrete solution (measured
+  // 1.2e-11 apart). Where it stops at its acceptable level (reported in acceptable_only_steps;
+  // measured on an AVX-512 machine, whose BLAS kernels round otherwise: one step), the homotopy's
+  // point is that level's: 1.5e-6 from Newton's, 3.6e-7 from the closed form.
+  const double apart = slow.acceptable_only_steps == 0 ? 3e-10 : 5e-6;
+  EXPECT_LE((fast.x_end - slow.x_end).cwiseAbs().maxCoeff(), apart);
+  EXPECT_LE((slow.x_end - exact.x).cwiseAbs().maxCoeff(), 1e-5);
   EXPECT_NEAR(fast.switch_times[0], exact.switches[0].t, 1e-7);  // from t = 25
   EXPECT_LE((fast.x_end - exact.x).cwiseAbs().maxCoeff(), 1e-5);
 }

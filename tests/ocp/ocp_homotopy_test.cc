@@ -2,6 +2,7 @@
 // ends at the first NLP whose complementarity residual is within complementarity_tolerance,
 // solved at nlp_tolerance, and the polish then reaches the turbo car's exact optimal time
 // T* = 40/3 (ocp_examples.h).
+#include <cmath>
 #include <cstdio>
 #include <string>
 #include <vector>
@@ -9,6 +10,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include "bflow/core/errors.h"
 #include "bflow/examples/ocp_examples.h"
 #include "bflow/integrators/model_adapter.h"
 #include "bflow/ocp/ocp.h"
@@ -71,6 +73,137 @@ TEST(OcpHomotopy, StopsAtTheFirstNlpWithinTheComplementarityTolerance) {
       "(full %.1e)\n",
       steps.size(), relaxed_steps(full).size(), r.ipopt_iterations, full.ipopt_iterations,
       last.sigma, std::abs(r.T - 40.0 / 3.0), std::abs(full.T - 40.0 / 3.0));
+}
+
+// OcpOptions::max_total_iterations. A budget below what the homotopy needs ends it with
+// kBudgetExhausted: the iterations spent never exceed the budget, the message names it, and the
+// result is the last solved NLP's (its sigma in the message). A budget above what it needs
+// changes nothing: the same NLPs, iterations and T* = 40/3.
+TEST(OcpHomotopy, TotalIterationBudget) {
+  OcpOptions options;
+  options.stages = 5;
+  const OcpResult free = solve_car(options);
+  ASSERT_EQ(free.status, OcpStatus::kSolved) << free.message;
+  int relaxed_iterations = 0;
+  for (const OcpHomotopyStep& s : relaxed_steps(free)) relaxed_iterations += s.iterations;
+
+  options.max_total_iterations = relaxed_iterations;  // exactly enough
+  const OcpResult enough = solve_car(options);
+  ASSERT_EQ(enough.status, OcpStatus::kSolved) << enough.message;
+  EXPECT_EQ(enough.ipopt_iterations, free.ipopt_iterations);
+  EXPECT_EQ(relaxed_steps(enough).size(), relaxed_steps(free).size());
+  EXPECT_NEAR(enough.T, 40.0 / 3.0, 1e-8);
+
+  const int budget = relaxed_iterations / 2;
+  options.max_total_iterations = budget;
+  const OcpResult cut = solve_car(options);
+  EXPECT_EQ(cut.status, OcpStatus::kBudgetExhausted) << cut.message;
+  EXPECT_STREQ(to_string(cut.status), "budget_exhausted");
+  EXPECT_EQ(cut.ipopt_iterations, budget);
+  EXPECT_THAT(cut.message, testing::HasSubstr("budget of " + std::to_string(budget)));
+  EXPECT_FALSE(cut.polished);
+  // The NLPs before the cut are those of the free run, with the same iterations.
+  const std::vector<OcpHomotopyStep> a = relaxed_steps(cut), b = relaxed_steps(free);
+  ASSERT_GE(a.size(), 2u);
+  for (std::size_t k = 0; k + 1 < a.size(); ++k) {
+    EXPECT_EQ(a[k].iterations, b[k].iterations) << k;
+    EXPECT_EQ(a[k].sigma, b[k].sigma) << k;
+  }
+  EXPECT_LT(a.back().iterations, b[a.size() - 1].iterations);
+  std::printf("free: %d iterations in %zu NLPs; budget %d: %zu NLPs, %s\n", free.ipopt_iterations,
+              b.size(), budget, a.size(), cut.message.c_str());
+
+  options.max_total_iterations = -1;
+  EXPECT_THROW(solve_car(options), InvalidArgument);
+}
+
+// OcpOptions::intermediate_tolerance_factor = 0 gives every NLP of the homotopy IPOPT's tol
+// nlp_tolerance (nosnoc's rule), the default 1e-2 the NLPs before the last only
+// max(nlp_tolerance, 1e-2 sigma): the first NLP (sigma = 100) then ends "optimal" at a KKT error
+// far above nlp_tolerance (measured 1.5e-4), with factor 0 every "optimal" NLP within 1e-8
+// (the first at 1.1e-9). Both reach T* = 40/3 (|T - 40/3| 1.4e-10 and 6.0e-11).
+TEST(OcpHomotopy, IntermediateToleranceFactor) {
+  OcpOptions options;
+  options.stages = 5;
+  options.polish = false;
+  options.nlp_tolerance = 1e-8;
+  const OcpResult loose = solve_car(options);
+  options.intermediate_tolerance_factor = 0.0;
+  const OcpResult tight = solve_car(options);
+  ASSERT_EQ(loose.status, OcpStatus::kSolved) << loose.message;
+  ASSERT_EQ(tight.status, OcpStatus::kSolved) << tight.message;
+  // IPOPT's "optimal" means a KKT error within the tol it was given; an NLP may still end at its
+  // acceptable level instead (measured: sigma = 1e-6 at 2.1e-7).
+  int optimal = 0;
+  for (const OcpHomotopyStep& s : relaxed_steps(tight)) {
+    if (s.ipopt_status != "Solve_Succeeded") continue;
+    ++optimal;
+    EXPECT_LE(s.kkt_error, 1e-8) << s.sigma;
+  }
+  EXPECT_GE(optimal, 10);
+  EXPECT_EQ(relaxed_steps(loose).front().ipopt_status, "Solve_Succeeded");
+  EXPECT_GT(relaxed_steps(loose).front().kkt_error, 1e-6);
+  EXPECT_NEAR(loose.T, 40.0 / 3.0, 1e-6);
+  EXPECT_NEAR(tight.T, 40.0 / 3.0, 1e-6);
+  std::printf("first NLP's KKT error: %.1e (factor 1e-2), %.1e (factor 0); |T - 40/3| %.1e, %.1e\n",
+              relaxed_steps(loose).front().kkt_error, relaxed_steps(tight).front().kkt_error,
+              std::abs(loose.T - 40.0 / 3.0), std::abs(tight.T - 40.0 / 3.0));
+}
+
+// OcpOptions::first_from_zero_multipliers: the first NLP starts as IPOPT's warm start with every
+// multiplier 0 instead of IPOPT's own initialisation. Another path (other iterations), the same
+// optimum T* = 40/3.
+TEST(OcpHomotopy, FirstNlpFromZeroMultipliers) {
+  OcpOptions options;
+  options.stages = 5;
+  const OcpResult own = solve_car(options);
+  options.first_from_zero_multipliers = true;
+  const OcpResult zero = solve_car(options);
+  ASSERT_EQ(own.status, OcpStatus::kSolved) << own.message;
+  ASSERT_EQ(zero.status, OcpStatus::kSolved) << zero.message;
+  EXPECT_NE(own.homotopy.front().iterations, zero.homotopy.front().iterations);
+  EXPECT_NEAR(zero.T, 40.0 / 3.0, 1e-8);
+  std::printf("first NLP: %d iterations (IPOPT's start), %d (zero multipliers); |T - 40/3| %.1e\n",
+              own.homotopy.front().iterations, zero.homotopy.front().iterations,
+              std::abs(zero.T - 40.0 / 3.0));
+}
+
+// OcpOptions::continue_after_failure (nosnoc's rule). With 15 IPOPT iterations per NLP the turbo
+// car's first NLP (sigma = 100; 53 iterations without the cap) stops unsolved. bflow's rule has
+// no solved NLP to go back to and ends there (nlp_failed, one NLP); nosnoc's hands every failed
+// NLP's last iterate to the next sigma: the schedule 100, 10, ..., 1e-10 (13 NLPs) is walked
+// once, and the notes name each failed sigma but the last's, which is the result's message.
+TEST(OcpHomotopy, ContinueAfterFailure) {
+  OcpOptions options;
+  options.stages = 5;
+  options.max_nlp_iterations = 15;
+  options.polish = false;
+  const OcpResult retried = solve_car(options);
+  options.continue_after_failure = true;
+  const OcpResult continued = solve_car(options);
+
+  EXPECT_EQ(retried.status, OcpStatus::kNlpFailed);
+  EXPECT_EQ(relaxed_steps(retried).size(), 1u);
+  EXPECT_TRUE(retried.notes.empty());
+
+  const std::vector<OcpHomotopyStep> b = relaxed_steps(continued);
+  ASSERT_EQ(b.size(), 13u);
+  int failed = 0;
+  for (std::size_t k = 0; k < b.size(); ++k) {
+    EXPECT_NEAR(b[k].sigma, 100.0 * std::pow(0.1, static_cast<double>(k)), 1e-12 * b[k].sigma);
+    const bool solved =
+        b[k].ipopt_status == "Solve_Succeeded" || b[k].ipopt_status == "Solved_To_Acceptable_Level";
+    if (!solved && k + 1 < b.size()) {
+      ++failed;
+      EXPECT_THAT(continued.notes,
+                  testing::Contains(testing::StartsWith(
+                      "the NLP at sigma = " + format_number(b[k].sigma) + " was not solved")));
+    }
+  }
+  EXPECT_GE(failed, 1);
+  EXPECT_EQ(continued.notes.size(), static_cast<std::size_t>(failed));
+  std::printf("bflow's rule: %zu NLP; continue_after_failure: %zu NLPs, %d handed on, %s\n",
+              relaxed_steps(retried).size(), b.size(), failed, to_string(continued.status));
 }
 
 }  // namespace

@@ -156,6 +156,15 @@ TEST(OcpSetup, BadOptionsAreRefusedWithTheValues) {
   o.step_deviation_weight = 0.0;
   o.acceptable_tolerance = std::numeric_limits<double>::quiet_NaN();
   EXPECT_THROW(ocp_solve(adapt_ocp(TurboCar{}), TurboCar::problem(), o), InvalidArgument);
+  o.acceptable_tolerance = 0.0;
+  o.intermediate_tolerance_factor = -0.5;
+  try {
+    ocp_solve(adapt_ocp(TurboCar{}), TurboCar::problem(), o);
+    FAIL() << "no exception";
+  } catch (const InvalidArgument& e) {
+    EXPECT_NE(std::string(e.what()).find("intermediate_tolerance_factor = -0.5"), std::string::npos)
+        << e.what();
+  }
 }
 
 }  // namespace

@@ -165,8 +165,10 @@ struct MonopedTask {
       n_s = 2, as the library's defaults) for the formulation.
       nosnoc: sigma from 1 by factors of 0.1 to 1e-4 (step) or 0.4 to 0.4^14 (Stewart), stopping
       at the first NLP with complementarity <= 1e-5; IPOPT's tol and acceptable_tol 1e-5 with
-      acceptable_iter 3, each NLP from the previous primal point only (warm_start without
-      multipliers) at IPOPT's mu_init 0.1; the step equilibration rho_h sum (h - h_0)^2, rho_h = 1;
+      acceptable_iter 3 on every NLP (intermediate_tolerance_factor 0), each NLP from the previous
+      primal point only (warm_start without multipliers; the first from the guess with every
+      multiplier 0) at IPOPT's mu_init 0.1, an unsolved NLP's last iterate handed to the next
+      sigma (continue_after_failure); the step equilibration rho_h sum (h - h_0)^2, rho_h = 1;
      the step functions lifted (lifting depth 2); no polish. strict: sigma from 1 by factors of 0.1
      to 1e-7, IPOPT's tolerance 1e-6, complementarity 1e-6, cold starts (warm_start = false) and no
      polish. Measured at N = 30 (step formulation): 11784 IPOPT iterations (1531 s), one hop with
@@ -198,6 +200,9 @@ struct MonopedTask {
     o.acceptable_iterations = 3;
     o.warm_start = true;
     o.warm_start_multipliers = false;
+    o.first_from_zero_multipliers = true;
+    o.intermediate_tolerance_factor = 0.0;
+    o.continue_after_failure = true;
     o.later_mu_init = 0.1;
     o.step_deviation_weight = 1.0;
     o.tracking = OcpTracking::kStageEnds;

@@ -248,12 +248,29 @@ struct HomotopyRules {
   double sigma_initial = 1.0, sigma_final = 1e-12, sigma_factor = 0.1;
   bool superlinear = true;  ///< sigma <- min(factor sigma, sigma^1.5)
   double nlp_tolerance = 1e-13;
+  /** NLPs before the last are solved to IPOPT's tol max(nlp_tolerance, this times sigma); 0:
+      every NLP to nlp_tolerance (nosnoc's rule). */
+  double intermediate_tolerance_factor = 1e-2;
   /** Warm starts take the previous multipliers and stay at the bounds reached (bound pushes
       1e-9); without, IPOPT initialises them itself from the previous point. */
   bool warm_start = true;
   /** With warm_start: also the previous multipliers; without, every multiplier starts at 0
       (pushed to 1e-3 for the bounds, IPOPT's warm-start pushes of 1e-3 for the point). */
   bool warm_start_multipliers = true;
+  /** The first NLP, too, starts as IPOPT's warm start: from the guess with every multiplier 0
+      (bound multipliers pushed to 1e-3, the point 1e-3 into its bounds, mu_init 0.1), instead
+      of IPOPT's own initialisation (least-squares constraint multipliers, bound multipliers 1,
+      bound_push 1e-2). */
+  bool first_from_zero_multipliers = false;
+  /** > 0: the IPOPT iterations of the whole homotopy: each NLP gets at most what is left of it
+      (and of IpoptSettings::max_iterations), and the homotopy ends, not done and with
+      budget_exhausted, when an NLP stops for want of it or nothing is left; 0: no limit. */
+  int max_total_iterations = 0;
+  /** An NLP before the last that IPOPT does not solve (other than by invalid numbers or the
+      budget) hands its last iterate to the next, smaller sigma (nosnoc's rule) instead of being
+      retried at a larger sigma from the last solution (no NLP is retried, the last neither);
+      HomotopyOutcome::continued lists them. */
+  bool continue_after_failure = false;
   /** A failed NLP after a solved one is retried from the last solution at sqrt(sigma sigma_last)
       up to this many times. */
   int max_retries = 6;
@@ -318,6 +335,10 @@ struct HomotopyOutcome {
   bool infeasible = false;
   std::string failed_status;
   double failed_sigma = 0.0, failed_complementarity = 0.0;
+  /** The homotopy ended because HomotopyRules::max_total_iterations ran out. */
+  bool budget_exhausted = false;
+  /** sigma of every NLP that failed and handed its last iterate on (continue_after_failure). */
+  std::vector<double> continued;
 };
 
 struct PolishOutcome {

@@ -362,6 +362,10 @@ struct OcpOptions {
   /** The largest aggregated complementarity product a "solved" result may have. */
   double complementarity_tolerance = 1e-9;
   double nlp_tolerance = 1e-10;  ///< IPOPT's tol for the last NLP
+  /** IPOPT's tol for the NLPs before the last: max(nlp_tolerance, this times sigma), so the
+      early, loosely relaxed NLPs are solved only as far as sigma allows; 0 solves every NLP to
+      nlp_tolerance (nosnoc's rule). */
+  double intermediate_tolerance_factor = 1e-2;
   /** Weight of the step equilibration (39) in the objective of the homotopy's NLPs, times
       min(1, sigma): it regularises the element lengths early and fades, so that it does not
       bias the optimum; the polish imposes the exact equilibration instead. */
@@ -388,6 +392,11 @@ struct OcpOptions {
       start of the primal point only) every multiplier starts at 0, IPOPT pushes the point 1e-3
       into its bounds and the bound multipliers to 1e-3. */
   bool warm_start_multipliers = true;
+  /** The first NLP starts from the guess with every multiplier 0, as IPOPT's warm start (nosnoc
+      sets warm_start_init_point for every NLP), instead of IPOPT's own initialisation
+      (least-squares constraint multipliers, bound multipliers 1, the point pushed 1e-2 into its
+      bounds). */
+  bool first_from_zero_multipliers = false;
   /** After the homotopy, solve once more with the last NLP's active set fixed (the zero member
       of every complementarity pair at its bound, equal lengths of neighbouring elements of a
       stage with the same sides, no relaxation and no equilibration penalty): an exact FESD
@@ -410,7 +419,15 @@ struct OcpOptions {
       max(1e-11, 1e-2 sigma), a start near the previous solution's barrier. */
   double later_mu_init = 0.0;
   int max_nlp_iterations = 3000;  ///< per NLP of the homotopy
-  int print_level = 0;            ///< IPOPT's print_level
+  /** > 0: IPOPT iterations of the whole homotopy (and polish excluded): each NLP gets at most
+      what is left, and when it runs out the result is kBudgetExhausted with the last solved
+      NLP's solution; 0: no limit but max_nlp_iterations per NLP. */
+  int max_total_iterations = 0;
+  /** An NLP before the last that IPOPT does not solve hands its last iterate to the next,
+      smaller sigma (nosnoc's rule; notes name each), instead of being retried from the last
+      solved NLP at sqrt(sigma sigma_last) (bflow's rule, up to 6 times). */
+  bool continue_after_failure = false;
+  int print_level = 0;  ///< IPOPT's print_level
   /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
   std::function<void(const OcpHomotopyStep&)> progress;
   /** IPOPT options set after bflow's own (mu_strategy adaptive, bound_relax_factor 0 and those
@@ -434,6 +451,8 @@ enum class OcpStatus {
   kAcceptableOnly,  ///< last NLP stopped at IPOPT's acceptable level, KKT error > nlp_tolerance
   kNlpFailed,       ///< IPOPT failed on some NLP of the homotopy (result: last good)
   kInfeasible,      ///< IPOPT found the NLP locally infeasible
+  /** OcpOptions::max_total_iterations ran out before the homotopy ended (result: last good). */
+  kBudgetExhausted,
 };
 const char* to_string(OcpStatus status);  ///< "solved", "complementarity_not_reached", ...
 
