@@ -904,6 +904,8 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
             "no iterations left of the budget of " + std::to_string(rules.max_total_iterations);
         out.failed_sigma = sigma;
         out.failed_complementarity = nlp.complementarity(nlp.solution().data());
+        // (After an NLP handed on unsolved, back to the last solved one.)
+        if (out.any_solved) nlp.restore();
         return out;
       }
       o.SetIntegerValue("max_iter", std::min(impl_->settings.max_iterations, left));
