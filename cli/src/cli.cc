@@ -416,6 +416,12 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                     "scholtes (products <= sigma) or l1 (penalty 1/sigma times the products)")
         ->type_name("NAME")
         ->capture_default_str();
+    ocp->add_option("--cross", ocp_options.cross,
+                    "Cross complementarity rows: element-sums (one product of sums per element "
+                    "and pair) or point-pairs (every product of two points on its own row); "
+                    "default point-pairs for the monoped with stewart (nosnoc's), else "
+                    "element-sums")
+        ->type_name("NAME");
     ocp->add_option("--sigma0", numbers.ocp_sigma0,
                     "Initial relaxation sigma, > 0 (default 100; 1 for the monoped)")
         ->type_name("X");

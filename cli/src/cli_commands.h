@@ -207,6 +207,9 @@ struct OcpCommandOptions {
   std::string formulation = "step";     ///< step or stewart
   bool standard = false;                ///< standard time-stepping, no switch detection
   std::string relaxation = "scholtes";  ///< scholtes or l1
+  /** --cross: element-sums or point-pairs (bflow::CrossComplementarity); not given: the
+      example's (point-pairs for the monoped with stewart, else element-sums). */
+  std::optional<std::string> cross;
   /** The monoped's setup (examples::MonopedSetup): nosnoc (not given) or strict. */
   std::optional<std::string> setup;
   /** Relaxation parameters and IPOPT's tolerance of the last NLP, finite and > 0 with

@@ -486,6 +486,16 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
       return kExitBadInput;
     }
     o.relaxation = parse_relaxation(options.relaxation);
+    if (options.cross) {
+      if (*options.cross == "element-sums") {
+        o.cross_complementarity = CrossComplementarity::kElementSums;
+      } else if (*options.cross == "point-pairs") {
+        o.cross_complementarity = CrossComplementarity::kPointPairs;
+      } else {
+        fail("--cross", "unknown cross complementarity " + quote(*options.cross) +
+                            "; use element-sums or point-pairs");
+      }
+    }
     check_ranges(options, o);
     o.stages = stages_of(options);
     o.elements = options.nfe;
@@ -538,6 +548,7 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
           j["status"] = to_string(r.status);
           j["message"] = r.message;
           if (options.example == "monoped") j["setup"] = to_string(monoped.setup);
+          j["cross_complementarity"] = o.standard ? "standard" : to_string(o.cross_complementarity);
           j["ipopt_status"] = r.ipopt_status;
           j["kkt_error"] = std::isfinite(r.kkt_error) ? OrderedJson(r.kkt_error) : nullptr;
           j["notes"] = notes;

@@ -459,6 +459,13 @@ OcpProblemSize ocp_problem_size(const OcpModel& model, const OcpOptions& options
   size.unknowns = elements.unknowns + std::int64_t{options.stages} * model.controls() + 1;
   size.constraints = elements.constraints;
   size.jacobian_nonzeros = elements.jacobian_nonzeros;
+  if (!options.standard && options.cross_complementarity == CrossComplementarity::kPointPairs) {
+    // Every pair's P (P + 1) point products in place of its one aggregated row, two entries each.
+    const std::int64_t extra =
+        size.elements * elements.point_pairs * (elements.points * (elements.points + 1) - 1);
+    size.constraints += extra;
+    size.jacobian_nonzeros += 2 * extra;
+  }
   size.hessian_nonzeros = elements.hessian_nonzeros;
   size.bytes = elements.step_bytes;
   return size;
@@ -484,8 +491,11 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   const double cpu_start = fesd::process_cpu_seconds();
   const ButcherTableau tab = collocation_tableau(options.scheme, options.collocation_stages);
   const PointDcs dcs(step_model, options.formulation, options.lifting_depth);
-  const OcpLayout l(dcs, d, model.switches(), nu, tab, options.stages, options.elements,
-                    /*time_scaled=*/true);
+  OcpLayout layout(dcs, d, model.switches(), nu, tab, options.stages, options.elements,
+                   /*time_scaled=*/true);
+  // Standard time-stepping has one product per point and pair, whatever the cross rows.
+  if (!options.standard) layout.cross = options.cross_complementarity;
+  const OcpLayout& l = layout;
   OcpResult result;
 
   fesd::TranscriptionSetup setup;

@@ -324,6 +324,9 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
        "error: --formulation: unknown formulation \"heaviside\": use step or stewart"},
       {"relaxation", [](OcpCommandOptions& o) { o.relaxation = "smooth"; },
        "error: --relaxation: unknown relaxation \"smooth\"; use scholtes or l1"},
+      {"cross", [](OcpCommandOptions& o) { o.cross = "stage-stage"; },
+       "error: --cross: unknown cross complementarity \"stage-stage\"; use element-sums or "
+       "point-pairs"},
       {"setup", [](OcpCommandOptions& o) { o.setup = "nosnoc"; },
        "error: --setup: only the monoped has setups, not \"turbo-car\""},
       {"monoped setup",
@@ -440,6 +443,7 @@ TEST(OcpCommandTest, MonopedReportsHopsAndThePhysicalEnd) {
   const nlohmann::json& j = r.json;
   ASSERT_EQ(j["status"], "complementarity_not_reached");
   EXPECT_EQ(j["setup"], "nosnoc");
+  EXPECT_EQ(j["cross_complementarity"], "element-sums");  // nosnoc's for the step formulation
   EXPECT_FALSE(j["ipopt_status"].get<std::string>().empty());
   EXPECT_EQ(j["N"], 3);
   ASSERT_EQ(j["x"].size(), 4u);

@@ -2,6 +2,7 @@
 // pieces (element.h, hessian_blocks.h, HessianJet), against central differences of its exact
 // gradient (Jet chunks: lambda^T of the residual's Jacobian), for every formulation, both
 // collocation schemes, cross and standard complementarity, with a control and time scaling.
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <string>
@@ -40,9 +41,13 @@ struct Config {
   int lifting_depth;
   CollocationScheme scheme;
   bool standard;
+  bool point_pairs = false;
   std::string name() const {
     return std::string(to_string(formulation)) + " n_d " + std::to_string(lifting_depth) + " " +
-           to_string(scheme) + (standard ? " standard" : " cross");
+           to_string(scheme) +
+           (standard      ? " standard"
+            : point_pairs ? " point-pair cross"
+                          : " cross");
   }
 };
 
@@ -53,7 +58,8 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
   const auto model = adapt_step(Coupled{});
   const fesd::PointDcs dcs(model, c.formulation, c.lifting_depth);
   const ButcherTableau tab = collocation_tableau(c.scheme, 2);
-  const fesd::ElementShape l(dcs, 2, 2, tab, 1, true);
+  fesd::ElementShape l(dcs, 2, 2, tab, 1, true);
+  if (c.point_pairs) l.cross = CrossComplementarity::kPointPairs;
   const int n = l.local;
   std::mt19937 gen(11);
   std::uniform_real_distribution<double> uniform(0.1, 0.9);
@@ -107,15 +113,85 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
 
 INSTANTIATE_TEST_SUITE_P(
     AllFormulations, ElementHessianTest,
-    ::testing::Values(Config{DcsFormulation::kStep, 0, CollocationScheme::kRadauIIA, false},
-                      Config{DcsFormulation::kStep, 0, CollocationScheme::kGaussLegendre, false},
-                      Config{DcsFormulation::kStep, 0, CollocationScheme::kRadauIIA, true},
-                      Config{DcsFormulation::kStep, 2, CollocationScheme::kRadauIIA, false},
-                      Config{DcsFormulation::kStep, 2, CollocationScheme::kGaussLegendre, true},
-                      Config{DcsFormulation::kStewart, 0, CollocationScheme::kRadauIIA, false},
-                      Config{DcsFormulation::kStewart, 0, CollocationScheme::kGaussLegendre, false},
-                      Config{DcsFormulation::kStewart, 0, CollocationScheme::kGaussLegendre,
-                             true}));
+    ::testing::Values(
+        Config{DcsFormulation::kStep, 0, CollocationScheme::kRadauIIA, false},
+        Config{DcsFormulation::kStep, 0, CollocationScheme::kGaussLegendre, false},
+        Config{DcsFormulation::kStep, 0, CollocationScheme::kRadauIIA, true},
+        Config{DcsFormulation::kStep, 2, CollocationScheme::kRadauIIA, false},
+        Config{DcsFormulation::kStep, 2, CollocationScheme::kGaussLegendre, true},
+        Config{DcsFormulation::kStewart, 0, CollocationScheme::kRadauIIA, false},
+        Config{DcsFormulation::kStewart, 0, CollocationScheme::kGaussLegendre, false},
+        Config{DcsFormulation::kStewart, 0, CollocationScheme::kGaussLegendre, true},
+        Config{DcsFormulation::kStep, 2, CollocationScheme::kRadauIIA, false, true},
+        Config{DcsFormulation::kStewart, 0, CollocationScheme::kRadauIIA, false, true},
+        Config{DcsFormulation::kStewart, 0, CollocationScheme::kGaussLegendre, false, true}));
+
+// The point-pair cross complementarity (kPointPairs) against the aggregated rows: pair k's
+// P (P + 1) products sum to its aggregated product (sum_r u_r)(v_0 + sum_m v_m) exactly by
+// the distributive law, each product equals the two members read from the local vector, and
+// the Jacobian pattern lists every nonzero of the rows' dense Jacobian.
+TEST(PointPairComplementarity, RowsSumToTheAggregatedProductsAndThePatternHoldsTheJacobian) {
+  const auto model = adapt_step(Coupled{});
+  for (const DcsFormulation formulation : {DcsFormulation::kStep, DcsFormulation::kStewart}) {
+    const fesd::PointDcs dcs(model, formulation, 0);
+    const ButcherTableau tab = collocation_tableau(CollocationScheme::kGaussLegendre, 2);
+    fesd::ElementShape sums(dcs, 2, 2, tab, 1, true);
+    fesd::ElementShape pairs = sums;
+    pairs.cross = CrossComplementarity::kPointPairs;
+    const int P = pairs.points;
+    ASSERT_EQ(P, 3);  // Gauss-Legendre: two stages and the end point
+    ASSERT_EQ(pairs.comp_rows(), sums.npairs * P * (P + 1));
+    std::mt19937 gen(5);
+    std::uniform_real_distribution<double> uniform(0.1, 0.9);
+    std::vector<double> local(static_cast<std::size_t>(sums.local));
+    for (double& v : local) v = uniform(gen);
+    std::vector<double> aggregated(static_cast<std::size_t>(sums.rows_per_element()));
+    std::vector<double> products(static_cast<std::size_t>(pairs.rows_per_element()));
+    fesd::element_residual(tab, sums, false, local.data(), aggregated.data());
+    fesd::element_residual(tab, pairs, false, local.data(), products.data());
+    const double* z = local.data() + pairs.own() + pairs.off_z;
+    for (int k = 0; k < pairs.npairs; ++k) {
+      const fesd::Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+      double sum = 0.0;
+      for (int m = 0; m <= P; ++m) {
+        const double v =
+            m == 0 ? local[static_cast<std::size_t>(pairs.d + k)] : z[(m - 1) * pairs.nz + pair.v];
+        for (int r = 0; r < P; ++r) {
+          const double u = pair.flipped ? 1.0 - z[r * pairs.nz + pair.u] : z[r * pairs.nz + pair.u];
+          const double row =
+              products[static_cast<std::size_t>(pairs.equalities + k * P * (P + 1) + m * P + r)];
+          EXPECT_EQ(row, u * v) << to_string(formulation) << " pair " << k << " m " << m;
+          sum += row;
+        }
+      }
+      const double whole = aggregated[static_cast<std::size_t>(sums.equalities + k)];
+      EXPECT_NEAR(sum, whole, 1e-15 * std::abs(whole) * P * (P + 1)) << to_string(formulation);
+    }
+    // Every other row is the same.
+    for (int r = 0; r < sums.equalities; ++r) {
+      EXPECT_EQ(products[static_cast<std::size_t>(r)], aggregated[static_cast<std::size_t>(r)]);
+    }
+    Eigen::MatrixXd jac;
+    fesd::dense_jacobian(local, pairs.rows_per_element(), jac,
+                         [&](const JetChunk* in, JetChunk* out) {
+                           fesd::element_residual(tab, pairs, false, in, out);
+                         });
+    const std::vector<std::vector<int>> pattern = fesd::element_jacobian_pattern(pairs);
+    int listed = 0;
+    for (int r = pairs.equalities; r < pairs.rows_per_element(); ++r) {
+      const std::vector<int>& row = pattern[static_cast<std::size_t>(r)];
+      EXPECT_EQ(row.size(), 2u);
+      for (int c = 0; c < pairs.local; ++c) {
+        const bool in_pattern = std::find(row.begin(), row.end(), c) != row.end();
+        if (!in_pattern) {
+          EXPECT_EQ(jac(r, c), 0.0) << "row " << r << " column " << c;
+        }
+        listed += in_pattern ? 1 : 0;
+      }
+    }
+    EXPECT_EQ(listed, 2 * pairs.comp_rows());
+  }
+}
 
 }  // namespace
 }  // namespace bflow

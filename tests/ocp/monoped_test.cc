@@ -293,6 +293,15 @@ TEST(MonopedOcp, ProblemAndSizes) {
   EXPECT_EQ(step.switches(), 3);
   EXPECT_EQ(stewart.sign_matrix()->modes(), 8);
   const OcpProblemSize s_stewart = ocp_problem_size(stewart, o);
+  // nosnoc's cross complementarity: Stewart's every product of two points (8 pairs, 3 x 2
+  // products per element), the step formulation's aggregated products.
+  const MonopedTask nosnoc;
+  EXPECT_EQ(nosnoc.options(30, DcsFormulation::kStewart).cross_complementarity,
+            CrossComplementarity::kPointPairs);
+  EXPECT_EQ(nosnoc.options(30).cross_complementarity, CrossComplementarity::kElementSums);
+  OcpOptions pairs = o;
+  pairs.cross_complementarity = CrossComplementarity::kPointPairs;
+  EXPECT_EQ(ocp_problem_size(stewart, pairs).constraints - s_stewart.constraints, 90 * 8 * 5);
   o.formulation = DcsFormulation::kStep;
   const OcpProblemSize s_step = ocp_problem_size(step, o);
   EXPECT_EQ(s_step.elements, 90);

@@ -260,6 +260,11 @@ TEST(OcpHessian, StewartFormulation) {
   const OcpOptions o = shape(1, 1, CollocationScheme::kRadauIIA, 2, DcsFormulation::kStewart);
   const Checked control = pass_and_control(model, p, o, "Stewart, Radau IIA 2");
   EXPECT_TRUE(flagged_in(control.out, 0, rows_of(control, o, 2, 2).elements_end));
+  // Every product of two points on its own row (CrossComplementarity::kPointPairs), on two
+  // elements so that the second reads the first's end.
+  OcpOptions pairs = shape(1, 2, CollocationScheme::kRadauIIA, 2, DcsFormulation::kStewart);
+  pairs.cross_complementarity = CrossComplementarity::kPointPairs;
+  pass_and_control(model, p, pairs, "Stewart, point pairs, Radau IIA 2");
 }
 
 // Each cost alone on the dynamics without costs, on one stage of two elements: the Lagrange

@@ -44,6 +44,8 @@ struct ElementShape {
   int equalities = 0;  // per element
   int params = 0;      // nu + (scaled ? 1 : 0)
   int local = 0;
+  /** The rows of the cross complementarity (fesd.h); set before the rows are counted. */
+  CrossComplementarity cross = CrossComplementarity::kElementSums;
 
   ElementShape(const PointDcs& point, int states, int switches, const ButcherTableau& tableau,
                int controls = 0, bool time_scaled = false)
@@ -60,19 +62,33 @@ struct ElementShape {
     params = nu + (scaled ? 1 : 0);
     local = d + npairs + params + block;
   }
-  int rows_per_element() const { return equalities + npairs; }
+  /** Complementarity rows per pair: 1, or P (P + 1) point pairs. */
+  int comp_per_pair() const {
+    return cross == CrossComplementarity::kPointPairs ? points * (points + 1) : 1;
+  }
+  int comp_rows() const { return npairs * comp_per_pair(); }
+  int rows_per_element() const { return equalities + comp_rows(); }
   // Offset in the local vector of the element's own block.
   int own() const { return d + npairs + params; }
 };
 
-// The aggregated complementarity products of one element (npairs values) from the v of every
-// pair at its start and the z of its points.
+// The complementarity rows of one element (l.comp_rows() values) from the v of every pair at
+// its start and the z of its points. kPointPairs: pair k's rows are u_r v_m, row
+// k P (P + 1) + m P + r for point r of u and m of v (m = 0 the start, m = 1..P the points).
 template <typename T>
 void complementarity_rows(const ElementShape& l, bool standard, const T* v0, const T* z, T* comp) {
   const PointDcs& dcs = *l.dcs;
-  const int nz = l.nz;
+  const int nz = l.nz, P = l.points;
   for (int k = 0; k < l.npairs; ++k) {
     const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+    if (!standard && l.cross == CrossComplementarity::kPointPairs) {
+      T* row = comp + k * P * (P + 1);
+      for (int m = 0; m <= P; ++m) {
+        const T v = m == 0 ? v0[k] : z[(m - 1) * nz + pair.v];
+        for (int r = 0; r < P; ++r) row[m * P + r] = PointDcs::member_u(pair, z + r * nz) * v;
+      }
+      continue;
+    }
     if (standard) {
       // (34): each point's own pair only.
       T sum(0.0);
@@ -176,6 +192,21 @@ inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape
     for (int r = 0; r < l.neq; ++r) {
       rows[static_cast<std::size_t>(l.s * d + d + m * l.neq + r)] = alg;
     }
+  }
+  if (l.cross == CrossComplementarity::kPointPairs && l.comp_per_pair() > 1) {
+    // Each row reads one v (at the start or a point) and one u.
+    const int P = l.points, z0 = own + l.off_z;
+    for (int k = 0; k < l.npairs; ++k) {
+      const Pair& pair = l.dcs->pairs()[static_cast<std::size_t>(k)];
+      for (int m = 0; m <= P; ++m) {
+        const int v = m == 0 ? d + k : z0 + (m - 1) * l.nz + pair.v;
+        for (int r = 0; r < P; ++r) {
+          rows[static_cast<std::size_t>(l.equalities + k * P * (P + 1) + m * P + r)] = {
+              std::min(v, z0 + r * l.nz + pair.u), std::max(v, z0 + r * l.nz + pair.u)};
+        }
+      }
+    }
+    return rows;
   }
   std::vector<int> comp;
   range(comp, d, l.npairs);
@@ -288,7 +319,7 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
   }
   gather(pieces.back());
   hessian.add(
-      piece_globals, piece_base, l.npairs, lambda + l.equalities,
+      piece_globals, piece_base, l.comp_rows(), lambda + l.equalities,
       [&](const auto* in, auto* out) { complementarity_rows(l, standard, in, in + l.npairs, out); },
       values);
 }

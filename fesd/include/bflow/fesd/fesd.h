@@ -63,6 +63,21 @@
 
 namespace bflow {
 
+/** How an element's cross complementarity ([F] (35), (37)) enters the NLP, with u_r the first
+    member of a pair at point r of the element and v_m the second at point m or at its start:
+      kElementSums  one row per pair, (sum_r u_r)(v_start + sum_m v_m), the sum of all the
+                    pointwise products (npairs rows per element);
+      kPointPairs   every product u_r v_m on a row of its own (nosnoc's STAGE_STAGE cross
+                    complementarity; npairs P (P + 1) rows per element, P points).
+    Both vanish on the same points. Relaxed (every row <= sigma), the sums are the tighter, the
+    point pairs give IPOPT more rows with one product each. Standard time-stepping keeps one
+    row per pair either way. */
+enum class CrossComplementarity { kElementSums, kPointPairs };
+/** "element-sums" or "point-pairs". */
+inline const char* to_string(CrossComplementarity cross) {
+  return cross == CrossComplementarity::kPointPairs ? "point-pairs" : "element-sums";
+}
+
 struct FesdOptions {
   CollocationScheme scheme = CollocationScheme::kRadauIIA;
   int stages = 2;  ///< n_s, 1..9

@@ -359,7 +359,12 @@ struct OcpOptions {
   double sigma_final = 1e-10;
   double sigma_factor = 0.1;  ///< linear update sigma <- factor sigma
   bool superlinear = false;   ///< sigma <- min(factor sigma, sigma^1.5)
-  /** The largest aggregated complementarity product a "solved" result may have. */
+  /** The rows of the cross complementarity (fesd.h): one aggregated product per pair and
+      element, or every product of two points on its own row (nosnoc's Stewart benchmark). Each
+      row is relaxed to <= sigma, and the complementarity residual is the largest row. */
+  CrossComplementarity cross_complementarity = CrossComplementarity::kElementSums;
+  /** The largest complementarity row (an aggregated product, or a point product with
+      kPointPairs) a "solved" result may have. */
   double complementarity_tolerance = 1e-9;
   double nlp_tolerance = 1e-10;  ///< IPOPT's tol for the last NLP
   /** IPOPT's tol for the NLPs before the last: max(nlp_tolerance, this times sigma), so the
