@@ -90,6 +90,8 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       : tab_(tab), l_(layout), p_(setup), terms_(terms != nullptr ? *terms : no_terms_) {
     const int d = l_.d, nu = l_.nu;
     BFLOW_ASSERT(p_.x0.size() == d);
+    // Standard time-stepping writes one row per pair (complementarity_rows).
+    BFLOW_ASSERT(!p_.standard || l_.cross == CrossComplementarity::kElementSums);
     Eigen::VectorXd y0 = Eigen::VectorXd::Zero(d + nu);
     y0.head(d) = p_.x0;
     v_start_.resize(l_.npairs);
