@@ -193,7 +193,7 @@ inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape
       rows[static_cast<std::size_t>(l.s * d + d + m * l.neq + r)] = alg;
     }
   }
-  if (l.cross == CrossComplementarity::kPointPairs && l.comp_per_pair() > 1) {
+  if (l.cross == CrossComplementarity::kPointPairs) {
     // Each row reads one v (at the start or a point) and one u.
     const int P = l.points, z0 = own + l.off_z;
     for (int k = 0; k < l.npairs; ++k) {
