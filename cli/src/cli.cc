@@ -109,7 +109,8 @@ constexpr const char* kFlowFooter =
            with entries in (-0.7, 1.5) (fixed generator), B piecewise linear. Default --t 1.
   biped    the vertical-plane biped of [B] Section 3.2.4 (d = 6, x = (x, y, theta, xdot, ydot,
            thetadot), 2 feet): variant (conservative | dissipative | mode-damping, the
-           default), m, J, g, leg_length, psi, kappa, beta. Default x0 = (0,1,0,0,0,0), from
+           default), m, J, g, leg_length, psi, kappa, beta, thrust, thrust_speed (an energy
+           source, 0 by default: see bflow orbit). Default x0 = (0,1,0,0,0,0), from
            which both feet touch together at t = 0.3968; default --t 0.6.
 
 Output, one JSON object (numbers print in the shortest form that reads back exactly):

@@ -328,6 +328,10 @@ SceneSetup parse_scene_setup(const FlowCommandOptions& options) {
     params_json["psi"] = biped_p.psi;
     params_json["kappa"] = biped_p.kappa;
     params_json["beta"] = biped_p.beta;
+    if (biped_p.thrust > 0.0) {
+      params_json["thrust"] = biped_p.thrust;
+      params_json["thrust_speed"] = biped_p.thrust_speed;
+    }
   } else {
     params_json["d"] = pwconst->d;
     if (pwconst->seed) {

@@ -374,7 +374,7 @@ TEST(FlowCommandTest, MalformedOptionsExitTwoWithOneLine) {
        "--scene: unknown scene \"pendulum\"; the scenes are pwconst and biped"},
       {{"--scene", "biped", "--param", "mass=2"},
        "--param: unknown biped parameter \"mass\" (known: m, J, g, leg_length, psi, kappa, beta, "
-       "variant)"},
+       "thrust, thrust_speed, variant)"},
       {{"--scene", "biped", "--param", "kappa=-1"},
        "--param: biped parameter \"kappa\" must be > 0, got -1"},
       {{"--scene", "biped", "--param", "kappa=stiff"},
@@ -597,7 +597,7 @@ TEST(FlowCommandTest, OffendingTextIsQuotedShortAndPrintable) {
        "--param: biped parameter \"kappa\" = \"x" + std::string(59, '7') + "...\" is not a number"},
       {{"--scene", "biped", "--param", huge + "=1"},
        "--param: unknown biped parameter \"" + cut +
-           "\" (known: m, J, g, leg_length, psi, kappa, beta, variant)"},
+           "\" (known: m, J, g, leg_length, psi, kappa, beta, thrust, thrust_speed, variant)"},
       {{"--scene", "biped", "--param", "variant=" + huge},
        "--param: biped variant \"" + cut +
            "\" is not one of conservative, dissipative, mode-damping"},

@@ -452,7 +452,7 @@ TEST(BipedTest, SetParamRejectsUnknownKeysAndBadValues) {
   const BipedParams before = p;
   EXPECT_EQ(message_of([&] { set_param(p, "stiffness", "3"); }),
             "set_param: unknown biped parameter \"stiffness\" (known: m, J, g, leg_length, psi, "
-            "kappa, beta, variant)");
+            "kappa, beta, thrust, thrust_speed, variant)");
   EXPECT_EQ(message_of([&] { set_param(p, "kappa", "1e6x"); }),
             "set_param: biped parameter \"kappa\" = \"1e6x\" is not a number");
   EXPECT_EQ(message_of([&] { set_param(p, "kappa", ""); }),

@@ -155,6 +155,38 @@ TEST(SceneTest, ContactDependentDampingUsesCountOfActiveContacts) {
   }
 }
 
+TEST(SceneTest, LegThrustPushesAlongEachActiveContactsMotion) {
+  // On flat ground (Da = (0, -1, 0), rate = -ydot) a thrust F with speed v0 adds, per active
+  // contact, F tanh(-ydot / v0) (0, -1, 0): an upward force F tanh(ydot / v0) on yddot / m.
+  using Thrusted =
+      Scene<PlanarBody, Gravity, SoftContact<FlatGround>, SoftContact<FlatGround>, LegThrust<2>>;
+  const double thrust = 3.0, speed = 0.4, mass = 1.5;
+  const Thrusted with(
+      PlanarBody{mass, 0.25}, Gravity{9.8}, SoftContact<FlatGround>{FlatGround{0.0}, 40.0, 0.7},
+      SoftContact<FlatGround>{FlatGround{0.2}, 60.0, 0.7}, LegThrust<2>{thrust, speed});
+  const Thrusted without(PlanarBody{mass, 0.25}, Gravity{9.8},
+                         SoftContact<FlatGround>{FlatGround{0.0}, 40.0, 0.7},
+                         SoftContact<FlatGround>{FlatGround{0.2}, 60.0, 0.7}, LegThrust<2>{});
+  for (const Vector6& x : sample_states()) {
+    for (const Signs b : all_words(2)) {
+      const Vector6 difference = field_of(with, x, b) - field_of(without, x, b);
+      const double expected = b.count_plus() * thrust * std::tanh(x[4] / speed) / mass;
+      EXPECT_NEAR(difference[4], expected, 1e-13) << b.str();
+      EXPECT_EQ(difference[3], 0.0);
+      EXPECT_EQ(difference[5], 0.0);
+      EXPECT_EQ(difference.head<3>().norm(), 0.0);
+    }
+  }
+  EXPECT_EQ(testing::message_of([] {
+              LegThrust<2>{-1.0, 0.1}.check();
+            }),
+            "LegThrust: thrust must be finite and >= 0, got -1");
+  EXPECT_EQ(testing::message_of([] {
+              LegThrust<2>{1.0, 0.0}.check();
+            }),
+            "LegThrust: speed must be finite and > 0, got 0");
+}
+
 // Counts evaluations of the constraint, to show that contact geometry runs only for contacts
 // active in b (and surfaces()).
 int ground_evaluations = 0;

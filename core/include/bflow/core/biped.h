@@ -19,6 +19,11 @@
 //   dissipative    beta_j = beta                   [B] (3.6): F jumps, saltations commute, C^1
 //   mode-damping   beta/2 with one foot down, beta with both: a true kink (two pieces)
 //
+// An energy source (not in [B]): with thrust > 0 every foot in contact also pushes along its own
+// motion, thrust tanh(Da_j.qdot / thrust_speed) Da_j^T (scene.h, LegThrust), so that the biped
+// hops periodically: from rest at a suitable height both feet land and lift off together, an
+// orbit through simultaneous events (docs/orbits.md). thrust = 0 (the default) is [B]'s biped.
+//
 // Defaults m = J = 1, g = 9.8, l = 0.5, psi = pi/4, kappa = 1, beta = 1. From (0, 1, 0) at
 // rest the body falls straight down and both feet touch at the same instant
 // (biped_touchdown()).
@@ -84,6 +89,9 @@ struct BipedParams {
   double psi = kBipedPi / 4.0;  ///< leg angle from the body's vertical, in (0, pi/2)
   double kappa = 1.0;           ///< penalty stiffness, > 0
   double beta = 1.0;            ///< damping, >= 0
+  /** The legs' energy source (LegThrust): 0 for the passive biped of [B]; > 0 makes it hop. */
+  double thrust = 0.0;        ///< >= 0
+  double thrust_speed = 0.1;  ///< > 0
   BipedVariant variant = BipedVariant::kModeDamping;
 };
 
@@ -124,11 +132,11 @@ struct BipedFoot {
 
 using BipedContact = SoftContact<BipedFoot>;
 /** Conservative or dissipative biped: body, gravity and two soft contacts (own damper beta_j). */
-using BipedScene = Scene<PlanarBody, Gravity, BipedContact, BipedContact>;
+using BipedScene = Scene<PlanarBody, Gravity, BipedContact, BipedContact, LegThrust<2>>;
 /** Mode-damping biped: two soft contacts without their own damper, plus
     ContactDependentDamping {0, beta/2, beta}. */
-using BipedModeDampingScene =
-    Scene<PlanarBody, Gravity, BipedContact, BipedContact, ContactDependentDamping<2>>;
+using BipedModeDampingScene = Scene<PlanarBody, Gravity, BipedContact, BipedContact,
+                                    ContactDependentDamping<2>, LegThrust<2>>;
 
 namespace internal {
 
@@ -138,7 +146,8 @@ inline const char* biped_param_requirement(std::string_view key, double value) {
   if (key == "m" || key == "J" || key == "leg_length" || key == "kappa") {
     return value > 0.0 ? "" : "> 0";
   }
-  if (key == "beta") return value >= 0.0 ? "" : ">= 0";
+  if (key == "beta" || key == "thrust") return value >= 0.0 ? "" : ">= 0";
+  if (key == "thrust_speed") return value > 0.0 ? "" : "> 0";
   if (key == "psi") return (value > 0.0 && value < kBipedPi / 2.0) ? "" : "in (0, pi/2)";
   return "";
 }
@@ -159,6 +168,8 @@ inline void check_biped_params(const char* caller, const BipedParams& p) {
   check_biped_param(caller, "psi", p.psi);
   check_biped_param(caller, "kappa", p.kappa);
   check_biped_param(caller, "beta", p.beta);
+  check_biped_param(caller, "thrust", p.thrust);
+  check_biped_param(caller, "thrust_speed", p.thrust_speed);
 }
 
 inline BipedContact biped_contact(const BipedParams& p, int side, double damping) {
@@ -168,13 +179,14 @@ inline BipedContact biped_contact(const BipedParams& p, int side, double damping
 }  // namespace internal
 
 /** The keys set_param() accepts. */
-inline constexpr const char* kBipedParamKeys = "m, J, g, leg_length, psi, kappa, beta, variant";
+inline constexpr const char* kBipedParamKeys =
+    "m, J, g, leg_length, psi, kappa, beta, thrust, thrust_speed, variant";
 
 /** Sets one parameter from text, as in "kappa=1e6" on a command line: key is one of
     kBipedParamKeys; numbers are read whole by strtod, variant by parse_biped_variant().
     @throws InvalidArgument naming an unknown key (and listing the known ones), a value that is
     not a number, or a value out of range (m, J, leg_length, kappa > 0; beta >= 0;
-    psi in (0, pi/2); g finite). params is unchanged on error. */
+    psi in (0, pi/2); g finite; thrust >= 0; thrust_speed > 0). params is unchanged on error. */
 inline void set_param(BipedParams& params, std::string_view key, std::string_view value) {
   if (key == "variant") {
     try {
@@ -192,6 +204,8 @@ inline void set_param(BipedParams& params, std::string_view key, std::string_vie
   if (key == "psi") field = &params.psi;
   if (key == "kappa") field = &params.kappa;
   if (key == "beta") field = &params.beta;
+  if (key == "thrust") field = &params.thrust;
+  if (key == "thrust_speed") field = &params.thrust_speed;
   if (field == nullptr) {
     throw InvalidArgument("set_param: unknown biped parameter \"" + std::string(key) +
                           "\" (known: " + kBipedParamKeys + ")");
@@ -225,7 +239,8 @@ inline BipedScene make_biped(const BipedParams& p) {
   }
   const double damping = p.variant == BipedVariant::kDissipative ? p.beta : 0.0;
   return BipedScene(PlanarBody{p.m, p.J}, Gravity{p.g}, internal::biped_contact(p, +1, damping),
-                    internal::biped_contact(p, -1, damping));
+                    internal::biped_contact(p, -1, damping),
+                    LegThrust<2>{p.thrust, p.thrust_speed});
 }
 
 /** The mode-damping biped: beta/2 with one foot down, beta with both.
@@ -238,7 +253,8 @@ inline BipedModeDampingScene make_biped_mode_damping(const BipedParams& p) {
   }
   return BipedModeDampingScene(
       PlanarBody{p.m, p.J}, Gravity{p.g}, internal::biped_contact(p, +1, 0.0),
-      internal::biped_contact(p, -1, 0.0), ContactDependentDamping<2>{{0.0, 0.5 * p.beta, p.beta}});
+      internal::biped_contact(p, -1, 0.0), ContactDependentDamping<2>{{0.0, 0.5 * p.beta, p.beta}},
+      LegThrust<2>{p.thrust, p.thrust_speed});
 }
 
 /** Builds the scene of p.variant and returns visitor(scene); the visitor is called with a

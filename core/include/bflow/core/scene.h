@@ -261,6 +261,47 @@ struct ContactDependentDamping {
   }
 };
 
+/** An energy source for hopping: every active contact j pushes along its own motion with
+      force = thrust tanh(Da_j.qdot / speed) Da_j^T,
+    a negative damper that saturates at `thrust`. It feeds a hop about thrust x the travel of the
+    contact per stance, while a damper takes an amount growing with the square of the speed, so
+    the two balance at one amplitude: an isolated periodic hop. thrust = 0 (the default) adds
+    nothing and costs one comparison. kContacts must equal the scene's number of SoftContacts. */
+template <int kContacts>
+struct LegThrust {
+  static_assert(kContacts >= 1 && kContacts <= Signs::kMaxSurfaces,
+                "LegThrust<K>: K (the number of contacts) must be in [1, 64]");
+  static constexpr int kSurfaces = 0;
+  double thrust = 0.0;
+  double speed = 0.1;
+
+  /** @throws InvalidArgument unless thrust is finite and >= 0 and speed finite and > 0. */
+  void check() const {
+    if (!(std::isfinite(thrust) && thrust >= 0.0)) {
+      internal::throw_bad_effect_parameter("LegThrust", "thrust", "finite and >= 0", thrust);
+    }
+    if (!(std::isfinite(speed) && speed > 0.0)) {
+      internal::throw_bad_effect_parameter("LegThrust", "speed", "finite and > 0", speed);
+    }
+  }
+  template <typename T, int N>
+  void add_force(const SceneState<T, N>& s, int, T* force) const {
+    static_assert(N == kContacts, "LegThrust<K>: K must equal the scene's number of SoftContacts");
+    if (thrust == 0.0 || s.active_contacts == 0) return;
+    using std::tanh;
+    for (int j = 0; j < N; ++j) {
+      if (!s.b.plus(j)) continue;
+      const ContactKinematics<T>& c = s.contact[static_cast<std::size_t>(j)];
+      const T magnitude = T(thrust) * tanh(c.rate / T(speed));
+      for (int i = 0; i < 3; ++i) force[i] += magnitude * c.da[i];
+    }
+  }
+  template <typename T, int N>
+  T potential(const SceneState<T, N>&, int) const {
+    return T(0.0);
+  }
+};
+
 /** A model (bflow/core/model.h) made of a PlanarBody (the first effect) and the given effects.
     kStates = 6; kSurfaces = the number of SoftContacts, surface j being the j-th declared. */
 template <typename... Effects>
