@@ -75,7 +75,7 @@ execute_process(COMMAND ${CMAKE_COMMAND} -S ${WORK_DIR}/unknown_source -B ${WORK
                 -G ${GENERATOR} -DCMAKE_PREFIX_PATH=${prefix}
                 RESULT_VARIABLE code OUTPUT_VARIABLE out ERROR_VARIABLE err)
 string(REGEX REPLACE "[ \t\r\n]+" " " err_flat "${err}")
-set(expected "unknown component \"bogus\"; the components are core, ad, integrators, fesd, ocp and sweep")
+set(expected "unknown component \"bogus\"; the components are core, ad, integrators, fesd, ocp, sweep and orbits")
 if(code EQUAL 0 OR NOT err_flat MATCHES "bflow_FOUND to FALSE" OR
    NOT err_flat MATCHES "${expected}")
   message(FATAL_ERROR "unknown: expected a failure with [${expected}], got ${code}:\n${err}")
@@ -111,10 +111,10 @@ if(at EQUAL -1)
 endif()
 message("ad: compiled with -isystem ${jet_dir} from bflow::ad")
 
-# fesd: the integrators', the OCP's and the sweep's targets files moved away and SUNDIALS not
-# findable; FESD needs IPOPT alone.
+# fesd: the integrators', the OCP's, the sweep's and the orbits' targets files moved away and
+# SUNDIALS not findable; FESD needs IPOPT alone.
 set(hidden bflowIntegratorsTargets.cmake bflowOcpTargets.cmake bflowSweepTargets.cmake
-           bflowTargets.cmake)
+           bflowOrbitsTargets.cmake bflowTargets.cmake)
 foreach(file IN LISTS hidden)
   file(RENAME ${package_dir}/${file} ${package_dir}/${file}.hidden)
 endforeach()

@@ -1,0 +1,251 @@
+// Periodic orbits through simultaneous events: the return map to a Poincare section, its
+// B-derivative, a nonsmooth Newton method for its fixed points, and a stability verdict.
+//
+//   struct Apex {                                  // the section s(x) = 0, crossed from s < 0 to s
+//   > 0
+//     template <typename T> T operator()(const T* x) const { return -x[4]; }
+//   };
+//   bflow::OrbitOptions options;                   // options.flow: every simulation's FlowOptions
+//   bflow::PeriodicOrbit orbit =
+//       bflow::find_periodic_orbit(bflow::adapt(MyModel{}), Apex{}, x_guess, options);
+//   orbit.converged;                  // with orbit.message when not
+//   orbit.x, orbit.period;            // the fixed point (on the section) and the return time
+//   orbit.return_map.apply(dx);       // DP(x*; dx), and pieces(), crossing_orders(), ...
+//   orbit.growth_rate_lower, orbit.growth_rate_upper, orbit.stability;
+//
+// The return map. P(x) is the first point, after leaving x, where the trajectory crosses the
+// section from s < 0 to s > 0; the return time tau(x) is when. By the implicit function theorem
+// for tau, its B-derivative is
+//     DP(x; v) = Pi D phi_tau(x; v),   Pi = I - F(P(x)) Ds(P(x)) / (Ds(P(x)) . F(P(x))),
+// so a v along the field F(x) maps to 0 and every image lies in the section's tangent space.
+// return_map is the flow's FlowDerivative with Pi appended as its last transition: it has the
+// flow's pieces, crossing orders and active Jacobians, and no single Jacobian where an event
+// crosses several surfaces at once.
+//
+// The fixed point. Newton's method on P(x) - x = 0 restricted to the section: each step solves
+// the piecewise-linear equation  DP(x_k; delta) - delta = -(P(x_k) - x_k)  for delta in the
+// section's tangent space by iterating on the active piece (solve with one piece's Jacobian,
+// look which piece is active at the solution, repeat until the piece holds), then backtracks
+// until |P(x) - x| decreases. It converges to unstable orbits as well as stable ones; the
+// iterates stay on the section (projected back along Ds for a curved section).
+//
+// The verdict. L = DP(x*) restricted to the tangent space T of the section is piecewise linear and
+// positively homogeneous. Its growth rate  rho(L) = max over z of lim |L^k z|^(1/k)  is the
+// spectral radius when L is linear; rho(L) < 1 implies the orbit is locally exponentially
+// stable, rho(L) > 1 that it is unstable. The bracket [lower, upper] on rho(L):
+//   lower: directions z with L^p z = c z, c > 0 (p = 1 or 2), checked exactly on the pieces
+//     active along the cycle: the real eigenvectors of every piece and the ends of a normalised
+//     power iteration of L from many directions. Each found gives rho(L) >= c^(1/p).
+//   upper: rho(L) <= max over products of k pieces of |M_k ... M_1|^(1/k) in any fixed norm, for
+//     every k (the joint spectral radius of the pieces bounds rho(L)); bflow takes the least over
+//     k <= max_product_length and over the norms of the pieces' Schur bases, scaled to shrink
+//     their off-diagonal parts. Every product is counted, also those no direction realises, so
+//     the bound can only be loose, never wrong.
+// With one piece (every event crosses one surface) both ends are the spectral radius of the
+// Jacobian: the classic Floquet multipliers (multipliers lists them). Stable when upper < 1,
+// unstable when lower > 1, undecided otherwise. The verdict is about L; where the return map is
+// computed to the integrator's tolerance, a bracket within that tolerance of 1 decides nothing.
+#ifndef BFLOW_ORBITS_PERIODIC_ORBIT_H_
+#define BFLOW_ORBITS_PERIODIC_ORBIT_H_
+
+#include <complex>
+#include <functional>
+#include <string>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "bflow/ad/tangent_jet.h"
+#include "bflow/core/flow_derivative.h"
+#include "bflow/core/flow_notice.h"
+#include "bflow/integrators/hybrid_flow.h"
+#include "bflow/integrators/segment.h"
+
+namespace bflow {
+
+/** A Poincare section s(x) = 0, crossed from s < 0 to s > 0. */
+class PoincareSection {
+ public:
+  virtual ~PoincareSection() = default;
+  virtual double value(const Eigen::Ref<const Eigen::VectorXd>& x) const = 0;
+  /** Ds(x), d numbers. */
+  virtual Eigen::VectorXd gradient(const Eigen::Ref<const Eigen::VectorXd>& x) const = 0;
+};
+
+/** A templated functor `template <typename T> T operator()(const T* x) const` as a section; its
+    gradient by Jets (one pass per state). */
+template <typename Section>
+class SectionAdapter final : public PoincareSection {
+ public:
+  explicit SectionAdapter(Section section) : section_(std::move(section)) {}
+  double value(const Eigen::Ref<const Eigen::VectorXd>& x) const override {
+    const Eigen::VectorXd copy = x;
+    return section_(copy.data());
+  }
+  Eigen::VectorXd gradient(const Eigen::Ref<const Eigen::VectorXd>& x) const override {
+    const int d = static_cast<int>(x.size());
+    std::vector<Jet1> xj(static_cast<std::size_t>(d));
+    Eigen::VectorXd g(d);
+    for (int i = 0; i < d; ++i) xj[static_cast<std::size_t>(i)] = Jet1(x[i]);
+    for (int i = 0; i < d; ++i) {
+      xj[static_cast<std::size_t>(i)].v[0] = 1.0;
+      g[i] = section_(xj.data()).v[0];
+      xj[static_cast<std::size_t>(i)].v[0] = 0.0;
+    }
+    return g;
+  }
+
+ private:
+  Section section_;
+};
+
+/** s(x) = sign (x[index] - value): the section through x[index] = value, crossed upwards for
+    sign = +1 and downwards for sign = -1 (e.g. {4, 0.0, -1.0}: the apex of a vertical hop). */
+struct CoordinateSection {
+  int index = 0;
+  double value = 0.0;
+  double sign = 1.0;
+  template <typename T>
+  T operator()(const T* x) const {
+    return T(sign) * (x[index] - T(value));
+  }
+};
+
+/** Parses "x4" (s = x_4), "-x4" (s = -x_4), "x1=0.3" (s = x_1 - 0.3), "-x1=0.3".
+    @throws InvalidArgument quoting the text when it is none of these or index >= states. */
+CoordinateSection parse_coordinate_section(const std::string& text, int states);
+/** The text form parse_coordinate_section() reads. */
+std::string to_string(const CoordinateSection& section);
+
+enum class OrbitStability { kStable, kUnstable, kUndecided };
+/** "stable", "unstable", "undecided". */
+const char* to_string(OrbitStability stability);
+
+/** FlowOptions with the tolerances an orbit needs by default: rtol 1e-10, atol 1e-12. */
+FlowOptions default_orbit_flow_options();
+
+/** One Newton step, for progress reports. */
+struct OrbitNewtonStep {
+  int iteration = 0;
+  double residual = 0.0;  ///< |P(x) - x|_inf at the step's start
+  double period = 0.0;
+  double step_length = 0.0;  ///< the line search's factor (0 before the first step)
+  int events = 0;            ///< events in one period
+  int largest_event = 0;     ///< the most surfaces crossed at one event
+};
+
+struct OrbitOptions {
+  FlowOptions flow = default_orbit_flow_options();
+  /** Converged when |P(x) - x|_inf <= tolerance (1 + |x|_inf). */
+  double tolerance = 1e-8;
+  int max_newton_iterations = 40;
+  /** Backtracking halvings per Newton step before the step is taken as it is. */
+  int max_backtracks = 20;
+  /** A return is searched for up to this time after leaving x (> 0); the search simulates in
+      windows of return_search_window (> 0), the last return time when one is known. */
+  double max_return_time = 100.0;
+  double return_search_window = 1.0;
+  /** Crossings of the section earlier than this after leaving x do not count (>= 0). */
+  double min_return_time = 0.0;
+  /** The stability bracket: directions for the power iteration, its steps, and the longest
+      products of pieces (and at most max_products products per length) for the upper bound. */
+  int growth_directions = 64;
+  int growth_iterations = 400;
+  int max_product_length = 12;
+  long max_products = 20000;
+  /** Compute the bracket and verdict (the fixed point only when false). */
+  bool stability = true;
+  /** Called after every Newton step's residual is known. */
+  std::function<void(const OrbitNewtonStep&)> progress;
+};
+
+/** P(x), the return time and the return map's B-derivative at x. */
+struct ReturnMap {
+  Eigen::VectorXd x;                ///< where the map was evaluated
+  Eigen::VectorXd image;            ///< P(x)
+  double time = 0.0;                ///< tau(x)
+  FlowDerivative derivative{1};     ///< DP(x; .)
+  std::vector<EventRecord> events;  ///< the period's events
+  std::vector<FlowNotice> notices;
+};
+
+/** The growth-rate bracket of a piecewise-linear map and how each end was obtained. */
+struct GrowthBracket {
+  double lower = 0.0;
+  double upper = 0.0;
+  /** Pieces of L (restricted to the section's tangent space) counted for the upper bound. */
+  int pieces = 0;
+  /** The product length that gave the upper bound, and the period p of the lower bound's
+      direction (0 when none was found, then lower = 0). */
+  int upper_length = 0;
+  int lower_period = 0;
+  /** When L is linear: its eigenvalues (the nontrivial Floquet multipliers), by modulus. */
+  std::vector<std::complex<double>> multipliers;
+};
+
+struct PeriodicOrbit {
+  bool converged = false;
+  std::string message;
+  Eigen::VectorXd x;
+  double period = 0.0;
+  /** DP(x*; .) (see the header comment). */
+  FlowDerivative return_map{1};
+  int newton_iterations = 0;
+  double residual = 0.0;  ///< |P(x) - x|_inf at x
+  double growth_rate_lower = 0.0;
+  double growth_rate_upper = 0.0;
+  OrbitStability stability = OrbitStability::kUndecided;
+  GrowthBracket bracket;
+  /** An orthonormal basis of the section's tangent space at x (d x (d - 1)). */
+  Eigen::MatrixXd tangent_basis;
+  std::vector<EventRecord> events;  ///< one period's events
+  std::vector<FlowNotice> notices;
+  std::vector<OrbitNewtonStep> steps;
+};
+
+/** P(x) and DP(x; .). x need not lie on the section (the first crossing counts). The sides of
+    the model's surfaces at x are options.flow.initial_sides or the signs of h(x).
+    @throws InvalidArgument for bad input, no return within max_return_time (quoting the times
+    searched), or a simulation that fails (quoting its message). */
+ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
+                     const Eigen::Ref<const Eigen::VectorXd>& x, const OrbitOptions& options = {});
+
+template <typename Section,
+          typename = std::enable_if_t<!std::is_base_of_v<PoincareSection, Section>>>
+ReturnMap return_map(const SegmentModel& model, const Section& section,
+                     const Eigen::Ref<const Eigen::VectorXd>& x, const OrbitOptions& options = {}) {
+  return return_map(model, SectionAdapter<Section>(section), x, options);
+}
+
+/** The fixed point of P near x_guess (projected onto the section first), its return map and,
+    unless options.stability is false, the growth-rate bracket and verdict. A Newton run that
+    does not converge returns converged = false with a message (no throw).
+    @throws InvalidArgument for bad input (sizes, non-finite values, options out of range). */
+PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSection& section,
+                                  const Eigen::Ref<const Eigen::VectorXd>& x_guess,
+                                  const OrbitOptions& options = {});
+
+template <typename Section,
+          typename = std::enable_if_t<!std::is_base_of_v<PoincareSection, Section>>>
+PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const Section& section,
+                                  const Eigen::Ref<const Eigen::VectorXd>& x_guess,
+                                  const OrbitOptions& options = {}) {
+  return find_periodic_orbit(model, SectionAdapter<Section>(section), x_guess, options);
+}
+
+/** The bracket of the growth rate of L = map restricted to span(basis) (d x m, orthonormal
+    columns; the map's images must lie in that span). */
+GrowthBracket growth_rate_bracket(const FlowDerivative& map, const Eigen::MatrixXd& basis,
+                                  const OrbitOptions& options = {});
+
+/** The verdict from a bracket: stable when upper < 1, unstable when lower > 1. */
+OrbitStability classify(const GrowthBracket& bracket);
+
+/** An orthonormal basis of the orthogonal complement of the vector g (d x (d - 1)). */
+Eigen::MatrixXd orthogonal_complement(const Eigen::Ref<const Eigen::VectorXd>& g);
+
+}  // namespace bflow
+
+#endif  // BFLOW_ORBITS_PERIODIC_ORBIT_H_

@@ -1,0 +1,234 @@
+// The hopping biped (core/biped.h with thrust > 0): a periodic orbit on which both feet land and
+// lift off together, so every event crosses two surfaces at once.
+//
+// References, independent of the library's flow and jump code:
+//  - the fixed point and period from the vertical motion alone, written by hand as one scalar
+//    equation and integrated by a classic RK4 written here (on the orbit x = theta = 0 and both
+//    feet act alike: flight y'' = -g; stance y'' = -g + 2 kappa a - 2 beta y' + 2 F tanh(y'/v0)
+//    with a = l cos psi - l^2 sin^2 psi - y, the mode-damping biped's beta with both feet down);
+//  - the return map against one-sided differences of the return map itself;
+//  - the verdict against the growth of true iterates of P from a perturbed point.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include <gtest/gtest.h>
+#include <Eigen/Dense>
+
+#include "bflow/core/biped.h"
+#include "bflow/integrators/model_adapter.h"
+#include "bflow/orbits/periodic_orbit.h"
+
+namespace bflow {
+namespace {
+
+BipedParams hopper() {
+  BipedParams p;
+  p.variant = BipedVariant::kModeDamping;
+  p.kappa = 1000.0;
+  p.beta = 4.0;
+  p.thrust = 10.0;
+  p.thrust_speed = 0.1;
+  return p;
+}
+
+const CoordinateSection kApex{4, 0.0, -1.0};  // vertical speed from + to -
+
+// The vertical hop by hand: from the apex at height y (at rest), the next apex height and the
+// time it takes. Flight in closed form, stance by RK4 with step h, liftoff located by Newton on
+// the last step.
+struct Hop {
+  double apex = 0.0;
+  double time = 0.0;
+};
+
+Hop vertical_hop(const BipedParams& p, double y) {
+  const double s = std::sin(p.psi);
+  const double y_td = p.leg_length * std::cos(p.psi) - p.leg_length * p.leg_length * s * s;
+  auto accel = [&](double yy, double v) {
+    const double a = y_td - yy;
+    return (-p.m * p.g + 2.0 * p.kappa * a - 2.0 * p.beta * v +
+            2.0 * p.thrust * std::tanh(v / p.thrust_speed)) /
+           p.m;
+  };
+  auto rk4 = [&](double& yy, double& v, double h) {
+    const double k1y = v, k1v = accel(yy, v);
+    const double k2y = v + 0.5 * h * k1v, k2v = accel(yy + 0.5 * h * k1y, v + 0.5 * h * k1v);
+    const double k3y = v + 0.5 * h * k2v, k3v = accel(yy + 0.5 * h * k2y, v + 0.5 * h * k2v);
+    const double k4y = v + h * k3v, k4v = accel(yy + h * k3y, v + h * k3v);
+    yy += h / 6.0 * (k1y + 2.0 * k2y + 2.0 * k3y + k4y);
+    v += h / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v);
+  };
+  const double fall = std::sqrt(2.0 * (y - y_td) / p.g);
+  double yy = y_td;
+  double v = -p.g * fall;
+  double t = fall;
+  const double h = 2e-5;
+  while (true) {
+    double y1 = yy, v1 = v;
+    rk4(y1, v1, h);
+    if (y1 > y_td && v1 > 0.0) {
+      // Liftoff inside this step: Newton on the step length.
+      double step = h * (y_td - yy) / (y1 - yy);
+      for (int k = 0; k < 8; ++k) {
+        double y2 = yy, v2 = v;
+        rk4(y2, v2, step);
+        step -= (y2 - y_td) / v2;
+      }
+      rk4(yy, v, step);
+      t += step;
+      break;
+    }
+    yy = y1;
+    v = v1;
+    t += h;
+  }
+  return {y_td + v * v / (2.0 * p.g), t + v / p.g};
+}
+
+// The apex height of the vertical periodic hop by the secant method on vertical_hop.
+Hop vertical_orbit(const BipedParams& p, double y0) {
+  double a = y0, b = y0 + 0.01;
+  double fa = vertical_hop(p, a).apex - a, fb = vertical_hop(p, b).apex - b;
+  for (int k = 0; k < 40 && std::abs(fb) > 1e-13; ++k) {
+    const double c = b - fb * (b - a) / (fb - fa);
+    a = b;
+    fa = fb;
+    b = c;
+    fb = vertical_hop(p, b).apex - b;
+  }
+  return {b, vertical_hop(p, b).time};
+}
+
+class BipedOrbit : public ::testing::Test {
+ protected:
+  template <typename F>
+  static void with_model(F&& f) {
+    const BipedModeDampingScene scene = make_biped_mode_damping(hopper());
+    const auto model = adapt(scene);
+    f(static_cast<const SegmentModel&>(model));
+  }
+  static Eigen::VectorXd guess() {
+    Eigen::VectorXd x(6);
+    x << 0.0, 0.8, 0.0, 0.0, 0.0, 0.0;
+    return x;
+  }
+};
+
+TEST_F(BipedOrbit, FixedPointAndPeriodMatchTheVerticalHopByHand) {
+  with_model([&](const SegmentModel& model) {
+    const PeriodicOrbit orbit = find_periodic_orbit(model, kApex, guess());
+    ASSERT_TRUE(orbit.converged) << orbit.message;
+    const Hop reference = vertical_orbit(hopper(), 0.8);
+    // Achieved: |y* - y_ref| = 7.6e-10, |T - T_ref| = 4.8e-10 (RK4 at h = 2e-5 against the
+    // library's Dormand-Prince at rtol 1e-10); bounds 2e-8.
+    std::printf("apex %.12f (by hand %.12f), period %.12f (by hand %.12f)\n", orbit.x[1],
+                reference.apex, orbit.period, reference.time);
+    EXPECT_NEAR(orbit.x[1], reference.apex, 2e-8);
+    EXPECT_NEAR(orbit.period, reference.time, 2e-8);
+    for (int i : {0, 2, 3, 4, 5}) EXPECT_NEAR(orbit.x[i], 0.0, 1e-12) << i;
+    // Both events cross both surfaces at once: landing and liftoff.
+    ASSERT_EQ(orbit.events.size(), 2u);
+    EXPECT_EQ(orbit.events[0].group_size(), 2);
+    EXPECT_EQ(orbit.events[1].group_size(), 2);
+    // Newton converges quadratically from 0.8: 3 iterations, the last residual at round-off.
+    EXPECT_LE(orbit.newton_iterations, 4);
+    EXPECT_LE(orbit.residual, 1e-12);
+  });
+}
+
+TEST_F(BipedOrbit, ReturnMapMatchesOneSidedDifferencesAndIsPiecewiseLinear) {
+  with_model([&](const SegmentModel& model) {
+    OrbitOptions options;
+    options.stability = false;
+    const PeriodicOrbit orbit = find_periodic_orbit(model, kApex, guess(), options);
+    ASSERT_TRUE(orbit.converged) << orbit.message;
+    EXPECT_FALSE(orbit.return_map.is_linear());
+    // Directions that break the symmetry, so that the feet land (and lift off) in either order,
+    // in the section's tangent space (x[4] fixed at 0).
+    Eigen::MatrixXd directions(6, 6);
+    directions.setZero();
+    directions.col(0) << 1, 0, 0, 0, 0, 0;
+    directions.col(1) << 0, 0, 1, 0, 0, 0;
+    directions.col(2) << 0, 0, 0, 1, 0, 0;
+    directions.col(3) << 0, 0, 0, 0, 0, 1;
+    directions.col(4) << 0.3, 0.5, -0.7, 0.2, 0, -0.4;
+    directions.col(5) << -0.3, 0.5, 0.7, -0.2, 0, 0.4;
+    const ReturnMap base = return_map(model, kApex, orbit.x, options);
+    const double alpha = 1e-6;
+    double worst = 0.0;
+    for (int k = 0; k < directions.cols(); ++k) {
+      for (double sign : {1.0, -1.0}) {
+        const Eigen::VectorXd v = sign * directions.col(k);
+        const ReturnMap moved = return_map(model, kApex, orbit.x + alpha * v, options);
+        const Eigen::VectorXd difference = (moved.image - base.image) / alpha;
+        const Eigen::VectorXd derivative = orbit.return_map.apply(v);
+        const double error = (difference - derivative).norm() / (1.0 + derivative.norm());
+        worst = std::max(worst, error);
+        // Achieved: worst 2.9e-6 (the one-sided difference's O(alpha) term); bound 1e-4.
+        EXPECT_LT(error, 1e-4) << "direction " << k << " sign " << sign;
+      }
+    }
+    // The map is not linear in these directions: the images of v and -v are not opposite.
+    const Eigen::VectorXd plus = orbit.return_map.apply(directions.col(0));
+    const Eigen::VectorXd minus = orbit.return_map.apply(-directions.col(0));
+    EXPECT_GT((plus + minus).norm(), 1e-2 * plus.norm());
+    // Every image lies in the section's tangent space (x[4] = 0 there) and the field maps to 0.
+    EXPECT_NEAR(plus[4], 0.0, 1e-12 * plus.norm());
+    Eigen::VectorXd field(6);
+    model.field(orbit.x.data(), Signs(2), field.data());
+    EXPECT_LT(orbit.return_map.apply(field).norm(), 1e-8 * field.norm());
+    std::printf("one-sided differences: worst relative error %.2e\n", worst);
+  });
+}
+
+TEST_F(BipedOrbit, VerdictUnstableMatchesTheGrowthOfTrueIterates) {
+  with_model([&](const SegmentModel& model) {
+    const PeriodicOrbit orbit = find_periodic_orbit(model, kApex, guess());
+    ASSERT_TRUE(orbit.converged) << orbit.message;
+    // On the top of the ground's hump y = -x^2 the vertical hop is unstable sideways.
+    EXPECT_EQ(orbit.stability, OrbitStability::kUnstable);
+    EXPECT_STREQ(to_string(orbit.stability), "unstable");
+    EXPECT_GT(orbit.growth_rate_lower, 1.0);
+    EXPECT_LE(orbit.growth_rate_lower, orbit.growth_rate_upper);
+    // Achieved relative width 6e-9 (lower from a direction L maps onto a multiple of itself,
+    // upper from products of the four pieces); bound 5e-7.
+    EXPECT_LT(orbit.growth_rate_upper - orbit.growth_rate_lower, 5e-7 * orbit.growth_rate_upper);
+    // The power method on the true return map, with finite steps: z <- (P(x* + eps z) - x*) /
+    // eps, normalised. Its growth per period (the geometric mean over the last two steps, as
+    // the dominant direction may alternate in sign) must be the growth rate.
+    const double eps = 1e-6;
+    Eigen::VectorXd z(6);
+    z << 0.3, 0.0, -0.2, 0.1, 0.0, 0.2;
+    z.normalize();
+    std::vector<double> ratios;
+    for (int k = 0; k < 30; ++k) {
+      const Eigen::VectorXd image = return_map(model, kApex, orbit.x + eps * z).image;
+      const Eigen::VectorXd w = (image - orbit.x) / eps;
+      ratios.push_back(w.norm());
+      z = w / w.norm();
+    }
+    const double observed = std::sqrt(ratios[28] * ratios[29]);
+    // Achieved: |observed - upper| / upper = 3.3e-6 (eps and the integration tolerance); bound
+    // 1e-4.
+    EXPECT_NEAR(observed, orbit.growth_rate_upper, 1e-4 * orbit.growth_rate_upper);
+    std::printf("growth: bracket [%.9f, %.9f], true iterates %.9f\n", orbit.growth_rate_lower,
+                orbit.growth_rate_upper, observed);
+  });
+}
+
+TEST_F(BipedOrbit, WithoutThrustThereIsNoHop) {
+  BipedParams passive = hopper();
+  passive.thrust = 0.0;
+  const BipedModeDampingScene scene = make_biped_mode_damping(passive);
+  const auto model = adapt(scene);
+  OrbitOptions options;
+  options.max_newton_iterations = 6;
+  const PeriodicOrbit orbit = find_periodic_orbit(model, kApex, guess(), options);
+  // The damper takes energy at every stance and nothing gives it back: no periodic hop.
+  EXPECT_FALSE(orbit.converged);
+  EXPECT_FALSE(orbit.message.empty());
+}
+
+}  // namespace
+}  // namespace bflow
