@@ -479,6 +479,44 @@ GrowthBracket growth_rate_bracket(const FlowDerivative& map, const MatrixXd& bas
       frames.push_back(frame);
     }
   }
+  // Frames whose flags are spanned by one piece's eigenvectors in every order (m <= 5): where
+  // the pieces share a flag (a common triangular form), one of these makes them all triangular
+  // and the scaling drives the single pieces' norms to their diagonals. Products of length 1
+  // only: cheap, and tight in that case.
+  if (m <= 5) {
+    for (const MatrixXd& a : pieces) {
+      const Eigen::ComplexEigenSolver<MatrixXcd> eig(a.cast<std::complex<double>>());
+      std::vector<int> order(static_cast<std::size_t>(m));
+      for (int j = 0; j < m; ++j) order[static_cast<std::size_t>(j)] = j;
+      do {
+        MatrixXcd vectors(m, m);
+        for (int j = 0; j < m; ++j) {
+          vectors.col(j) = eig.eigenvectors().col(order[static_cast<std::size_t>(j)]);
+        }
+        const MatrixXcd q = Eigen::HouseholderQR<MatrixXcd>(vectors).householderQ();
+        for (double t : {1e-2, 1e-4, 1e-6}) {
+          MatrixXcd frame = q;
+          double scale = 1.0;
+          for (int j = 0; j < m; ++j) {
+            frame.col(j) *= scale;
+            scale *= t;
+          }
+          const Eigen::FullPivLU<MatrixXcd> lu(frame);
+          if (!lu.isInvertible()) continue;
+          const MatrixXcd inverse = lu.inverse();
+          double worst = 0.0;
+          for (const MatrixXd& b : pieces) {
+            worst = std::max(worst,
+                             operator_norm(inverse * b.cast<std::complex<double>>() * frame));
+          }
+          if (worst < bracket.upper) {
+            bracket.upper = worst;
+            bracket.upper_length = 1;
+          }
+        }
+      } while (std::next_permutation(order.begin(), order.end()));
+    }
+  }
   for (const MatrixXcd& frame : frames) {
     const Eigen::FullPivLU<MatrixXcd> lu(frame);
     if (!lu.isInvertible()) continue;
@@ -558,6 +596,12 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
       }
     }
     step_length = alpha;
+    if (!last_error.empty()) {
+      orbit.decisions.push_back("iteration " + std::to_string(iteration) + ": " +
+                                (accepted ? "the Newton step was cut to " + format_number(alpha)
+                                          : std::string("no step was taken")) +
+                                " because the return map failed at a longer step: " + last_error);
+    }
     if (!accepted) {
       orbit.message =
           "Newton's line search found no decrease of |P(x) - x| = " + format_number(residual) +

@@ -203,6 +203,11 @@ struct PeriodicOrbit {
   std::vector<EventRecord> events;  ///< one period's events
   std::vector<FlowNotice> notices;
   std::vector<OrbitNewtonStep> steps;
+  /** What the solver decided for the caller: every Newton step it shortened (or gave up)
+      because the return map could not be evaluated at a longer one, with the reason (e.g. an
+      event whose surfaces' normals are dependent). Empty when every step was taken as solved or
+      shortened only for lack of decrease. */
+  std::vector<std::string> decisions;
 };
 
 /** P(x) and DP(x; .). x need not lie on the section (the first crossing counts). The sides of

@@ -1,0 +1,520 @@
+// CornerOrbit (examples/corner_orbit.h) against references written here from its closed forms,
+// none of them using the library's flow or jump code:
+//  - the fixed point's w from the piecewise-exponential solution of w' = -a w + g_b, with the
+//    regions' words read off the signs of h_j along the unit circle;
+//  - with separate events, the monodromy composed of closed-form transition matrices and
+//    saltation matrices;
+//  - through the corner, the return map's pieces from each surface's crossing-time shift (g_b of
+//    the perturbed trajectory integrated over the reordered crossings), and one-sided
+//    differences of the return map itself.
+#include <algorithm>
+#include <cmath>
+#include <complex>
+#include <cstdint>
+#include <cstdio>
+#include <limits>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <Eigen/Dense>
+
+#include "bflow/examples/corner_orbit.h"
+#include "bflow/integrators/model_adapter.h"
+#include "bflow/orbits/periodic_orbit.h"
+#include "support/error_message.h"
+
+namespace bflow {
+namespace {
+
+using examples::CornerOrbit;
+using examples::CornerOrbitSection;
+using ::testing::HasSubstr;
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kTwoPi = 2.0 * kPi;
+constexpr double kSectionAngle = 1.25 * kPi;  // where p - q = 0 is crossed upwards
+
+// The point at radius r and height w on the section, with d states (z = 0).
+Eigen::VectorXd on_section(double r, double w, int d = 3) {
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(d);
+  x[0] = x[1] = -r / std::sqrt(2.0);
+  x[2] = w;
+  return x;
+}
+
+// The section's tangent space at the orbit: e_r (radial), e_w and the e_z.
+Eigen::MatrixXd radial_basis(int d = 3) {
+  Eigen::MatrixXd basis = Eigen::MatrixXd::Zero(d, d - 1);
+  basis.col(0) = on_section(1.0, 0.0, d);
+  for (int i = 2; i < d; ++i) basis(i, i - 1) = 1.0;
+  return basis;
+}
+
+// The angle travelled from the section to theta, in [0, 2 pi).
+double from_section(double theta) {
+  const double phi = std::fmod(theta - kSectionAngle, kTwoPi);
+  return phi < 0.0 ? phi + kTwoPi : phi;
+}
+
+// The sides at angle theta on the unit circle, where h_j = sin theta - kappa_j (1 - cos theta).
+Signs sides_at(const CornerOrbit& m, double theta) {
+  Signs b(m.surfaces());
+  for (int j = 0; j < m.surfaces(); ++j) {
+    const double kappa = m.kappas[static_cast<std::size_t>(j)];
+    if (std::sin(theta) - kappa * (1.0 - std::cos(theta)) > 0.0) b = b.with_plus(j);
+  }
+  return b;
+}
+
+// The w jump of the trajectory perturbed by dr and dz (at the event) at the event at angle
+// theta: each crossed surface's crossing moves by dt_j (implicit function theorem on
+// h_j = r sin theta - kappa_j (1 - r cos theta) + z_{j-1} = 0, the z term for j >= 2); the
+// perturbed trajectory's g_b minus the nominal one, integrated over the moved crossings.
+double w_jump(const CornerOrbit& m, double theta, Signs before, Signs after, double dr,
+              const Eigen::VectorXd& dz = Eigen::VectorXd()) {
+  const double c = std::cos(theta), s = std::sin(theta);
+  std::vector<std::pair<double, int>> shifts;
+  for (int j = 0; j < m.surfaces(); ++j) {
+    if (before.plus(j) == after.plus(j)) continue;
+    const double kappa = m.kappas[static_cast<std::size_t>(j)];
+    const double z = (j >= 2 && dz.size() > j - 2) ? dz[j - 2] : 0.0;
+    shifts.emplace_back(-(dr * (s + kappa * c) + z) / (m.omega * (c - kappa * s)), j);
+  }
+  std::sort(shifts.begin(), shifts.end());
+  const double lo = std::min(0.0, shifts.front().first);
+  const double hi = std::max(0.0, shifts.back().first);
+  double perturbed = 0.0, at = lo;
+  Signs word = before;
+  for (const auto& [dt, j] : shifts) {
+    perturbed += m.g(word) * (dt - at);
+    at = dt;
+    word = word.flipped(std::uint64_t{1} << j);
+  }
+  perturbed += m.g(word) * (hi - at);
+  return perturbed - (m.g(before) * (0.0 - lo) + m.g(after) * hi);
+}
+
+struct HandOrbit {
+  double period = 0.0, mu_r = 0.0, mu_w = 0.0, w_star = 0.0;
+  std::vector<double> events;  // angles from the section, increasing (the corner once)
+  std::vector<Signs> regions;  // regions[i] before events[i]; the last after the last event
+  Eigen::Vector2d image_plus, image_minus;  // DP(e_r) and DP(-e_r) in (e_r, e_w)
+  double mu_z = 0.0;
+  // The w component of DP(+-e_z_i): z_i decays as e^{-a_z t} and moves surface i + 2's crossings.
+  std::vector<double> w_of_z_plus, w_of_z_minus;
+};
+
+HandOrbit hand_orbit(const CornerOrbit& m) {
+  HandOrbit o;
+  o.period = kTwoPi / m.omega;
+  o.mu_r = std::exp(-2.0 * m.k * o.period);
+  o.mu_w = std::exp(-m.a * o.period);
+  o.events.push_back(from_section(0.0));
+  for (double kappa : m.kappas) {
+    o.events.push_back(from_section(kappa == 0.0 ? kPi : 2.0 * std::atan(1.0 / kappa)));
+  }
+  std::sort(o.events.begin(), o.events.end());
+  const std::size_t events = o.events.size();
+  auto end_of = [&](std::size_t i) { return i < events ? o.events[i] : kTwoPi; };
+  for (std::size_t i = 0; i <= events; ++i) {
+    const double start = i == 0 ? 0.0 : o.events[i - 1];
+    o.regions.push_back(sides_at(m, kSectionAngle + 0.5 * (start + end_of(i))));
+  }
+  // w(T) = e^{-aT} w(0) + sum over regions of g_i / a (e^{-a (T - t_{i+1})} - e^{-a (T - t_i)}).
+  double forced = 0.0;
+  for (std::size_t i = 0; i <= events; ++i) {
+    const double start = (i == 0 ? 0.0 : o.events[i - 1]) / m.omega;
+    const double end = end_of(i) / m.omega;
+    forced += m.g(o.regions[i]) / m.a *
+              (std::exp(-m.a * (o.period - end)) - std::exp(-m.a * (o.period - start)));
+  }
+  o.w_star = forced / (1.0 - o.mu_w);
+  // dr decays as e^{-2kt} and leaves the return time alone; each event's w jump decays as e^{-at}.
+  for (double sign : {1.0, -1.0}) {
+    double w = 0.0;
+    for (std::size_t i = 0; i < events; ++i) {
+      const double t = o.events[i] / m.omega;
+      w +=
+          std::exp(-m.a * (o.period - t)) * w_jump(m, kSectionAngle + o.events[i], o.regions[i],
+                                                   o.regions[i + 1], sign * std::exp(-2 * m.k * t));
+    }
+    (sign > 0 ? o.image_plus : o.image_minus) = Eigen::Vector2d(sign * o.mu_r, w);
+  }
+  o.mu_z = std::exp(-m.a_z * o.period);
+  for (int i = 0; i < m.extra_states(); ++i) {
+    for (double sign : {1.0, -1.0}) {
+      double w = 0.0;
+      for (std::size_t k = 0; k < events; ++k) {
+        const double t = o.events[k] / m.omega;
+        Eigen::VectorXd dz = Eigen::VectorXd::Zero(m.extra_states());
+        dz[i] = sign * std::exp(-m.a_z * t);
+        w += std::exp(-m.a * (o.period - t)) *
+             w_jump(m, kSectionAngle + o.events[k], o.regions[k], o.regions[k + 1], 0.0, dz);
+      }
+      (sign > 0 ? o.w_of_z_plus : o.w_of_z_minus).push_back(w);
+    }
+  }
+  return o;
+}
+
+// [e_r e_theta e_w] at angle theta.
+Eigen::Matrix3d frame(double theta) {
+  Eigen::Matrix3d e;
+  e << std::cos(theta), -std::sin(theta), 0.0, std::sin(theta), std::cos(theta), 0.0, 0.0, 0.0, 1.0;
+  return e;
+}
+
+// The monodromy from the section around once when every event crosses one surface: on r = 1,
+// dr decays as e^{-2kt}, dtheta stays, dw decays as e^{-at}; a crossing of surface j is the
+// saltation matrix I + (F+ - F-) eta^T / (eta . F-) with eta = Dh_j = (kappa_j, 1, 0).
+Eigen::Matrix3d hand_monodromy(const CornerOrbit& m, const HandOrbit& o) {
+  Eigen::Matrix3d monodromy = Eigen::Matrix3d::Identity();
+  double at = 0.0;
+  auto advance = [&](double to) {
+    const double t = (to - at) / m.omega;
+    const Eigen::Vector3d decay(std::exp(-2.0 * m.k * t), 1.0, std::exp(-m.a * t));
+    monodromy = frame(kSectionAngle + to) * decay.asDiagonal() *
+                frame(kSectionAngle + at).transpose() * monodromy;
+    at = to;
+  };
+  for (std::size_t i = 0; i < o.events.size(); ++i) {
+    advance(o.events[i]);
+    const double theta = kSectionAngle + o.events[i];
+    const std::uint64_t crossed = o.regions[i].bits() ^ o.regions[i + 1].bits();
+    int j = 0;
+    while (!((crossed >> j) & 1u)) ++j;
+    EXPECT_EQ(crossed, std::uint64_t{1} << j) << "event " << i << " crosses one surface";
+    const Eigen::Vector3d eta(m.kappas[static_cast<std::size_t>(j)], 1.0, 0.0);
+    const Eigen::Vector3d f_before(-m.omega * std::sin(theta), m.omega * std::cos(theta), 0.0);
+    const Eigen::Vector3d jump(0.0, 0.0, m.g(o.regions[i + 1]) - m.g(o.regions[i]));
+    monodromy =
+        (Eigen::Matrix3d::Identity() + jump * eta.transpose() / eta.dot(f_before)) * monodromy;
+  }
+  advance(kTwoPi);
+  return monodromy;
+}
+
+// Real eigenvalues, increasing (the imaginary parts checked to vanish).
+std::vector<double> real_eigenvalues(const Eigen::MatrixXd& a) {
+  const Eigen::VectorXcd values = Eigen::EigenSolver<Eigen::MatrixXd>(a).eigenvalues();
+  std::vector<double> real;
+  for (Eigen::Index i = 0; i < values.size(); ++i) {
+    EXPECT_NEAR(values[i].imag(), 0.0, 1e-12);
+    real.push_back(values[i].real());
+  }
+  std::sort(real.begin(), real.end());
+  return real;
+}
+
+// One surface, crossed at theta = 0 and again at 2 atan(1 / kappa): with_surfaces(1) (kappa = 0,
+// where dr moves neither crossing) and kappa = 2 (where it moves both, so the saltation matrices
+// couple r and w).
+class CornerOrbitSeparateEvents : public ::testing::TestWithParam<double> {};
+
+TEST_P(CornerOrbitSeparateEvents, OrbitAndMultipliersMatchTheHandMonodromy) {
+  CornerOrbit m = CornerOrbit::with_surfaces(1);
+  m.kappas[0] = GetParam();
+  const auto model = adapt(m);
+  const HandOrbit hand = hand_orbit(m);
+  const PeriodicOrbit orbit = find_periodic_orbit(model, CornerOrbitSection{}, on_section(1.1, 0));
+  ASSERT_TRUE(orbit.converged) << orbit.message;
+  const double r = std::hypot(orbit.x[0], orbit.x[1]);
+  std::printf("smooth %g: |r - 1| %.1e, |p - q| %.1e, |T - T*| %.1e, |w - w*| %.1e, newton %d\n",
+              GetParam(), std::abs(r - 1.0), std::abs(orbit.x[0] - orbit.x[1]),
+              std::abs(orbit.period - hand.period), std::abs(orbit.x[2] - hand.w_star),
+              orbit.newton_iterations);
+  // Achieved: |r - 1| 2e-11, p - q = 0, |T - T*| 4e-12, |w - w*| 3e-11 (kappa = 2: dr moves w).
+  EXPECT_NEAR(r, 1.0, 1e-9);
+  EXPECT_NEAR(orbit.x[0] - orbit.x[1], 0.0, 1e-14);
+  EXPECT_LT(orbit.x[0], 0.0);
+  EXPECT_NEAR(orbit.period, hand.period, 1e-10);
+  EXPECT_NEAR(orbit.x[2], hand.w_star, 1e-9);
+  ASSERT_EQ(orbit.events.size(), 2u);
+
+  // DP(x*) = Pi M, Pi = I - F Ds^T / (Ds . F) at x*, against the library's Jacobian entry by
+  // entry, and their nontrivial eigenvalues against mu_r and mu_w.
+  ASSERT_TRUE(orbit.return_map.is_linear());
+  const Eigen::Matrix3d monodromy = hand_monodromy(m, hand);
+  const Eigen::Vector3d ds(1.0, -1.0, 0.0);
+  const Eigen::Vector3d f(m.omega / std::sqrt(2.0), -m.omega / std::sqrt(2.0),
+                          -m.a * hand.w_star + m.g(hand.regions[0]));
+  const Eigen::Matrix3d projected =
+      (Eigen::Matrix3d::Identity() - f * ds.transpose() / ds.dot(f)) * monodromy;
+  // Two hand representations agree: saltation products and crossing-time shifts.
+  const Eigen::MatrixXd e = radial_basis();
+  Eigen::Matrix2d shifts;
+  shifts << hand.image_plus, Eigen::Vector2d(0.0, hand.mu_w);
+  EXPECT_LT((e.transpose() * projected * e - shifts).lpNorm<Eigen::Infinity>(), 1e-14);
+  const double jacobian_error = (orbit.return_map.jacobian() - projected).lpNorm<Eigen::Infinity>();
+  const Eigen::MatrixXd& basis = orbit.tangent_basis;
+  const std::vector<double> reduced =
+      real_eigenvalues(basis.transpose() * orbit.return_map.jacobian() * basis);
+  std::vector<double> hand_multipliers = real_eigenvalues(monodromy);
+  ASSERT_EQ(hand_multipliers.size(), 3u);
+  // The multiplier along F is 1; the other two are the nontrivial ones.
+  const auto trivial =
+      std::min_element(hand_multipliers.begin(), hand_multipliers.end(),
+                       [](double x, double y) { return std::abs(x - 1.0) < std::abs(y - 1.0); });
+  EXPECT_NEAR(*trivial, 1.0, 1e-14);
+  hand_multipliers.erase(trivial);
+  const std::vector<double> closed = {std::min(hand.mu_r, hand.mu_w),
+                                      std::max(hand.mu_r, hand.mu_w)};
+  ASSERT_EQ(reduced.size(), 2u);
+  std::vector<double> listed;
+  for (const std::complex<double>& z : orbit.bracket.multipliers) {
+    EXPECT_EQ(z.imag(), 0.0);
+    listed.push_back(z.real());
+  }
+  std::sort(listed.begin(), listed.end());
+  ASSERT_EQ(listed.size(), 2u);
+  double multiplier_error = 0.0;
+  for (int i = 0; i < 2; ++i) {
+    // The hand monodromy's multipliers are the closed forms to round-off (achieved 3e-17).
+    EXPECT_NEAR(hand_multipliers[i], closed[i], 1e-14);
+    multiplier_error = std::max({multiplier_error, std::abs(reduced[i] - hand_multipliers[i]),
+                                 std::abs(listed[i] - closed[i])});
+  }
+  const double rate = closed[1];
+  const double bracket_error =
+      std::max(std::abs(orbit.growth_rate_lower - rate), std::abs(orbit.growth_rate_upper - rate));
+  std::printf("smooth %g: |J - Pi M| %.1e, multipliers %.1e, bracket %.1e\n", GetParam(),
+              jacobian_error, multiplier_error, bracket_error);
+  // Achieved: |J - Pi M| 5e-11, multipliers 5e-11, bracket 1e-12 (lower = upper: one piece).
+  EXPECT_LT(jacobian_error, 1e-9);
+  EXPECT_LT(multiplier_error, 1e-9);
+  EXPECT_LT(bracket_error, 1e-10);
+  EXPECT_EQ(orbit.growth_rate_lower, orbit.growth_rate_upper);
+  EXPECT_EQ(orbit.stability, OrbitStability::kStable);
+}
+
+INSTANTIATE_TEST_SUITE_P(Kappa, CornerOrbitSeparateEvents, ::testing::Values(0.0, 2.0));
+
+// The corner: n = 2 and 3 surfaces crossed at once at theta = 0.
+class CornerOrbitThroughCorner : public ::testing::TestWithParam<int> {
+ protected:
+  CornerOrbitThroughCorner() : m_(CornerOrbit::with_surfaces(GetParam())), hand_(hand_orbit(m_)) {}
+  PeriodicOrbit find(bool stability) const {
+    OrbitOptions options;
+    options.stability = stability;
+    return find_periodic_orbit(adapt(m_), CornerOrbitSection{}, on_section(1.1, 0.0, d()), options);
+  }
+  int d() const { return m_.states(); }
+  // The hand image of basis direction i (in radial_basis(d())) with the given sign.
+  Eigen::VectorXd hand_image(int i, double sign) const {
+    Eigen::VectorXd image = Eigen::VectorXd::Zero(d() - 1);
+    if (i == 0) {
+      image.head<2>() = sign > 0 ? hand_.image_plus : hand_.image_minus;
+    } else if (i == 1) {
+      image[1] = sign * hand_.mu_w;
+    } else {
+      image[i] = sign * hand_.mu_z;
+      image[1] = sign > 0 ? hand_.w_of_z_plus[static_cast<std::size_t>(i - 2)]
+                          : hand_.w_of_z_minus[static_cast<std::size_t>(i - 2)];
+    }
+    return image;
+  }
+  CornerOrbit m_;
+  HandOrbit hand_;
+};
+
+TEST_P(CornerOrbitThroughCorner, FixedPointAndPiecesMatchTheHandCrossingShifts) {
+  // The return map at the exact orbit, where every surface is crossed at one instant.
+  EXPECT_NO_THROW(return_map(adapt(m_), CornerOrbitSection{}, on_section(1.0, hand_.w_star, d())));
+  const PeriodicOrbit orbit = find(false);
+  ASSERT_TRUE(orbit.converged) << orbit.message;
+  EXPECT_TRUE(orbit.decisions.empty()) << orbit.decisions.front();
+  const double x_error = (orbit.x - on_section(1.0, hand_.w_star, d())).lpNorm<Eigen::Infinity>();
+  std::printf("corner %d: |x - x*| %.1e, |T - T*| %.1e, newton %d, residual %.1e\n", GetParam(),
+              x_error, std::abs(orbit.period - hand_.period), orbit.newton_iterations,
+              orbit.residual);
+  // Achieved (n = 2): |x - x*| 2e-11, |T - T*| 3e-12, residual 6e-12.
+  EXPECT_LT(x_error, 1e-9);
+  EXPECT_NEAR(orbit.period, hand_.period, 1e-10);
+  // One event crosses every surface (the corner), the others one each.
+  EXPECT_EQ(orbit.events.size(), hand_.events.size());
+  int largest = 0;
+  for (const EventRecord& event : orbit.events) largest = std::max(largest, event.group_size());
+  EXPECT_EQ(largest, GetParam());
+
+  // The pieces differ: for n = 2 along e_r (c+ = -0.075, c- = 0.150); for n = 3 (kappa = 0, 2,
+  // -1) the radial ones coincide (kappa = 0 lies between the others, so the product term's w
+  // jump is odd in dr), and the order that z_1 sets at the corner makes the difference.
+  const double c_plus = hand_.image_plus[1], c_minus = -hand_.image_minus[1];
+  if (GetParam() == 2) {
+    EXPECT_GT(std::abs(c_plus - c_minus), 0.2);
+  }
+  EXPECT_FALSE(orbit.return_map.is_linear());
+  const Eigen::MatrixXd e = radial_basis(d());
+  double worst = 0.0;
+  for (int i = 0; i < d() - 1; ++i) {
+    for (double sign : {1.0, -1.0}) {
+      const Eigen::VectorXd image = e.transpose() * orbit.return_map.apply(sign * e.col(i));
+      const double error = (image - hand_image(i, sign)).lpNorm<Eigen::Infinity>();
+      worst = std::max(worst, error);
+      // Achieved: 5e-11 (n = 2 and 3).
+      EXPECT_LT(error, 1e-9) << "direction " << i << " sign " << sign;
+    }
+  }
+  std::printf("corner %d: images of +-basis against the hand pieces, worst %.1e\n", GetParam(),
+              worst);
+}
+
+TEST_P(CornerOrbitThroughCorner, ReturnMapMatchesOneSidedDifferences) {
+  const PeriodicOrbit orbit = find(false);
+  ASSERT_TRUE(orbit.converged) << orbit.message;
+  const CornerOrbitSection section;
+  const auto model = adapt(m_);
+  const ReturnMap base = return_map(model, section, orbit.x);
+  const Eigen::MatrixXd e = radial_basis(d());
+  const double alpha = 1e-6;
+  double worst = 0.0;
+  Eigen::MatrixXd directions = Eigen::MatrixXd::Zero(d() - 1, 2 * (d() - 1) + 2);
+  for (int i = 0; i < d() - 1; ++i) {
+    directions(i, 2 * i) = 1.0;
+    directions(i, 2 * i + 1) = -1.0;
+  }
+  directions.col(2 * (d() - 1)).setConstant(0.6);
+  directions(1, 2 * (d() - 1)) = -0.8;
+  directions.col(2 * (d() - 1) + 1) = -directions.col(2 * (d() - 1));
+  for (Eigen::Index k = 0; k < directions.cols(); ++k) {
+    const Eigen::VectorXd v = e * directions.col(k);
+    const ReturnMap moved = return_map(model, section, orbit.x + alpha * v);
+    const Eigen::VectorXd difference = (moved.image - base.image) / alpha;
+    const double error = (difference - orbit.return_map.apply(v)).lpNorm<Eigen::Infinity>();
+    worst = std::max(worst, error);
+    // Achieved: worst 7e-6 (the difference's O(alpha) term and the integration error over
+    // alpha).
+    EXPECT_LT(error, 1e-4) << "direction " << k;
+  }
+  std::printf("corner %d: one-sided differences, worst error %.1e\n", GetParam(), worst);
+}
+
+TEST_P(CornerOrbitThroughCorner, GrowthBracketHoldsTheClosedFormRate) {
+  const PeriodicOrbit orbit = find(true);
+  ASSERT_TRUE(orbit.converged) << orbit.message;
+  const double rate = std::max(hand_.mu_r, hand_.mu_w);
+  std::printf("corner %d: bracket [%.3e, %.3e] around %.6f, width %.1e, pieces %d\n", GetParam(),
+              orbit.growth_rate_lower - rate, orbit.growth_rate_upper - rate, rate,
+              orbit.growth_rate_upper - orbit.growth_rate_lower, orbit.bracket.pieces);
+  // Achieved (n = 2 and 3): lower = rate - 5e-13 (an eigenvector of a piece, in its own cone);
+  // upper = rate - 3e-13 (the pieces share a triangular form: in the frame of one piece's
+  // eigenvectors in the right order, scaled, every piece's norm is its diagonal's largest).
+  EXPECT_NEAR(orbit.growth_rate_lower, rate, 1e-10);
+  EXPECT_NEAR(orbit.growth_rate_upper, rate, 1e-10);
+  EXPECT_EQ(orbit.stability, OrbitStability::kStable);
+  EXPECT_STREQ(to_string(orbit.stability), "stable");
+}
+
+INSTANTIATE_TEST_SUITE_P(Surfaces, CornerOrbitThroughCorner, ::testing::Values(2, 3));
+
+TEST(CornerOrbitUnstable, NewtonFindsTheRepellingOrbit) {
+  CornerOrbit m = CornerOrbit::with_surfaces(2);
+  m.k = -0.5;
+  const auto model = adapt(m);
+  const HandOrbit hand = hand_orbit(m);
+  ASSERT_GT(hand.mu_r, 1.0);
+  // Iterating P moves away: u = r^2 solves u' = 2k u (1 - u), so 1/u - 1 grows by e^{-2kT}.
+  const Eigen::VectorXd guess = on_section(1.05, 0.0);
+  const ReturnMap once = return_map(model, CornerOrbitSection{}, guess);
+  const double u = 1.0 / (1.0 + (1.0 / (1.05 * 1.05) - 1.0) * hand.mu_r);
+  const double r_once = std::hypot(once.image[0], once.image[1]);
+  std::printf("unstable: P(r = 1.05) has r = %.12f, closed form %.12f\n", r_once, std::sqrt(u));
+  // Achieved: 1.6e-10.
+  EXPECT_NEAR(r_once, std::sqrt(u), 1e-8);
+  EXPECT_GT(r_once - 1.0, 3.0 * 0.05);
+
+  const PeriodicOrbit orbit = find_periodic_orbit(model, CornerOrbitSection{}, guess);
+  ASSERT_TRUE(orbit.converged) << orbit.message;
+  const double x_error = (orbit.x - on_section(1.0, hand.w_star)).lpNorm<Eigen::Infinity>();
+  std::printf("unstable: |x - x*| %.1e, newton %d, lower - mu_r %.1e, upper - mu_r %.1e\n", x_error,
+              orbit.newton_iterations, orbit.growth_rate_lower - hand.mu_r,
+              orbit.growth_rate_upper - hand.mu_r);
+  // Achieved: |x - x*| 6e-11 in 4 Newton iterations; lower = mu_r + 6e-10 (the eigenvector of
+  // each piece lies in its own cone), upper = mu_r + 6.4e-10 (a common triangular frame).
+  EXPECT_LT(x_error, 1e-9);
+  EXPECT_LE(orbit.newton_iterations, 6);
+  EXPECT_FALSE(orbit.return_map.is_linear());
+  EXPECT_EQ(orbit.stability, OrbitStability::kUnstable);
+  EXPECT_STREQ(to_string(orbit.stability), "unstable");
+  EXPECT_GT(orbit.growth_rate_lower, 1.0);
+  EXPECT_NEAR(orbit.growth_rate_lower, hand.mu_r, 1e-8);
+  EXPECT_GE(orbit.growth_rate_upper, orbit.growth_rate_lower);
+  EXPECT_NEAR(orbit.growth_rate_upper, hand.mu_r, 1e-8);
+}
+
+// Three lines through (1, 0) in the (p, q) plane: their normals at the corner are dependent, so
+// the jump there is refused; Newton's steps that land on the corner are shortened, and the
+// result says so.
+struct DependentCorner {
+  static constexpr int kStates = 3;
+  static constexpr int kSurfaces = 3;
+  CornerOrbit two = CornerOrbit::with_surfaces(2);
+  template <typename T>
+  void field(const T* x, Signs b, T* xdot) const {
+    two.field(x, Signs(2, b.bits() & 3u), xdot);
+  }
+  template <typename T>
+  void surfaces(const T* x, T* h) const {
+    two.surfaces(x, h);
+    h[2] = x[1] + T(1.0) * (T(1.0) - x[0]);
+  }
+};
+
+TEST(PeriodicOrbitDecisions, ShortenedStepsAreReported) {
+  const auto model = adapt(DependentCorner{});
+  EXPECT_THAT(testing::message_of([&] {
+                return_map(model, CornerOrbitSection{},
+                           on_section(1.0, hand_orbit(CornerOrbit::with_surfaces(2)).w_star));
+              }),
+              HasSubstr("rank"));
+  const PeriodicOrbit orbit =
+      find_periodic_orbit(model, CornerOrbitSection{}, on_section(1.1, 0.0));
+  ASSERT_FALSE(orbit.decisions.empty());
+  EXPECT_THAT(orbit.decisions.front(), HasSubstr("because the return map failed"));
+  EXPECT_THAT(orbit.decisions.front(), HasSubstr("rank"));
+}
+
+TEST(PeriodicOrbitInput, BadSectionTextIsQuoted) {
+  for (const char* text : {"y4", "x9", "x1=abc"}) {
+    const std::string message = testing::message_of([&] { parse_coordinate_section(text, 6); });
+    EXPECT_THAT(message, HasSubstr(std::string("\"") + text + "\"")) << text;
+  }
+  const CoordinateSection good = parse_coordinate_section("-x1=0.3", 6);
+  EXPECT_EQ(good.index, 1);
+  EXPECT_EQ(good.value, 0.3);
+  EXPECT_EQ(good.sign, -1.0);
+}
+
+TEST(PeriodicOrbitInput, BadGuessThrows) {
+  const auto model = adapt(CornerOrbit{});
+  const std::string size = testing::message_of(
+      [&] { find_periodic_orbit(model, CornerOrbitSection{}, Eigen::VectorXd::Zero(2)); });
+  EXPECT_THAT(size, HasSubstr("2"));
+  Eigen::VectorXd nan = on_section(1.0, 0.0);
+  nan[2] = std::numeric_limits<double>::quiet_NaN();
+  const std::string not_finite =
+      testing::message_of([&] { find_periodic_orbit(model, CornerOrbitSection{}, nan); });
+  EXPECT_THAT(not_finite, HasSubstr("nan"));
+}
+
+// w stays below max g_b / a = 1.5: the section w = 100 is never reached.
+struct FarAbove {
+  template <typename T>
+  T operator()(const T* x) const {
+    return x[2] - T(100.0);
+  }
+};
+
+TEST(PeriodicOrbitInput, NoReturnNamesTheTimeSearched) {
+  OrbitOptions options;
+  options.max_return_time = 3.25;
+  const std::string message = testing::message_of(
+      [&] { return_map(adapt(CornerOrbit{}), FarAbove{}, on_section(1.0, 0.0), options); });
+  EXPECT_THAT(message, HasSubstr("3.25"));
+}
+
+}  // namespace
+}  // namespace bflow
