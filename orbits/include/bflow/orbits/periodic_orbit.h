@@ -38,9 +38,10 @@
 //     power iteration of L from many directions. Each found gives rho(L) >= c^(1/p).
 //   upper: rho(L) <= max over products of k pieces of |M_k ... M_1|^(1/k) in any fixed norm, for
 //     every k (the joint spectral radius of the pieces bounds rho(L)); bflow takes the least over
-//     k <= max_product_length and over the norms of the pieces' Schur bases, scaled to shrink
-//     their off-diagonal parts. Every product is counted, also those no direction realises, so
-//     the bound can only be loose, never wrong.
+//     k <= max_product_length and over the norms of the pieces' Schur bases and of a flag the
+//     pieces share (a common triangular form, where they have one), scaled to shrink their
+//     off-diagonal parts. Every product is counted, also those no direction realises, so the
+//     bound can only be loose, never wrong.
 // With one piece (every event crosses one surface) both ends are the spectral radius of the
 // Jacobian: the classic Floquet multipliers (multipliers lists them). Stable when upper < 1,
 // unstable when lower > 1, undecided otherwise. The verdict is about L; where the return map is
@@ -154,7 +155,7 @@ struct OrbitOptions {
   int growth_directions = 64;
   int growth_iterations = 400;
   int max_product_length = 12;
-  long max_products = 20000;
+  long max_products = 4000;
   /** Compute the bracket and verdict (the fixed point only when false). */
   bool stability = true;
   /** Called after every Newton step's residual is known. */
