@@ -24,13 +24,13 @@ namespace {
 constexpr const char* kMainFooter = R"(Exit codes:
   0  success
   1  the computation or its output failed (a non-finite result or an overflow, a
-     simulation that stops early, an optimal control problem not solved, a failed
-     self-check of the demo, a file or the standard output that cannot be written, gnuplot
-     missing or failing)
+     simulation that stops early, an optimal control problem not solved, a periodic orbit
+     not found, a failed self-check of the demo, a file or the standard output that cannot
+     be written, gnuplot missing or failing)
   2  bad input or usage: the one line on stderr, "error: <field>: <problem>", names it
 
-Run 'bflow jump --help', 'bflow flow --help', 'bflow fesd --help' and 'bflow ocp --help' for
-the formats. Documentation: docs/cli.md.)";
+Run 'bflow jump --help', 'bflow flow --help', 'bflow fesd --help', 'bflow ocp --help' and
+'bflow orbit --help' for the formats. Documentation: docs/cli.md.)";
 
 constexpr const char* kJumpFooter =
     R"(Input, one JSON object (n surfaces meet at a point rho in d dimensions):
@@ -189,6 +189,56 @@ one line "error: ocp: <status>: <message>". A solved run far from the known opti
 turbo car at an N that is a multiple of 5 off 40/3, the braking block more than (T/N)^2 above
 J*) ended at another stationary point: the exit code stays 0, and the notice ends "notes" and
 is printed as one "warning: ocp: ..." line on stderr.)";
+
+constexpr const char* kOrbitFooter =
+    R"(The section (--section TEXT): s(x) = 0, crossed from s < 0 to s > 0
+(bflow::parse_coordinate_section):
+  x4        s = x_4, crossed upwards        -x4       s = -x_4: x_4 from + to -
+  x1=0.3    s = x_1 - 0.3                   -x1=0.3   s = 0.3 - x_1
+
+Scenes and defaults:
+  biped    (d = 6, x = (x, y, theta, xdot, ydot, thetadot)) hopping on its legs' thrust: unless
+           --param sets them, variant=mode-damping, kappa=1000, beta=4, thrust=10,
+           thrust_speed=0.1. Section -x4 (the apex: vertical speed from + to -), guess
+           --x0 0,0.8,0,0,0,0 (at rest at height 0.8). Both feet land and lift off together:
+           every event crosses two surfaces, and the return map has four linear pieces.
+  pwconst  the field of 'bflow flow --scene pwconst': it crosses every plane once and has no
+           periodic orbit (section x0=1, guess rho-): the run reports converged false.
+Newton's method: --tol 1e-8 (|P(x) - x|_inf <= tol (1 + |x|_inf)), --max-iterations 40;
+integration --rtol 1e-10 --atol 1e-12 (with --rtol alone, atol = rtol / 100).
+
+Output, one JSON object (numbers print in the shortest form that reads back exactly):
+  "scene", "params" (all, defaults included), "section", "rtol", "atol", "tolerance",
+  "max_iterations", "x0" (the guess)
+  "converged", "message" (why not), "x" (the fixed point, on the section), "period",
+  "newton_iterations", "residual" (|P(x) - x|_inf), "newton_steps" [{"iteration",
+  "residual", "period", "step_length"}], "events" [{"t", "surfaces", "group_size"}]
+  "return_map": {"is_linear", "tangent_basis" (the columns of B, an orthonormal basis of
+     the section's tangent space), "piece_count", "pieces": [{"orders" (per event, the order
+     its surfaces are crossed in), "matrix" (B^T M B: the piece on the section)}]}
+  "growth_rate_lower", "growth_rate_upper" (a bracket on the growth rate of the return map on
+  the section), "stability" (stable: upper < 1; unstable: lower > 1; else undecided),
+  "bracket": {"pieces", "upper_length", "lower_period"}, "multipliers" ([{"real", "imag"}],
+  when the map is linear; else null), "notices", "decisions" (Newton steps the solver
+  shortened because the return map could not be evaluated further, with the reason)
+  with --vary-param: "vary_param" {"key", "lo", "hi", "count"} and "family": [{"value",
+  "converged", "message", "x", "period", "newton_iterations", "residual",
+  "growth_rate_lower", "growth_rate_upper", "stability"}], each orbit from the last one found
+  (the first from --x0)
+The return map's keys are null when no orbit was found.
+
+Progress on stderr (not with --quiet): one line per Newton step, and one per orbit of a family.
+--plot DIR draws DIR/orbit.png (the states over one period, the events dashed, and the phase
+plot of the two components that vary most) and, with --vary-param, DIR/growth_rate.png; the data
+(orbit.csv, family.csv) and gnuplot scripts stay beside them.
+Exit code 1 when an orbit is not found (the JSON is still printed; stderr ends with one line
+"error: orbit: ..."), or a plot or the output cannot be written; 2 for a bad option.
+
+Example: the hopping biped's orbit, unstable sideways on the ground's hump y = -x^2
+  $ bflow orbit --scene biped --quiet --compact
+  {"scene":"biped",...,"converged":true,"message":"","x":[2.2e-19,0.7246129768688343,...],
+   "period":0.7100100108250474,"newton_iterations":3,...,"growth_rate_lower":5.59235815...,
+   "growth_rate_upper":5.59235818...,"stability":"unstable",...})";
 
 // The numeric options of jump, fesd and ocp as typed, before read_numbers() checks them.
 struct NumericTexts {
@@ -448,6 +498,57 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     ocp->add_flag("--quiet", ocp_options.quiet, "No progress lines on stderr");
     ocp->footer(kOcpFooter);
 
+    OrbitCommandOptions orbit_options;
+    CLI::App* orbit = app.add_subcommand(
+        "orbit",
+        "Find a periodic orbit of a scene through a Poincare section by a nonsmooth Newton "
+        "method: fixed point, period, the return map's pieces and a stability verdict (JSON)");
+    orbit->add_option("--scene", orbit_options.scene, "pwconst or biped (required)")
+        ->type_name("NAME");
+    orbit
+        ->add_option("--param", orbit_options.params,
+                     "A scene parameter, key=value; repeat for several (they override the "
+                     "biped's orbit defaults one by one)")
+        ->type_name("KEY=VALUE")
+        ->allow_extra_args(false);
+    orbit
+        ->add_option("--x0", orbit_options.x0,
+                     "The guess, d comma-separated numbers, projected onto the section "
+                     "(biped: 0,0.8,0,0,0,0)")
+        ->type_name("A,B,...");
+    orbit
+        ->add_option("--section", orbit_options.section,
+                     "The Poincare section, e.g. x4, -x4, x1=0.3 (below; biped: -x4, the apex)")
+        ->type_name("TEXT");
+    orbit->add_option("--tol", orbit_options.tol, "Newton's tolerance, > 0 (default 1e-8)")
+        ->type_name("X");
+    orbit
+        ->add_option("--max-iterations", orbit_options.max_iterations,
+                     "Newton iterations, >= 0 (default 40)")
+        ->type_name("N");
+    orbit
+        ->add_option("--vary-param", orbit_options.vary_param,
+                     "A family: COUNT >= 2 values of a real scene parameter from LO to HI, each "
+                     "orbit from the last one found")
+        ->type_name("KEY=LO:HI:COUNT");
+    orbit->add_option("--rtol", orbit_options.rtol, "Relative tolerance, > 0 (default 1e-10)")
+        ->type_name("R");
+    orbit
+        ->add_option("--atol", orbit_options.atol,
+                     "Absolute tolerance, > 0 (default 1e-12, or rtol / 100 with --rtol)")
+        ->type_name("A");
+    orbit
+        ->add_option("--plot", orbit_options.plot,
+                     "Draw DIR/orbit.png and, with --vary-param, DIR/growth_rate.png (gnuplot)")
+        ->type_name("DIR");
+    orbit
+        ->add_option("-o,--output", orbit_options.output,
+                     "Write the JSON to FILE instead of stdout")
+        ->type_name("FILE");
+    orbit->add_flag("--compact", orbit_options.compact, "Print the result on one line");
+    orbit->add_flag("--quiet", orbit_options.quiet, "No progress lines on stderr");
+    orbit->footer(kOrbitFooter);
+
     SweepCommandOptions sweep_options;
     CLI::App* sweep = app.add_subcommand(
         "sweep",
@@ -533,16 +634,16 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
 
     if (argc <= 1) {
       report_error(err,
-                   "a command is required: jump, flow, demo, fesd, ocp or sweep (see 'bflow "
-                   "--help')");
+                   "a command is required: jump, flow, demo, fesd, ocp, sweep or orbit (see "
+                   "'bflow --help')");
       return kExitBadInput;
     }
     const std::string command = argv[1];
     if (command[0] != '-' && command != "jump" && command != "flow" && command != "demo" &&
-        command != "fesd" && command != "ocp" && command != "sweep") {
-      report_error(
-          err, "unknown command " + quote(command) +
-                   "; the commands are jump, flow, demo, fesd, ocp and sweep (see 'bflow --help')");
+        command != "fesd" && command != "ocp" && command != "sweep" && command != "orbit") {
+      report_error(err, "unknown command " + quote(command) +
+                            "; the commands are jump, flow, demo, fesd, ocp, sweep and orbit (see "
+                            "'bflow --help')");
       return kExitBadInput;
     }
     std::vector<std::string> args;
@@ -557,7 +658,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
       std::string message = escaped(e.what(), 200, false);
       if (message.empty()) message = e.get_name();
       std::string name;
-      for (const CLI::App* sub : {jump, flow, demo, fesd, ocp, sweep}) {
+      for (const CLI::App* sub : {jump, flow, demo, fesd, ocp, sweep, orbit}) {
         if (sub->parsed()) name = sub->get_name();
       }
       const std::string where = name.empty() ? "" : name + ": ";
@@ -566,7 +667,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
       return kExitBadInput;
     }
     try {
-      for (const CLI::App* sub : {jump, flow, demo, fesd, ocp}) {
+      for (const CLI::App* sub : {jump, flow, demo, fesd, ocp, orbit}) {
         if (sub->parsed()) refuse_empty_values(*sub);
       }
       // The sweep checks its own options; those it shares with flow are checked as flow's.
@@ -590,6 +691,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     if (fesd->parsed()) return finish_output(out, err, run_fesd(fesd_options, out, err));
     if (ocp->parsed()) return finish_output(out, err, run_ocp(ocp_options, out, err));
     if (sweep->parsed()) return finish_output(out, err, run_sweep(sweep_options, out, err));
+    if (orbit->parsed()) return finish_output(out, err, run_orbit(orbit_options, out, err));
     return finish_output(out, err, run_demo(demo_options, out, err));
   } catch (const std::exception& e) {
     report_error(err, std::string("internal: ") + e.what());

@@ -235,6 +235,52 @@ struct OcpCommandOptions {
     directory cannot be written or gnuplot fails. Never throws. */
 int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& err);
 
+/** `bflow orbit`: the options as given on the command line. Numbers stay text so that
+    run_orbit() validates them and names the option in its message. */
+struct OrbitCommandOptions {
+  /** "pwconst" or "biped"; required. */
+  std::string scene;
+  /** "key=value", each key at most once, as for `bflow flow`. For the biped they override the
+      orbit's defaults variant=mode-damping, kappa=1000, beta=4, thrust=10, thrust_speed=0.1 (a
+      hopping biped), each key on its own. */
+  std::vector<std::string> params;
+  /** The guess, "a,b,..." with d numbers (default: biped (0, 0.8, 0, 0, 0, 0), at rest at the
+      apex; pwconst rho- = -F_--(0)/2). */
+  std::optional<std::string> x0;
+  /** The Poincare section as bflow::parse_coordinate_section() reads it: "x4", "-x4", "x1=0.3",
+      "-x1=0.3" (default: biped "-x4", the apex; pwconst "x0=1"). */
+  std::optional<std::string> section;
+  /** Newton's tolerance (OrbitOptions::tolerance), finite and > 0; default 1e-8. */
+  std::optional<std::string> tol;
+  /** Newton iterations (OrbitOptions::max_newton_iterations), >= 0; default 40. */
+  std::optional<std::string> max_iterations;
+  /** Integration tolerances, as for `bflow flow`; default 1e-10 and 1e-12
+      (bflow::default_orbit_flow_options), or rtol / 100 when only rtol is given. */
+  std::optional<std::string> rtol;
+  std::optional<std::string> atol;
+  /** "key=lo:hi:count", count >= 2: a family of orbits by natural-parameter continuation over
+      count values of the real-valued scene parameter key, from lo to hi, each orbit from the
+      last one found. */
+  std::optional<std::string> vary_param;
+  /** Directory (created if missing) for orbit.png (one period of the orbit) and, with
+      vary_param, growth_rate.png, with their CSV data and gnuplot scripts. */
+  std::optional<std::string> plot;
+  /** Write the JSON to this file instead of `out`. */
+  std::optional<std::string> output;
+  bool compact = false;
+  bool quiet = false;  ///< no progress lines on `err`
+};
+
+/** `bflow orbit`: the periodic orbit of a scene through a Poincare section
+    (bflow::find_periodic_orbit): its fixed point, period, events, the return map's pieces
+    restricted to the section, the growth-rate bracket and the verdict, as JSON (see
+    docs/cli.md); with vary_param also the family. Unless `quiet`, one progress line per Newton
+    step of the orbit and one per orbit of the family go to `err`. Exit code 2 for a bad option,
+    1 when an orbit is not found (Newton's method does not converge, or the guess never returns
+    to the section; the JSON is still printed, and `err` ends with one "error: orbit: ..."
+    line), when a plot or the output file cannot be written. Never throws. */
+int run_orbit(const OrbitCommandOptions& options, std::ostream& out, std::ostream& err);
+
 /** The whole command line (argv[0] is ignored): parses it and dispatches. Never throws. */
 int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& out,
             std::ostream& err);

@@ -692,9 +692,9 @@ TEST(CommandLineTest, UsageErrorsAreOneLineWithCodeTwo) {
     EXPECT_THAT(o.err, StartsWith("error: "));
     EXPECT_EQ(std::count(o.err.begin(), o.err.end(), '\n'), 1) << o.err;
   }
-  EXPECT_EQ(
-      command_line({}).err,
-      "error: a command is required: jump, flow, demo, fesd, ocp or sweep (see 'bflow --help')\n");
+  EXPECT_EQ(command_line({}).err,
+            "error: a command is required: jump, flow, demo, fesd, ocp, sweep or orbit (see 'bflow "
+            "--help')\n");
   EXPECT_EQ(command_line({"jump"}).err,
             "error: jump: --input is required (see 'bflow jump --help')\n");
 }

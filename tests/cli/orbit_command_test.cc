@@ -1,0 +1,378 @@
+// `bflow orbit` in-process: the hopping biped's orbit (the command's defaults) is a fixed point of
+// the flow itself, simulated here for one period with bflow::simulate on a biped built from the
+// JSON's parameters; a family along thrust converges point by point; pwconst, which has no
+// periodic orbit, is a failed computation (exit code 1) with the library's message; every
+// malformed option is one line naming the option and the value (exit code 2); --plot draws
+// non-empty PNGs from data that hold the orbit.
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+
+#include "bflow/core/biped.h"
+#include "bflow/integrators/hybrid_flow.h"
+#include "bflow/integrators/model_adapter.h"
+#include "bflow/orbits/periodic_orbit.h"
+#include "cli_commands.h"
+
+namespace bflow::cli {
+namespace {
+
+using ::testing::HasSubstr;
+using ::testing::StartsWith;
+using Json = nlohmann::json;
+namespace fs = std::filesystem;
+
+struct Outcome {
+  int code;
+  std::string out;
+  std::string err;
+};
+
+Outcome orbit(const OrbitCommandOptions& options) {
+  std::ostringstream out, err;
+  const int code = run_orbit(options, out, err);
+  return {code, out.str(), err.str()};
+}
+
+Outcome command_line(std::vector<std::string> args) {
+  args.insert(args.begin(), "bflow");
+  std::vector<const char*> argv;
+  for (const auto& a : args) argv.push_back(a.c_str());
+  std::istringstream in;
+  std::ostringstream out, err;
+  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
+  return {code, out.str(), err.str()};
+}
+
+Eigen::VectorXd vector_of(const Json& v) {
+  Eigen::VectorXd out(static_cast<Eigen::Index>(v.size()));
+  for (std::size_t i = 0; i < v.size(); ++i) out[static_cast<Eigen::Index>(i)] = v[i].get<double>();
+  return out;
+}
+
+Eigen::MatrixXd columns_of(const Json& columns) {
+  Eigen::MatrixXd out(static_cast<Eigen::Index>(columns[0].size()),
+                      static_cast<Eigen::Index>(columns.size()));
+  for (std::size_t c = 0; c < columns.size(); ++c) {
+    out.col(static_cast<Eigen::Index>(c)) = vector_of(columns[c]);
+  }
+  return out;
+}
+
+std::vector<std::string> lines_of(const std::string& text) {
+  std::vector<std::string> lines;
+  std::istringstream stream(text);
+  for (std::string line; std::getline(stream, line);) lines.push_back(line);
+  return lines;
+}
+
+// The biped of the JSON's "params", built here from the printed values (set_param reads each
+// number back exactly).
+BipedParams params_of(const Json& params) {
+  BipedParams p;
+  for (const auto& [key, value] : params.items()) {
+    if (key == "variant") {
+      set_param(p, key, value.get<std::string>());
+    } else {
+      std::ostringstream text;
+      text.precision(17);
+      text << value.get<double>();
+      set_param(p, key, text.str());
+    }
+  }
+  return p;
+}
+
+// |phi_T(x) - x|_inf on the biped of `params`, by a plain simulation at tight tolerances, and
+// the vertical speed a little before T (the section -x4 is crossed from ydot > 0 to ydot < 0).
+struct Return {
+  double error = 0.0;
+  double ydot_before = 0.0;
+};
+
+Return simulate_one_period(const Json& params, const Eigen::VectorXd& x, double period) {
+  FlowOptions flow;
+  flow.integrator.rtol = 1e-12;
+  flow.integrator.atol = 1e-14;
+  return visit_biped(params_of(params), [&](const auto& scene) {
+    const auto model = adapt(scene);
+    const FlowResult end = simulate(model, x, period, flow);
+    const FlowResult before = simulate(model, x, 0.99 * period, flow);
+    EXPECT_TRUE(end.ok()) << end.message;
+    EXPECT_TRUE(before.ok()) << before.message;
+    return Return{(end.x - x).lpNorm<Eigen::Infinity>(), before.x[4]};
+  });
+}
+
+OrbitCommandOptions biped() {
+  OrbitCommandOptions o;
+  o.scene = "biped";
+  o.compact = true;
+  return o;
+}
+
+bool gnuplot_on_path() {
+  const char* path = std::getenv("PATH");
+  std::istringstream dirs(path == nullptr ? "" : path);
+  for (std::string dir; std::getline(dirs, dir, ':');) {
+    if (!dir.empty() && fs::exists(fs::path(dir) / "gnuplot")) return true;
+  }
+  return false;
+}
+
+TEST(OrbitCommandTest, BipedDefaultsFindTheHoppingOrbit) {
+  const Outcome r = orbit(biped());
+  ASSERT_EQ(r.code, kExitOk) << r.err;
+  const Json j = Json::parse(r.out);
+  // The orbit's defaults, all printed.
+  EXPECT_EQ(j["scene"], "biped");
+  EXPECT_EQ(j["params"]["variant"], "mode-damping");
+  EXPECT_EQ(j["params"]["kappa"], 1000.0);
+  EXPECT_EQ(j["params"]["beta"], 4.0);
+  EXPECT_EQ(j["params"]["thrust"], 10.0);
+  EXPECT_EQ(j["params"]["thrust_speed"], 0.1);
+  EXPECT_EQ(j["section"], "-x4");
+  EXPECT_EQ(j["rtol"], 1e-10);
+  EXPECT_EQ(j["atol"], 1e-12);
+  EXPECT_EQ(vector_of(j["x0"]), (Eigen::VectorXd(6) << 0, 0.8, 0, 0, 0, 0).finished());
+
+  ASSERT_TRUE(j["converged"].get<bool>()) << j["message"];
+  EXPECT_EQ(j["message"], "");
+  const Eigen::VectorXd x = vector_of(j["x"]);
+  const double period = j["period"].get<double>();
+  EXPECT_EQ(x[4], 0.0);  // on the section
+  EXPECT_GT(period, 0.0);
+  EXPECT_LE(j["residual"].get<double>(), 1e-8 * (1.0 + x.lpNorm<Eigen::Infinity>()));
+
+  // The independent check: x is a fixed point of the flow after one period, reached rising.
+  const Return back = simulate_one_period(j["params"], x, period);
+  EXPECT_LE(back.error, 1e-6);
+  EXPECT_GT(back.ydot_before, 0.0);
+
+  // Both events cross both feet's surfaces: four pieces, each 5 x 5 on the section.
+  ASSERT_EQ(j["events"].size(), 2u);
+  for (const Json& e : j["events"]) {
+    EXPECT_EQ(e["surfaces"], Json({0, 1}));
+    EXPECT_EQ(e["group_size"], 2);
+  }
+  const Json& map = j["return_map"];
+  EXPECT_FALSE(map["is_linear"].get<bool>());
+  EXPECT_EQ(map["piece_count"], 4.0);
+  ASSERT_EQ(map["pieces"].size(), 4u);
+  for (const Json& piece : map["pieces"]) {
+    EXPECT_EQ(piece["orders"].size(), 2u);
+    ASSERT_EQ(piece["matrix"].size(), 5u);
+    EXPECT_EQ(piece["matrix"][0].size(), 5u);
+  }
+  // B: orthonormal columns orthogonal to the section's normal e_4.
+  const Eigen::MatrixXd basis = columns_of(map["tangent_basis"]);
+  ASSERT_EQ(basis.rows(), 6);
+  ASSERT_EQ(basis.cols(), 5);
+  EXPECT_LE((basis.transpose() * basis - Eigen::MatrixXd::Identity(5, 5)).norm(), 1e-14);
+  EXPECT_LE(basis.row(4).norm(), 1e-14);
+
+  // The verdict and its bracket.
+  const double lower = j["growth_rate_lower"].get<double>();
+  const double upper = j["growth_rate_upper"].get<double>();
+  EXPECT_EQ(j["stability"], "unstable");
+  EXPECT_GT(lower, 1.0);
+  EXPECT_LE(lower, upper);
+  EXPECT_EQ(j["multipliers"], nullptr);  // piecewise linear: no Floquet multipliers
+  EXPECT_EQ(j["decisions"], Json::array());  // every Newton step taken whole
+
+  // The same model, section and guess through the library: the command passes them on.
+  BipedParams p = params_of(j["params"]);
+  const PeriodicOrbit direct = visit_biped(p, [](const auto& scene) {
+    const auto model = adapt(scene);
+    Eigen::VectorXd guess(6);
+    guess << 0, 0.8, 0, 0, 0, 0;
+    return find_periodic_orbit(model, CoordinateSection{4, 0.0, -1.0}, guess);
+  });
+  ASSERT_TRUE(direct.converged);
+  EXPECT_EQ(direct.period, period);
+  EXPECT_EQ(j["newton_iterations"], direct.newton_iterations);
+  EXPECT_STREQ(to_string(direct.stability), "unstable");
+
+  // One progress line per Newton step, nothing else.
+  const std::vector<std::string> lines = lines_of(r.err);
+  ASSERT_EQ(lines.size(), j["newton_steps"].size());
+  EXPECT_EQ(static_cast<int>(lines.size()), j["newton_iterations"].get<int>() + 1);
+  for (const std::string& line : lines) EXPECT_THAT(line, StartsWith("orbit: newton "));
+}
+
+TEST(OrbitCommandTest, FamilyAlongThrustConvergesAtEveryValue) {
+  OrbitCommandOptions o = biped();
+  o.vary_param = "thrust=9:11:3";
+  const Outcome r = orbit(o);
+  ASSERT_EQ(r.code, kExitOk) << r.err;
+  const Json j = Json::parse(r.out);
+  EXPECT_EQ(j["vary_param"], Json({{"key", "thrust"}, {"lo", 9.0}, {"hi", 11.0}, {"count", 3}}));
+  ASSERT_EQ(j["family"].size(), 3u);
+  const double values[] = {9.0, 10.0, 11.0};
+  double last_period = 0.0;
+  for (std::size_t k = 0; k < 3; ++k) {
+    const Json& m = j["family"][k];
+    SCOPED_TRACE(k);
+    EXPECT_EQ(m["value"], values[k]);
+    ASSERT_TRUE(m["converged"].get<bool>()) << m["message"];
+    EXPECT_EQ(m["stability"], "unstable");
+    EXPECT_LE(m["growth_rate_lower"].get<double>(), m["growth_rate_upper"].get<double>());
+    // More thrust, a higher hop: a longer period.
+    EXPECT_GT(m["period"].get<double>(), last_period);
+    last_period = m["period"].get<double>();
+    Json params = j["params"];
+    params["thrust"] = values[k];
+    const Return back = simulate_one_period(params, vector_of(m["x"]), m["period"].get<double>());
+    EXPECT_LE(back.error, 1e-6);
+  }
+  // thrust = 10 is the orbit of the defaults, found again from the orbit at 9.
+  EXPECT_NEAR(j["family"][1]["period"].get<double>(), j["period"].get<double>(), 1e-9);
+  // The Newton steps of the first orbit, then one line per orbit of the family.
+  std::vector<std::string> members;
+  for (const std::string& line : lines_of(r.err)) {
+    if (line.rfind("orbit: thrust = ", 0) == 0) members.push_back(line);
+  }
+  ASSERT_EQ(members.size(), 3u);
+  EXPECT_THAT(members[2], StartsWith("orbit: thrust = 11 (3/3)  period "));
+  EXPECT_THAT(members[2], HasSubstr("unstable"));
+}
+
+TEST(OrbitCommandTest, PwconstHasNoOrbitAndFailsWithTheLibrarysMessage) {
+  const fs::path file = fs::path(::testing::TempDir()) / "bflow_orbit_pwconst.json";
+  fs::remove(file);
+  OrbitCommandOptions o;
+  o.scene = "pwconst";
+  o.output = file.string();
+  const Outcome r = orbit(o);
+  EXPECT_EQ(r.code, kExitFailure);
+  EXPECT_EQ(r.out, "");  // the JSON went to --output
+  std::ifstream in(file);
+  const Json j = Json::parse(in);
+  EXPECT_EQ(j["section"], "x0=1");
+  EXPECT_FALSE(j["converged"].get<bool>());
+  const std::string message = j["message"];
+  EXPECT_THAT(message, HasSubstr("no crossing of the section from s < 0 to s > 0"));
+  EXPECT_EQ(j["period"], nullptr);
+  EXPECT_EQ(j["return_map"], nullptr);
+  EXPECT_EQ(j["stability"], nullptr);
+  EXPECT_EQ(r.err, "error: orbit: no periodic orbit found: " + message + "\n");
+  fs::remove(file);
+}
+
+TEST(OrbitCommandTest, SectionStartingWithMinusIsReadAsTheValue) {
+  const Outcome r =
+      command_line({"orbit", "--scene", "pwconst", "--section", "-x1=0.3", "--quiet", "--compact"});
+  EXPECT_EQ(r.code, kExitFailure);
+  EXPECT_EQ(Json::parse(r.out)["section"], "-x1=0.3");
+}
+
+TEST(OrbitCommandTest, MalformedOptionsExitTwoWithOneLineNamingThem) {
+  const std::string section_syntax =
+      " (write x4, -x4, x1=0.3 or -x1=0.3: s = +-(x_i - value), crossed from s < 0 to s > 0)";
+  struct Case {
+    std::vector<std::string> args;
+    std::string line;
+  };
+  const std::vector<Case> cases = {
+      {{"--section", "y4"},
+       "--section: section \"y4\": expected x followed by a state index" + section_syntax},
+      {{"--section", "x6"},
+       "--section: section \"x6\": state index 6 is not below the 6 states" + section_syntax},
+      {{"--vary-param", "thrust=1:2"},
+       "--vary-param: \"thrust=1:2\" is not KEY=LO:HI:COUNT (three fields after '=', separated "
+       "by ':')"},
+      {{"--vary-param", "nokey=1:2:3"},
+       "--vary-param: \"nokey=1:2:3\": unknown biped parameter \"nokey\" (known: m, J, g, "
+       "leg_length, psi, kappa, beta, thrust, thrust_speed, variant)"},
+      {{"--vary-param", "thrust=1:2:1"},
+       "--vary-param: \"thrust=1:2:1\": COUNT must be >= 2 (a family of orbits from LO to HI), "
+       "got 1"},
+      {{"--vary-param", "thrust=one:2:3"}, "--vary-param thrust LO: \"one\" is not a number"},
+      {{"--vary-param", "thrust=-1:2:3"},
+       "--vary-param: \"thrust=-1:2:3\": biped parameter \"thrust\" must be >= 0, got -1"},
+      {{"--param", "thrust=5", "--vary-param", "thrust=1:2:3"},
+       "--vary-param: thrust is also fixed by --param \"thrust=5\"; give it either fixed or "
+       "varied"},
+      {{"--x0", "1,2"}, "--x0: has 2 numbers, expected d = 6 (comma-separated)"},
+      {{"--tol", "0"}, "--tol: Newton's tolerance must be finite and > 0, got 0"},
+      {{"--max-iterations", "-1"}, "--max-iterations: \"-1\" is too small (at least 0)"},
+      {{"--param", "kappa=-1"}, "--param: biped parameter \"kappa\" must be > 0, got -1"},
+      {{"--section", ""}, "--section: the value is empty"},
+  };
+  for (const Case& c : cases) {
+    std::vector<std::string> args = {"orbit", "--scene", "biped"};
+    args.insert(args.end(), c.args.begin(), c.args.end());
+    SCOPED_TRACE(::testing::PrintToString(args));
+    const Outcome r = command_line(args);
+    EXPECT_EQ(r.code, kExitBadInput);
+    EXPECT_EQ(r.out, "");
+    EXPECT_EQ(r.err, "error: " + c.line + "\n");
+  }
+  const Outcome pwconst = command_line({"orbit", "--scene", "pwconst", "--vary-param", "d=2:3:2"});
+  EXPECT_EQ(pwconst.code, kExitBadInput);
+  EXPECT_EQ(pwconst.err,
+            "error: --vary-param: d changes the dimension of the state (d = 2 to 3); it cannot "
+            "vary along a family\n");
+  const Outcome none = command_line({"orbit"});
+  EXPECT_EQ(none.err, "error: --scene: required; the scenes are pwconst and biped\n");
+}
+
+TEST(OrbitCommandTest, PlotDrawsTheOrbitAndTheGrowthRate) {
+  if (!gnuplot_on_path()) GTEST_SKIP() << "gnuplot is not installed";
+  const fs::path dir = fs::path(::testing::TempDir()) / "bflow_orbit_plot";
+  fs::remove_all(dir);
+  OrbitCommandOptions o = biped();
+  o.quiet = true;
+  o.vary_param = "thrust=10:11:2";
+  o.plot = (dir / "nested").string();
+  const Outcome r = orbit(o);
+  ASSERT_EQ(r.code, kExitOk) << r.err;
+  EXPECT_EQ(r.err, "");
+  for (const char* png : {"orbit.png", "growth_rate.png"}) {
+    const fs::path file = dir / "nested" / png;
+    ASSERT_TRUE(fs::exists(file)) << file;
+    EXPECT_GT(fs::file_size(file), 1000u) << file;
+  }
+  // orbit.csv: one period from the fixed point back to it.
+  const Json j = Json::parse(r.out);
+  const Eigen::VectorXd x = vector_of(j["x"]);
+  std::ifstream csv(dir / "nested" / "orbit.csv");
+  std::string line;
+  std::getline(csv, line);
+  EXPECT_EQ(line, "t,x,y,theta,xdot,ydot,thetadot");
+  std::vector<Eigen::VectorXd> rows;
+  while (std::getline(csv, line)) {
+    std::replace(line.begin(), line.end(), ',', ' ');
+    std::istringstream numbers(line);
+    Eigen::VectorXd row(7);
+    for (int i = 0; i < 7; ++i) numbers >> row[i];
+    rows.push_back(row);
+  }
+  ASSERT_GE(rows.size(), 100u);
+  EXPECT_EQ(rows.front()[0], 0.0);
+  EXPECT_EQ(rows.front().tail(6), x);
+  EXPECT_EQ(rows.back()[0], j["period"].get<double>());
+  EXPECT_LE((rows.back().tail(6) - x).lpNorm<Eigen::Infinity>(), 1e-6);
+  // family.csv: a header and one row per orbit.
+  std::ifstream family(dir / "nested" / "family.csv");
+  std::vector<std::string> family_lines;
+  while (std::getline(family, line)) family_lines.push_back(line);
+  ASSERT_EQ(family_lines.size(), 3u);
+  EXPECT_THAT(family_lines[0],
+              StartsWith("thrust,converged,period,growth_rate_lower,growth_rate_upper,stability"));
+  EXPECT_THAT(family_lines[2], StartsWith("11,1,"));
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace bflow::cli
