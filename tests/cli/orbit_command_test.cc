@@ -187,7 +187,7 @@ TEST(OrbitCommandTest, BipedDefaultsFindTheHoppingOrbit) {
   EXPECT_EQ(j["stability"], "unstable");
   EXPECT_GT(lower, 1.0);
   EXPECT_LE(lower, upper);
-  EXPECT_EQ(j["multipliers"], nullptr);  // piecewise linear: no Floquet multipliers
+  EXPECT_EQ(j["multipliers"], nullptr);      // piecewise linear: no Floquet multipliers
   EXPECT_EQ(j["decisions"], Json::array());  // every Newton step taken whole
 
   // The same model, section and guess through the library: the command passes them on.
