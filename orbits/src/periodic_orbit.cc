@@ -647,10 +647,19 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
   orbit.tangent_basis = orthogonal_complement(section.gradient(x));
   orbit.return_map = std::move(current.derivative);
   if (orbit.converged && options.stability) {
-    orbit.bracket = growth_rate_bracket(orbit.return_map, orbit.tangent_basis, options);
-    orbit.growth_rate_lower = orbit.bracket.lower;
-    orbit.growth_rate_upper = orbit.bracket.upper;
-    orbit.stability = classify(orbit.bracket);
+    try {
+      orbit.bracket = growth_rate_bracket(orbit.return_map, orbit.tangent_basis, options);
+      orbit.growth_rate_lower = orbit.bracket.lower;
+      orbit.growth_rate_upper = orbit.bracket.upper;
+      orbit.stability = classify(orbit.bracket);
+    } catch (const InvalidArgument& e) {
+      // Too many pieces to enumerate: the orbit stands, its stability is not judged.
+      orbit.growth_rate_lower = 0.0;
+      orbit.growth_rate_upper = std::numeric_limits<double>::infinity();
+      orbit.stability = OrbitStability::kUndecided;
+      orbit.decisions.push_back(std::string("the growth-rate bracket was not computed: ") +
+                                e.what());
+    }
   }
   return orbit;
 }

@@ -477,6 +477,26 @@ TEST(PeriodicOrbitDecisions, ShortenedStepsAreReported) {
   EXPECT_THAT(orbit.decisions.front(), HasSubstr("rank"));
 }
 
+TEST(PeriodicOrbitDecisions, TooManyPiecesLeaveTheVerdictUndecidedAndSaySo) {
+  // Nine surfaces through the corner: 9! = 362880 pieces, more than FlowDerivative::pieces()
+  // enumerates. The orbit is found (Algorithm 2.1 needs no pieces); its stability is not judged.
+  CornerOrbit m;
+  m.kappas = {0.0, 2.0, -1.0, 4.0, -3.0, 0.5, 6.0, -5.0, 8.0};
+  m.c = {0.3, -0.2, 0.25, -0.15, 0.2, -0.1, 0.15, -0.05, 0.1};
+  const auto model = adapt(m);
+  const PeriodicOrbit orbit =
+      find_periodic_orbit(model, CornerOrbitSection{}, on_section(1.05, 0.0, m.states()));
+  ASSERT_TRUE(orbit.converged) << orbit.message;
+  int largest = 0;
+  for (const EventRecord& event : orbit.events) largest = std::max(largest, event.group_size());
+  EXPECT_EQ(largest, 9);
+  EXPECT_EQ(orbit.stability, OrbitStability::kUndecided);
+  EXPECT_EQ(orbit.growth_rate_lower, 0.0);
+  EXPECT_EQ(orbit.growth_rate_upper, std::numeric_limits<double>::infinity());
+  ASSERT_EQ(orbit.decisions.size(), 1u);
+  EXPECT_THAT(orbit.decisions.front(), HasSubstr("the growth-rate bracket was not computed"));
+}
+
 TEST(PeriodicOrbitInput, BadSectionTextIsQuoted) {
   for (const char* text : {"y4", "x9", "x1=abc"}) {
     const std::string message = testing::message_of([&] { parse_coordinate_section(text, 6); });

@@ -206,8 +206,9 @@ struct PeriodicOrbit {
   std::vector<OrbitNewtonStep> steps;
   /** What the solver decided for the caller: every Newton step it shortened (or gave up)
       because the return map could not be evaluated at a longer one, with the reason (e.g. an
-      event whose surfaces' normals are dependent). Empty when every step was taken as solved or
-      shortened only for lack of decrease. */
+      event whose surfaces' normals are dependent); and a bracket not computed because the
+      return map has too many pieces to enumerate (then [0, inf] and kUndecided). Empty when
+      every step was taken as solved or shortened only for lack of decrease. */
   std::vector<std::string> decisions;
 };
 
