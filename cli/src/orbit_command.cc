@@ -119,10 +119,12 @@ Plan make_plan(const OrbitCommandOptions& options, std::optional<VaryAxis>& vary
   FlowCommandOptions scene;
   scene.scene = options.scene;
   if (options.scene == "biped") {
-    for (const auto& [key, value] : kBipedOrbitParams) {
+    // (A structured binding cannot be captured by a lambda in C++17: clang refuses it.)
+    for (const auto& default_param : kBipedOrbitParams) {
+      const std::string key = default_param.first;
       const bool given = std::any_of(options.params.begin(), options.params.end(),
                                      [&](const std::string& p) { return key_of(p) == key; });
-      if (!given) scene.params.push_back(std::string(key) + "=" + value);
+      if (!given) scene.params.push_back(key + "=" + default_param.second);
     }
   }
   scene.params.insert(scene.params.end(), options.params.begin(), options.params.end());
