@@ -372,8 +372,8 @@ ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
   // Crossings of the section before the flow has moved x by more than 100 times the integration
   // tolerance are round-off (x on the section, s(x) = -1e-17): they do not count. A point the
   // flow cannot move that far within max_return_time is (nearly) an equilibrium: no period.
-  const int dims = model.states();
-  VectorXd f0(dims);
+  const int d = model.states();
+  VectorXd f0(d);
   model.field(x.data(), sides, f0.data());
   const IntegratorOptions& integ = options.flow.integrator;
   const double floor = 100.0 * (integ.atol.value_or(1e-2 * integ.rtol) + integ.rtol * inf_norm(x));
@@ -428,7 +428,6 @@ ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
   flow.initial_sides = sides;
   FlowResult trajectory;
   FlowDerivative derivative = flow_derivative(model, x, tau, flow, &trajectory);
-  const int d = model.states();
   VectorXd f(d);
   model.field(trajectory.x.data(), trajectory.sides, f.data());
   const VectorXd g = section.gradient(trajectory.x);

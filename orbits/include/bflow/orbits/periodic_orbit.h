@@ -82,8 +82,7 @@ class SectionAdapter final : public PoincareSection {
  public:
   explicit SectionAdapter(Section section) : section_(std::move(section)) {}
   double value(const Eigen::Ref<const Eigen::VectorXd>& x) const override {
-    const Eigen::VectorXd copy = x;
-    return section_(copy.data());
+    return section_(x.data());  // a Ref<const VectorXd> is contiguous: no copy per step
   }
   Eigen::VectorXd gradient(const Eigen::Ref<const Eigen::VectorXd>& x) const override {
     const int d = static_cast<int>(x.size());
