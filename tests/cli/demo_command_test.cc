@@ -26,9 +26,14 @@
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
 #include "cli_commands.h"
+#include "support/run_command.h"
 
 namespace bflow::cli {
 namespace {
+
+using bflow::testing::capture;
+using bflow::testing::command_line;
+using bflow::testing::Outcome;
 
 using ::testing::EndsWith;
 using ::testing::HasSubstr;
@@ -37,16 +42,10 @@ using ::testing::StartsWith;
 
 namespace fs = std::filesystem;
 
-struct Outcome {
-  int code;
-  std::string out;
-  std::string err;
-};
-
 Outcome demo(const fs::path& dir, bool no_plot, const std::string& scene = "pwconst") {
-  std::ostringstream out, err;
-  const int code = run_demo(DemoOptions{dir.string(), no_plot, scene}, out, err);
-  return {code, out.str(), err.str()};
+  return capture([&](std::ostream& out, std::ostream& err) {
+    return run_demo(DemoOptions{dir.string(), no_plot, scene}, out, err);
+  });
 }
 
 fs::path fresh_dir(const std::string& name) {
@@ -416,16 +415,6 @@ TEST(DemoCommandTest, UnknownSceneIsBadInput) {
   EXPECT_EQ(o.err,
             "error: --scene: unknown demo scene \"pendulum\"; the demo scenes are biped and "
             "pwconst\n");
-}
-
-Outcome command_line(std::vector<std::string> args) {
-  args.insert(args.begin(), "bflow");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::istringstream in;
-  std::ostringstream out, err;
-  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
-  return {code, out.str(), err.str()};
 }
 
 // An option given '' is refused naming it (CLI11 would take the default scene or directory),

@@ -10,9 +10,13 @@
 #include <nlohmann/json.hpp>
 
 #include "cli_commands.h"
+#include "support/run_command.h"
 
 namespace bflow::cli {
 namespace {
+
+using bflow::testing::command_line;
+using bflow::testing::Outcome;
 
 TEST(FesdCommandTest, CrossingPrintsTheExactSwitchAndState) {
   FesdCommandOptions o;
@@ -231,22 +235,6 @@ TEST(FesdCommandTest, AFailedStepPrintsThePartialRecordAndOneErrorLine) {
   EXPECT_GT(j["t_reached"].get<double>(), 0.0);
   EXPECT_LT(j["t_reached"].get<double>(), 100.0);
   EXPECT_EQ(j["x_T"].size(), 5u);
-}
-
-struct Outcome {
-  int code;
-  std::string out;
-  std::string err;
-};
-
-Outcome command_line(std::vector<std::string> args) {
-  args.insert(args.begin(), "bflow");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::istringstream in;
-  std::ostringstream out, err;
-  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
-  return {code, out.str(), err.str()};
 }
 
 // The options as typed: an empty value (which CLI11 took as the default), a number beyond its

@@ -25,35 +25,22 @@
 #include "bflow/examples/piecewise_constant.h"
 #include "cli_commands.h"
 #include "cli_util.h"
+#include "support/run_command.h"
 
 namespace bflow::cli {
 namespace {
+
+using bflow::testing::capture;
+using bflow::testing::command_line;
+using bflow::testing::Outcome;
 
 using ::testing::ElementsAre;
 using ::testing::HasSubstr;
 using ::testing::StartsWith;
 using Json = nlohmann::json;
 
-struct Outcome {
-  int code;
-  std::string out;
-  std::string err;
-};
-
 Outcome flow(const FlowCommandOptions& options) {
-  std::ostringstream out, err;
-  const int code = run_flow(options, out, err);
-  return {code, out.str(), err.str()};
-}
-
-Outcome command_line(std::vector<std::string> args) {
-  args.insert(args.begin(), "bflow");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::istringstream in;
-  std::ostringstream out, err;
-  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
-  return {code, out.str(), err.str()};
+  return capture([&](std::ostream& out, std::ostream& err) { return run_flow(options, out, err); });
 }
 
 // Parses a successful run.

@@ -20,9 +20,14 @@
 #include "bflow/core/triangulation.h"
 #include "cli_commands.h"
 #include "cli_util.h"
+#include "support/run_command.h"
 
 namespace bflow::cli {
 namespace {
+
+using bflow::testing::capture;
+using bflow::testing::command_line;
+using bflow::testing::Outcome;
 
 using ::testing::ElementsAre;
 using ::testing::HasSubstr;
@@ -31,27 +36,10 @@ using Json = nlohmann::json;
 
 constexpr double kEps = 2.220446049250313e-16;
 
-struct Outcome {
-  int code;
-  std::string out;
-  std::string err;
-};
-
 Outcome jump(const std::string& input, const JumpOptions& options = {}) {
   std::istringstream in(input);
-  std::ostringstream out, err;
-  const int code = run_jump(in, out, err, options);
-  return {code, out.str(), err.str()};
-}
-
-Outcome command_line(std::vector<std::string> args, const std::string& stdin_text = "") {
-  args.insert(args.begin(), "bflow");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::istringstream in(stdin_text);
-  std::ostringstream out, err;
-  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
-  return {code, out.str(), err.str()};
+  return capture(
+      [&](std::ostream& out, std::ostream& err) { return run_jump(in, out, err, options); });
 }
 
 Json rows_json(const Eigen::MatrixXd& m) {

@@ -18,6 +18,7 @@
 #include "bflow/core/errors.h"
 #include "bflow/examples/monoped_ocp.h"
 #include "cli_commands.h"
+#include "support/run_command.h"
 
 namespace bflow::cli {
 namespace {
@@ -25,18 +26,22 @@ namespace {
 namespace fs = std::filesystem;
 using ::testing::StartsWith;
 
+// A run with its standard output parsed as JSON (null when it wrote none).
 struct Outcome {
   int code;
   nlohmann::json json;
   std::string err;
 };
 
-Outcome solve(const OcpCommandOptions& options) {
-  std::ostringstream out, err;
-  const int code = run_ocp(options, out, err);
+Outcome parsed(const bflow::testing::Outcome& run) {
   nlohmann::json j;
-  if (!out.str().empty()) j = nlohmann::json::parse(out.str());
-  return {code, j, err.str()};
+  if (!run.out.empty()) j = nlohmann::json::parse(run.out);
+  return {run.code, j, run.err};
+}
+
+Outcome solve(const OcpCommandOptions& options) {
+  return parsed(bflow::testing::capture(
+      [&](std::ostream& out, std::ostream& err) { return run_ocp(options, out, err); }));
 }
 
 std::vector<std::string> lines(const std::string& text) {
@@ -556,16 +561,8 @@ TEST(OcpCommandTest, AnUnwritableDirectoryIsRefusedBeforeTheSolve) {
   EXPECT_EQ(err.str(), "error: ocp: cannot create directory \"/dev/null/x\": Not a directory\n");
 }
 
-Outcome command_line(std::vector<std::string> args) {
-  args.insert(args.begin(), "bflow");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::istringstream in;
-  std::ostringstream out, err;
-  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
-  nlohmann::json j;
-  if (!out.str().empty()) j = nlohmann::json::parse(out.str());
-  return {code, j, err.str()};
+Outcome command_line(const std::vector<std::string>& args) {
+  return parsed(bflow::testing::command_line(args));
 }
 
 // The options as typed: an empty value (which CLI11 took as the default), a number beyond its

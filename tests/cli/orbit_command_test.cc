@@ -23,35 +23,23 @@
 #include "bflow/integrators/model_adapter.h"
 #include "bflow/orbits/periodic_orbit.h"
 #include "cli_commands.h"
+#include "support/run_command.h"
 
 namespace bflow::cli {
 namespace {
+
+using bflow::testing::capture;
+using bflow::testing::command_line;
+using bflow::testing::Outcome;
 
 using ::testing::HasSubstr;
 using ::testing::StartsWith;
 using Json = nlohmann::json;
 namespace fs = std::filesystem;
 
-struct Outcome {
-  int code;
-  std::string out;
-  std::string err;
-};
-
 Outcome orbit(const OrbitCommandOptions& options) {
-  std::ostringstream out, err;
-  const int code = run_orbit(options, out, err);
-  return {code, out.str(), err.str()};
-}
-
-Outcome command_line(std::vector<std::string> args) {
-  args.insert(args.begin(), "bflow");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::istringstream in;
-  std::ostringstream out, err;
-  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
-  return {code, out.str(), err.str()};
+  return capture(
+      [&](std::ostream& out, std::ostream& err) { return run_orbit(options, out, err); });
 }
 
 Eigen::VectorXd vector_of(const Json& v) {

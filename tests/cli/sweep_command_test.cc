@@ -16,28 +16,16 @@
 #include <nlohmann/json.hpp>
 
 #include "cli_commands.h"
+#include "support/run_command.h"
 
 namespace bflow::cli {
 namespace {
 
+using bflow::testing::command_line;
+using bflow::testing::Outcome;
+
 using ::testing::HasSubstr;
 using Json = nlohmann::json;
-
-struct Outcome {
-  int code;
-  std::string out;
-  std::string err;
-};
-
-Outcome command_line(std::vector<std::string> args) {
-  args.insert(args.begin(), "bflow");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::istringstream in;
-  std::ostringstream out, err;
-  const int code = run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
-  return {code, out.str(), err.str()};
-}
 
 // The records of a JSON-lines output, after its identity line {"sweep": {...}}.
 std::vector<Json> records(const std::string& text) {

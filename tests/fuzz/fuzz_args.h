@@ -4,12 +4,12 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <sstream>
 #include <string>
 #include <vector>
 
 #include "cli_commands.h"
 #include "fuzz/fuzz_contract.h"
+#include "support/run_command.h"
 
 namespace bflow::fuzz {
 
@@ -80,19 +80,13 @@ void map_values(std::vector<std::string>& words, const std::string& option, F f)
   }
 }
 
-struct RunResult {
-  int code = 0;
-  std::string out, err;
-};
+using RunResult = bflow::testing::Outcome;
 
 /** Runs "bflow <command> <words...>" in-process (empty stdin). */
 inline RunResult run_words(const char* command, const std::vector<std::string>& words) {
-  std::vector<const char*> argv = {"bflow", command};
-  for (const std::string& w : words) argv.push_back(w.c_str());
-  std::istringstream in;
-  std::ostringstream out, err;
-  const int code = bflow::cli::run_cli(static_cast<int>(argv.size()), argv.data(), in, out, err);
-  return {code, out.str(), err.str()};
+  std::vector<std::string> args = {command};
+  args.insert(args.end(), words.begin(), words.end());
+  return bflow::testing::command_line(args);
 }
 
 /** Runs "bflow <command> <words...>" in-process (empty stdin) and checks the contract. */
