@@ -17,8 +17,6 @@ using examples::PiecewiseConstantField;
 using ::testing::HasSubstr;
 using testing::message_of;
 
-constexpr double kEps = 2.220446049250313e-16;
-
 // [B] (3.2): from rho- = -F_-/2 for unit time the flow derivative of the linear
 // piecewise-constant field is (1 - delta)/(1 + delta) I; all d surfaces are one event.
 TEST(HybridFlowTest, PiecewiseConstantLinearCaseIsTheClosedForm) {
@@ -196,20 +194,6 @@ TEST(HybridFlowTest, SlidingGrazingAndUndecidedStartsAreErrorsWithValues) {
   EXPECT_THAT(message_of([&] { simulate(sliding, Eigen::Vector2d(0.0, 0.0), 1.0); }),
               HasSubstr("x0 = [0, 0] has h_0 = 0"));
 }
-
-struct Grazer {
-  static constexpr int kStates = 2;
-  static constexpr int kSurfaces = 1;
-  template <typename T>
-  void field(const T* x, Signs, T* xdot) const {
-    xdot[0] = T(1.0);
-    xdot[1] = -2.0 * (x[0] - 1.0);  // y = 1 - (x - 1)^2 touches y = 1 at x = 1
-  }
-  template <typename T>
-  void surfaces(const T* x, T* h) const {
-    h[0] = x[1] - 1.0 + 1e-20 * x[0];
-  }
-};
 
 struct Oscillator {
   static constexpr int kStates = 2;
