@@ -52,8 +52,8 @@ endfunction()
 
 function(_bflow_doc_add_test test mode)
   add_test(NAME ${test} COMMAND ${CMAKE_COMMAND} -DMODE=${mode} ${ARGN} -P ${BFLOW_DOC_RUNNER})
-  set_tests_properties(${test} PROPERTIES SKIP_REGULAR_EXPRESSION "^skipped: " TIMEOUT 60
-                                          LABELS docs)
+  bflow_test_properties(docs properties)
+  set_tests_properties(${test} PROPERTIES SKIP_REGULAR_EXPRESSION "^skipped: " ${properties})
 endfunction()
 
 # Commands of a shell text: continuation lines (a trailing backslash, an open single quote)
