@@ -3,9 +3,9 @@
 # Every test carries one label, what it tests: a component (core, ad, integrators, fesd, ocp,
 # orbits, sweep, cli) or docs, fuzz, install, mpi, examples, bench, style (the format check). A label's budget is the
 # TIMEOUT of each of its tests in seconds, for an optimised build; a sanitizer build multiplies
-# it by BFLOW_TEST_BUDGET_SCALE. The budgets are about ten times the slowest test of the label
-# measured in each pass (docs/testing.md): a test that overruns its budget fails instead of
-# holding the run. `ctest -L ocp` runs one label; ctest's "Label Time Summary" gives each
+# it by BFLOW_TEST_BUDGET_SCALE. Each budget is at least ten times the slowest test of its label
+# as measured in both passes (docs/testing.md), so that a slower machine passes; a test that
+# overruns it (a hang) fails instead of holding the run. `ctest -L ocp` runs one label; ctest's "Label Time Summary" gives each
 # label's time.
 #
 # A label's COST orders the first run of a fresh build tree, before ctest has measured anything:
