@@ -1,6 +1,7 @@
 #include "bflow/orbits/periodic_orbit.h"
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <complex>
 #include <cstdlib>
@@ -23,6 +24,13 @@ using Eigen::MatrixXd;
 using Eigen::VectorXd;
 
 double inf_norm(const VectorXd& v) { return v.size() == 0 ? 0.0 : v.cwiseAbs().maxCoeff(); }
+
+// Quoted input in messages: at most 60 characters of it.
+std::string shortened(const std::string& text) {
+  return text.size() <= 60
+             ? text
+             : text.substr(0, 60) + "... (" + std::to_string(text.size()) + " characters)";
+}
 
 // The model with the section appended as surface n: the field ignores the section's side, so
 // the section's crossings are events at which nothing jumps. Used only to locate the return.
@@ -80,6 +88,17 @@ void check_options(const OrbitOptions& o) {
   if (!(o.return_search_window > 0.0 && std::isfinite(o.return_search_window)))
     bad("return_search_window must be finite and > 0, got " +
         format_number(o.return_search_window));
+  if (!(o.return_search_window * static_cast<double>(OrbitOptions::kMaxReturnWindows) >=
+        o.max_return_time))
+    bad("return_search_window = " + format_number(o.return_search_window) +
+        " would take more than " + std::to_string(OrbitOptions::kMaxReturnWindows) +
+        " windows to cover max_return_time = " + format_number(o.max_return_time) +
+        "; give a window of at least " +
+        format_number(o.max_return_time / static_cast<double>(OrbitOptions::kMaxReturnWindows)));
+  if (o.max_backtracks > OrbitOptions::kMaxBacktracks)
+    bad("max_backtracks must be <= " + std::to_string(OrbitOptions::kMaxBacktracks) +
+        " (a step halved that often is below the round-off of any point), got " +
+        std::to_string(o.max_backtracks));
   if (!(o.min_return_time >= 0.0 && o.min_return_time < o.max_return_time))
     bad("min_return_time must be in [0, max_return_time), got " + format_number(o.min_return_time));
   if (o.growth_directions < 0 || o.growth_iterations < 1 || o.max_product_length < 1 ||
@@ -88,6 +107,40 @@ void check_options(const OrbitOptions& o) {
         "max_products >= 1 are required, got " +
         std::to_string(o.growth_directions) + ", " + std::to_string(o.growth_iterations) + ", " +
         std::to_string(o.max_product_length) + ", " + std::to_string(o.max_products));
+}
+
+// The section checked against the model once: its own check, then its value and gradient at x
+// (finite, d numbers).
+void check_section(const char* who, const PoincareSection& section, int d, const VectorXd& x) {
+  try {
+    section.check(d);
+  } catch (const InvalidArgument& e) {
+    throw InvalidArgument(std::string(who) + ": " + e.what());
+  }
+  const VectorXd g = section.gradient(x);
+  if (g.size() != d) {
+    throw InvalidArgument(std::string(who) + ": the section's gradient has " +
+                          std::to_string(g.size()) + " entries, the model " + std::to_string(d) +
+                          " states");
+  }
+  const double s = section.value(x);
+  if (!std::isfinite(s) || !g.allFinite()) {
+    throw InvalidArgument(std::string(who) + ": the section is not finite at the point (s = " +
+                          format_number(s) + ", |Ds| = " + format_number(g.norm()) + ")");
+  }
+}
+
+// Ds(x), checked: d finite numbers, not all zero.
+VectorXd section_gradient(const PoincareSection& section, const VectorXd& x) {
+  VectorXd g = section.gradient(x);
+  if (g.size() != x.size() || !g.allFinite() || !(g.cwiseAbs().maxCoeff() > 0.0)) {
+    throw InvalidArgument(
+        "the section's gradient at the point is " +
+        (g.size() != x.size()
+             ? std::to_string(g.size()) + " numbers for " + std::to_string(x.size()) + " states"
+             : "zero or not finite (|Ds| = " + format_number(g.norm()) + ")"));
+  }
+  return g;
 }
 
 void check_point(const char* who, const SegmentModel& model, const Eigen::Ref<const VectorXd>& x) {
@@ -123,166 +176,69 @@ Signs sides_at(const SegmentModel& model, const VectorXd& x, const FlowOptions& 
 }
 
 // x moved onto the section along Ds (a few Newton steps on s).
-VectorXd project(const PoincareSection& section, VectorXd x) {
+// Returns false when 30 steps do not bring |s| / |Ds| below 1e-14 (1 + |x|).
+bool project(const PoincareSection& section, VectorXd& x) {
   for (int k = 0; k < 30; ++k) {
     const double s = section.value(x);
-    const VectorXd g = section.gradient(x);
-    const double gg = g.squaredNorm();
-    if (!(gg > 0.0) || !std::isfinite(gg)) {
-      throw InvalidArgument(
-          "find_periodic_orbit: the section's gradient vanishes or is not "
-          "finite at the point (|Ds|^2 = " +
-          format_number(gg) + ")");
+    VectorXd g;
+    try {
+      g = section_gradient(section, x);
+    } catch (const InvalidArgument& e) {
+      throw InvalidArgument(std::string("projecting onto the section: ") + e.what());
     }
-    if (std::abs(s) <= 1e-15 * (1.0 + inf_norm(x)) * std::sqrt(gg)) break;
-    x -= (s / gg) * g;
+    const double scale = g.cwiseAbs().maxCoeff();
+    const VectorXd unit = g / scale;  // no overflow in |Ds|^2
+    const double gg = unit.squaredNorm();
+    if (!std::isfinite(s)) return false;
+    if (std::abs(s / scale) <= 1e-14 * (1.0 + inf_norm(x)) * std::sqrt(gg)) return true;
+    x -= (s / scale / gg) * unit;
+    if (!x.allFinite()) return false;
+  }
+  return false;
+}
+
+VectorXd projected(const PoincareSection& section, VectorXd x, const char* what) {
+  if (!project(section, x)) {
+    throw InvalidArgument(std::string(what) +
+                          ": 30 Newton steps along Ds did not bring it onto the section (|s| = " +
+                          format_number(std::abs(section.value(x))) + " at the last)");
   }
   return x;
 }
 
-// The piecewise-linear Newton equation B^T DP(x; B c) - c = rhs, by iterating on the active piece.
-VectorXd newton_direction(const FlowDerivative& dp, const MatrixXd& basis, const VectorXd& rhs) {
-  const int m = static_cast<int>(basis.cols());
-  VectorXd c = rhs;  // a first direction to pick the active piece
-  VectorXd best = VectorXd::Zero(m);
-  double best_error = std::numeric_limits<double>::infinity();
-  for (int k = 0; k < 12; ++k) {
-    const VectorXd probe = basis * (c.norm() > 0.0 ? c : rhs);
-    const MatrixXd a =
-        basis.transpose() * dp.active_jacobian(probe) * basis - MatrixXd::Identity(m, m);
-    const VectorXd next = a.completeOrthogonalDecomposition().solve(rhs);
-    const double error = (basis.transpose() * dp.apply(basis * next) - next - rhs).norm();
-    if (error < best_error) {
-      best_error = error;
-      best = next;
-    }
-    if (error <= 1e-12 * (1.0 + rhs.norm())) break;
-    c = next;
+// The number of pieces of map: the product over events of (surfaces crossed together)!, as a
+// double (no overflow).
+double piece_count(const FlowDerivative& map) {
+  double count = 1.0;
+  for (const std::vector<int>& surfaces : map.event_surfaces()) {
+    for (std::size_t k = 2; k <= surfaces.size(); ++k) count *= static_cast<double>(k);
   }
-  return best;
+  return count;
 }
 
-// The distinct pieces of map restricted to span(basis).
-std::vector<MatrixXd> restricted_pieces(const FlowDerivative& map, const MatrixXd& basis) {
-  std::vector<MatrixXd> out;
-  for (const FlowPiece& piece : map.pieces()) {
-    const MatrixXd a = basis.transpose() * piece.matrix * basis;
-    bool seen = false;
-    for (const MatrixXd& b : out) {
-      if ((a - b).norm() <= FlowDerivative::kLinearTolerance * (1.0 + b.norm())) seen = true;
-    }
-    if (!seen) out.push_back(a);
-  }
-  return out;
-}
-
-struct LowerCandidate {
-  double rate = 0.0;
-  int period = 0;
-};
-
-// Checks whether L^p z is a positive multiple of z for p = 1, 2; returns the growth c^(1/p).
-LowerCandidate periodic_direction(const FlowDerivative& map, const MatrixXd& basis,
-                                  const VectorXd& z, double tolerance) {
-  LowerCandidate found;
-  if (!(z.norm() > 0.0)) return found;
-  VectorXd w = z;
-  for (int p = 1; p <= 2; ++p) {
-    w = basis.transpose() * map.apply(basis * w);
-    const double c = z.dot(w) / z.squaredNorm();
-    if (c > 0.0 && (w - c * z).norm() <= tolerance * w.norm()) {
-      found.rate = std::pow(c, 1.0 / p);
-      found.period = p;
-      return found;
-    }
-  }
-  return found;
-}
-
-// The largest singular value of a complex matrix.
-double operator_norm(const MatrixXcd& a) {
-  if (a.size() == 0) return 0.0;
-  Eigen::JacobiSVD<MatrixXcd> svd(a);
-  return svd.singularValues()(0);
-}
-
-// A unitary Q whose leading columns span a flag the pieces share as far as they share one: at
-// each level the unit vector of the remaining subspace that is closest to an eigenvector of every
-// piece (among the pieces' own eigenvectors there) is taken next. Where the pieces are
-// simultaneously triangularisable, Q^H A Q is upper triangular for every piece.
-MatrixXcd common_flag(const std::vector<MatrixXd>& pieces) {
-  const int m = static_cast<int>(pieces.front().rows());
-  MatrixXcd q = MatrixXcd::Identity(m, m);
-  for (int level = 0; level + 1 < m; ++level) {
-    const int size = m - level;
-    const MatrixXcd sub = q.rightCols(size);
-    std::vector<MatrixXcd> local;
-    for (const MatrixXd& a : pieces)
-      local.push_back(sub.adjoint() * a.cast<std::complex<double>>() * sub);
-    Eigen::VectorXcd best = Eigen::VectorXcd::Unit(size, 0);
-    double best_miss = std::numeric_limits<double>::infinity();
-    for (const MatrixXcd& c : local) {
-      const Eigen::ComplexEigenSolver<MatrixXcd> eig(c);
-      for (int i = 0; i < size; ++i) {
-        Eigen::VectorXcd v = eig.eigenvectors().col(i);
-        if (!(v.norm() > 0.0)) continue;
-        v.normalize();
-        double miss = 0.0;
-        for (const MatrixXcd& other : local) {
-          const Eigen::VectorXcd w = other * v;
-          miss = std::max(miss, (w - v.dot(w) * v).norm() / (1.0 + other.norm()));
-        }
-        if (miss < best_miss) {
-          best_miss = miss;
-          best = v;
-        }
-      }
-    }
-    // A unitary matrix of the subspace whose first column is `best`.
-    MatrixXcd basis(size, size);
-    basis.col(0) = best;
-    basis.rightCols(size - 1) = MatrixXcd::Identity(size, size).rightCols(size - 1);
-    const MatrixXcd h = Eigen::HouseholderQR<MatrixXcd>(basis).householderQ();
-    q.rightCols(size) = sub * h;
-  }
-  return q;
-}
-
-// min over k <= max_length of max over products of k pieces of |product|^(1/k), the pieces
-// already in the norm's coordinates.
-std::pair<double, int> product_bound(const std::vector<MatrixXcd>& pieces, int max_length,
-                                     long max_products) {
-  const int count = static_cast<int>(pieces.size());
-  const int m = static_cast<int>(pieces.front().rows());
-  double best = std::numeric_limits<double>::infinity();
-  int best_length = 0;
-  std::vector<MatrixXcd> level{MatrixXcd::Identity(m, m)};
-  for (int k = 1; k <= max_length; ++k) {
-    if (static_cast<double>(level.size()) * count > static_cast<double>(max_products)) break;
-    std::vector<MatrixXcd> next;
-    next.reserve(level.size() * static_cast<std::size_t>(count));
-    double worst = 0.0;
-    for (const MatrixXcd& prefix : level) {
-      for (const MatrixXcd& piece : pieces) {
-        next.push_back(piece * prefix);
-        worst = std::max(worst, operator_norm(next.back()));
-      }
-    }
-    const double bound = std::pow(worst, 1.0 / k);
-    if (bound < best) {
-      best = bound;
-      best_length = k;
-    }
-    level = std::move(next);
-  }
-  return {best, best_length};
+// |B^T DP(B c) - c - rhs|_2.
+double equation_residual(const FlowDerivative& map, const MatrixXd& basis, const VectorXd& c,
+                         const VectorXd& rhs) {
+  return (basis.transpose() * map.apply(basis * c) - c - rhs).norm();
 }
 
 }  // namespace
 
+void CoordinateSection::check(int states) const {
+  if (index < 0 || index >= states) {
+    throw InvalidArgument("CoordinateSection: index " + std::to_string(index) +
+                          " is not a state of the model (0 ... " + std::to_string(states - 1) +
+                          ")");
+  }
+  if (!std::isfinite(value) || !(sign == 1.0 || sign == -1.0)) {
+    throw InvalidArgument("CoordinateSection: value must be finite and sign +1 or -1, got value " +
+                          format_number(value) + ", sign " + format_number(sign));
+  }
+}
+
 CoordinateSection parse_coordinate_section(const std::string& text, int states) {
   auto fail = [&](const std::string& why) {
-    throw InvalidArgument("section \"" + text + "\": " + why +
+    throw InvalidArgument("section \"" + shortened(text) + "\": " + why +
                           " (write x4, -x4, x1=0.3 or -x1=0.3: s = +-(x_i - value), crossed from "
                           "s < 0 to s > 0)");
   };
@@ -306,9 +262,14 @@ CoordinateSection parse_coordinate_section(const std::string& text, int states) 
     if (text[at] != '=') fail("expected = after the index");
     const std::string number = text.substr(at + 1);
     char* end = nullptr;
+    errno = 0;
     const double value = std::strtod(number.c_str(), &end);
     if (number.empty() || end != number.c_str() + number.size() || !std::isfinite(value)) {
-      fail("\"" + number + "\" is not a finite number");
+      fail("\"" + shortened(number) + "\" is not a finite number");
+    }
+    if (errno == ERANGE || (value != 0.0 && std::abs(value) < std::numeric_limits<double>::min())) {
+      fail("\"" + shortened(number) + "\" underflows (its magnitude is below " +
+           format_number(std::numeric_limits<double>::min()) + ")");
     }
     section.value = value;
   }
@@ -343,19 +304,111 @@ FlowOptions default_orbit_flow_options() {
 
 MatrixXd orthogonal_complement(const Eigen::Ref<const VectorXd>& g) {
   const int d = static_cast<int>(g.size());
-  if (!(g.norm() > 0.0) || !g.allFinite()) {
-    throw InvalidArgument("orthogonal_complement: the vector must be finite and nonzero, |g| = " +
-                          format_number(g.norm()));
+  const double scale = d == 0 ? 0.0 : g.cwiseAbs().maxCoeff();
+  if (!(scale > 0.0) || !g.allFinite()) {
+    throw InvalidArgument(
+        "orthogonal_complement: the vector must be finite and nonzero, its largest entry is " +
+        format_number(scale) + (g.allFinite() ? "" : " (an entry is not finite)"));
   }
-  Eigen::HouseholderQR<MatrixXd> qr(g);
+  // Scaled to a largest entry of 1: |g|^2 neither overflows nor underflows.
+  Eigen::HouseholderQR<MatrixXd> qr(VectorXd(g / scale));
   const MatrixXd q = qr.householderQ() * MatrixXd::Identity(d, d);
   return q.rightCols(d - 1);
 }
 
-OrbitStability classify(const GrowthBracket& bracket) {
-  if (bracket.upper < 1.0) return OrbitStability::kStable;
-  if (bracket.lower > 1.0) return OrbitStability::kUnstable;
-  return OrbitStability::kUndecided;
+NewtonEquationSolution solve_newton_equation(const FlowDerivative& map,
+                                             const Eigen::Ref<const MatrixXd>& basis_in,
+                                             const Eigen::Ref<const VectorXd>& rhs_in,
+                                             long max_pieces) {
+  const MatrixXd basis = basis_in;
+  const VectorXd rhs = rhs_in;
+  const int m = static_cast<int>(basis.cols());
+  if (basis.rows() != map.dim() || rhs.size() != m) {
+    throw InvalidArgument("solve_newton_equation: the basis is " + std::to_string(basis.rows()) +
+                          " x " + std::to_string(m) + " and the right-hand side has " +
+                          std::to_string(rhs.size()) + " entries for a map of dimension " +
+                          std::to_string(map.dim()) + " (expected " + std::to_string(map.dim()) +
+                          " x m and m)");
+  }
+  if (!basis.allFinite() || !rhs.allFinite()) {
+    throw InvalidArgument("solve_newton_equation: the basis or the right-hand side is not finite");
+  }
+  NewtonEquationSolution out;
+  const MatrixXd identity = MatrixXd::Identity(m, m);
+  const double scale = 1.0 + rhs.norm();
+  // A solution of the equation on the map itself, to round-off of the pieces' size.
+  auto solves = [&](const VectorXd& c, double residual) {
+    return residual <= 1e-9 * (scale + c.norm());
+  };
+  const MatrixXd at_rhs = basis.transpose() * map.active_jacobian(basis * rhs) * basis;
+  auto same_piece = [](const MatrixXd& a, const MatrixXd& b) {
+    return (a - b).norm() <= FlowDerivative::kLinearTolerance * (1.0 + b.norm());
+  };
+  if (m == 0) {
+    out.c = VectorXd::Zero(0);
+    out.solutions.push_back(out.c);
+    out.pieces_checked = 1;
+    return out;
+  }
+  VectorXd best;
+  double best_residual = std::numeric_limits<double>::infinity();
+  if (piece_count(map) <= static_cast<double>(max_pieces)) {
+    std::vector<MatrixXd> seen;
+    for (const FlowPiece& piece : map.pieces()) {
+      const MatrixXd a = basis.transpose() * piece.matrix * basis;
+      if (std::any_of(seen.begin(), seen.end(),
+                      [&](const MatrixXd& b) { return same_piece(a, b); }))
+        continue;
+      seen.push_back(a);
+      const Eigen::CompleteOrthogonalDecomposition<MatrixXd> cod(a - identity);
+      if (cod.rank() < m) ++out.singular_pieces;
+      const VectorXd c = cod.solve(rhs);
+      if (!c.allFinite()) continue;
+      const double residual = equation_residual(map, basis, c, rhs);
+      if (residual < best_residual) {
+        best_residual = residual;
+        best = c;
+      }
+      if (!solves(c, residual)) continue;
+      const bool known = std::any_of(
+          out.solutions.begin(), out.solutions.end(),
+          [&](const VectorXd& other) { return (other - c).norm() <= 1e-8 * (1.0 + c.norm()); });
+      if (!known) out.solutions.push_back(c);
+    }
+    out.pieces_checked = static_cast<int>(seen.size());
+  } else {
+    // Too many pieces to enumerate: iterate on the active piece from the right-hand side.
+    out.exhaustive = false;
+    VectorXd probe = rhs;
+    for (int round = 1; round <= 50; ++round) {
+      out.rounds = round;
+      const MatrixXd a = basis.transpose() * map.active_jacobian(basis * probe) * basis - identity;
+      const VectorXd c = a.completeOrthogonalDecomposition().solve(rhs);
+      if (!c.allFinite()) break;
+      const double residual = equation_residual(map, basis, c, rhs);
+      if (residual < best_residual) {
+        best_residual = residual;
+        best = c;
+      }
+      if (solves(c, residual)) {
+        out.solutions.push_back(c);
+        break;
+      }
+      if (!(c.norm() > 0.0)) break;
+      probe = c;
+    }
+    out.pieces_checked = out.rounds;
+  }
+  std::sort(out.solutions.begin(), out.solutions.end(),
+            [](const VectorXd& a, const VectorXd& b) { return a.norm() < b.norm(); });
+  out.c = out.solutions.empty() ? (best.size() == m ? best : VectorXd(VectorXd::Zero(m)))
+                                : out.solutions.front();
+  out.residual = equation_residual(map, basis, out.c, rhs);
+  if (out.c.norm() > 0.0) {
+    out.piece_changed =
+        !same_piece(basis.transpose() * map.active_jacobian(basis * out.c) * basis, at_rhs);
+  }
+  return out;
 }
 
 ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
@@ -364,6 +417,8 @@ ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
   check_point("return_map", model, x_in);
   const VectorXd x = x_in;
   const int n = model.surfaces();
+  const int d = model.states();
+  check_section("return_map", section, d, x);
   const Signs sides = sides_at(model, x, options.flow);
   if (sides.size() != n) {
     throw InvalidArgument("return_map: initial_sides has " + std::to_string(sides.size()) +
@@ -372,11 +427,14 @@ ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
   // Crossings of the section before the flow has moved x by more than 100 times the integration
   // tolerance are round-off (x on the section, s(x) = -1e-17): they do not count. A point the
   // flow cannot move that far within max_return_time is (nearly) an equilibrium: no period.
-  const int d = model.states();
   VectorXd f0(d);
   model.field(x.data(), sides, f0.data());
+  if (!f0.allFinite()) {
+    throw InvalidArgument("return_map: the field is not finite at the point (|F| = " +
+                          format_number(f0.norm()) + ")");
+  }
   const IntegratorOptions& integ = options.flow.integrator;
-  const double floor = 100.0 * (integ.atol.value_or(1e-2 * integ.rtol) + integ.rtol * inf_norm(x));
+  const double floor = 100.0 * (integ.absolute_tolerance() + integ.rtol * inf_norm(x));
   const double speed = inf_norm(f0);
   if (!(speed * options.max_return_time > floor)) {
     throw InvalidArgument(
@@ -386,33 +444,64 @@ ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
         ", not more than 100 times the integration tolerance " + format_number(floor / 100.0));
   }
   const double earliest = std::max(options.min_return_time, floor / speed);
-  // Locate the return on the model with the section as an extra surface, window by window.
+  // Locate the return on the model with the section as an extra surface, window by window. The
+  // section's side at x: its sign, and on the section the side the flow heads to (the side -
+  // when it does not move across it to first order: a crossing that follows at once is earlier
+  // than `earliest` and does not count).
   const SectionModel augmented(model, section);
   FlowOptions search = options.flow;
   const double s0 = section.value(x);
+  const double rate0 = section.gradient(x).dot(f0);
   std::uint64_t bits = sides.bits();
-  if (!(s0 < 0.0)) bits |= std::uint64_t{1} << n;
+  if (s0 > 0.0 || (s0 == 0.0 && rate0 > 0.0)) bits |= std::uint64_t{1} << n;
   Signs aug_sides(n + 1, bits);
   VectorXd y = x;
   double elapsed = 0.0;
   double tau = -1.0;
-  while (tau < 0.0) {
-    if (elapsed >= options.max_return_time) {
+  long steps_left = integ.max_steps;
+  ReturnMap out;
+  for (long window_index = 0; tau < 0.0; ++window_index) {
+    if (elapsed >= options.max_return_time || window_index >= OrbitOptions::kMaxReturnWindows) {
       throw InvalidArgument("return_map: no crossing of the section from s < 0 to s > 0 within " +
                             format_number(options.max_return_time) +
                             " after leaving the point (OrbitOptions::max_return_time)");
     }
     const double window = std::min(options.return_search_window, options.max_return_time - elapsed);
     search.initial_sides = aug_sides;
-    const FlowResult run = simulate(augmented, y, window, search);
+    search.integrator.max_steps = steps_left;
+    FlowResult run;
+    try {
+      run = simulate(augmented, y, window, search);
+    } catch (const InvalidArgument& e) {
+      // An event the search cannot resolve as grouped (the section crossed where the model's
+      // surfaces are, normals dependent there): the search needs only the crossing times, so it
+      // resolves every crossing on its own; the return map's derivative does not use it.
+      if (search.grouping == Grouping::kNone) {
+        throw InvalidArgument("return_map: searching for the return at t = " +
+                              format_number(elapsed) + ": " + e.what());
+      }
+      search.grouping = Grouping::kNone;
+      out.decisions.push_back(
+          "the search for the return resolved each crossing on its own from t = " +
+          format_number(elapsed) +
+          ", because an event grouped with the section failed: " + e.what());
+      --window_index;
+      continue;
+    }
+    steps_left -= run.steps;
     if (!run.ok()) {
+      const bool budget = run.status == IntegrationStatus::kTooManySteps;
       throw InvalidArgument("return_map: the simulation stopped at t = " +
-                            format_number(elapsed + run.t) + ": " + run.message);
+                            format_number(elapsed + run.t) + ": " + run.message +
+                            (budget ? " (the search for the return has a budget of " +
+                                          std::to_string(integ.max_steps) +
+                                          " steps in all: IntegratorOptions::max_steps)"
+                                    : std::string()));
     }
     for (const EventRecord& event : run.events) {
       const bool section_up =
           std::find(event.surfaces.begin(), event.surfaces.end(), n) != event.surfaces.end() &&
-          event.sides_after.plus(n);
+          event.sides_after.plus(n) && !event.sides_before.plus(n);
       const double t = elapsed + event.t;
       if (section_up && t > earliest) {
         tau = t;
@@ -430,14 +519,13 @@ ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
   FlowDerivative derivative = flow_derivative(model, x, tau, flow, &trajectory);
   VectorXd f(d);
   model.field(trajectory.x.data(), trajectory.sides, f.data());
-  const VectorXd g = section.gradient(trajectory.x);
+  const VectorXd g = section_gradient(section, trajectory.x);
   const double rate = g.dot(f);
   if (!(std::abs(rate) > 1e-12 * g.norm() * f.norm()) || !std::isfinite(rate)) {
     throw InvalidArgument("return_map: the trajectory grazes the section at t = " +
                           format_number(tau) + " (Ds . F = " + format_number(rate) + ")");
   }
   const double shift = -section.value(trajectory.x) / rate;
-  ReturnMap out;
   out.x = x;
   out.image = trajectory.x + shift * f;
   out.time = tau + shift;
@@ -448,128 +536,40 @@ ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
   return out;
 }
 
-GrowthBracket growth_rate_bracket(const FlowDerivative& map, const MatrixXd& basis,
-                                  const OrbitOptions& options) {
-  check_options(options);
-  GrowthBracket bracket;
-  const int m = static_cast<int>(basis.cols());
-  if (m == 0) return bracket;
-  const std::vector<MatrixXd> pieces = restricted_pieces(map, basis);
-  bracket.pieces = static_cast<int>(pieces.size());
-  if (pieces.size() == 1) {
-    Eigen::EigenSolver<MatrixXd> eig(pieces.front());
-    for (Eigen::Index i = 0; i < eig.eigenvalues().size(); ++i) {
-      bracket.multipliers.push_back(eig.eigenvalues()[i]);
-    }
-    std::sort(bracket.multipliers.begin(), bracket.multipliers.end(),
-              [](const std::complex<double>& a, const std::complex<double>& b) {
-                return std::abs(a) > std::abs(b);
-              });
-    bracket.lower = bracket.upper = std::abs(bracket.multipliers.front());
-    bracket.lower_period = bracket.upper_length = 1;
-    return bracket;
+namespace {
+
+// The largest distance |phi_t(x) - x|_inf over one period: at the events and at 32 equal times.
+double excursion(const SegmentModel& model, const VectorXd& x, const ReturnMap& map,
+                 const FlowOptions& flow) {
+  double largest = 0.0;
+  for (const EventRecord& e : map.events) largest = std::max(largest, inf_norm(e.rho - x));
+  FlowOptions options = flow;
+  VectorXd y = x;
+  const int samples = 32;
+  for (int k = 0; k < samples; ++k) {
+    const FlowResult r = simulate(model, y, map.time / samples, options);
+    if (!r.ok()) break;
+    y = r.x;
+    options.initial_sides = r.sides;
+    largest = std::max(largest, inf_norm(y - x));
   }
-  // Lower: directions that L maps (in one or two steps) onto positive multiples of themselves.
-  const double check = 1e-7;
-  auto consider = [&](const VectorXd& z) {
-    const LowerCandidate c = periodic_direction(map, basis, z, check);
-    if (c.period > 0 && c.rate > bracket.lower) {
-      bracket.lower = c.rate;
-      bracket.lower_period = c.period;
-    }
-  };
-  for (const MatrixXd& a : pieces) {
-    Eigen::EigenSolver<MatrixXd> eig(a);
-    for (Eigen::Index i = 0; i < eig.eigenvalues().size(); ++i) {
-      if (std::abs(eig.eigenvalues()[i].imag()) > 1e-12 * std::abs(eig.eigenvalues()[i])) continue;
-      const VectorXd v = eig.eigenvectors().col(i).real();
-      consider(v);
-      consider(-v);
-    }
-  }
-  std::mt19937 random(12345);
-  std::normal_distribution<double> normal;
-  for (int k = 0; k < options.growth_directions; ++k) {
-    VectorXd z(m);
-    if (k < 2 * m) {
-      z.setZero();
-      z[k / 2] = (k % 2 == 0) ? 1.0 : -1.0;
-    } else {
-      for (int i = 0; i < m; ++i) z[i] = normal(random);
-    }
-    for (int it = 0; it < options.growth_iterations; ++it) {
-      const VectorXd w = basis.transpose() * map.apply(basis * z);
-      const double norm = w.norm();
-      if (!(norm > 0.0) || !std::isfinite(norm)) break;
-      z = w / norm;
-    }
-    consider(z);
-  }
-  // Upper: the joint spectral radius bound in several norms.
-  bracket.upper = std::numeric_limits<double>::infinity();
-  std::vector<MatrixXcd> frames{MatrixXcd::Identity(m, m)};
-  for (const MatrixXd& a : pieces) {
-    Eigen::ComplexSchur<MatrixXcd> schur(a.cast<std::complex<double>>());
-    for (double t : {1.0, 1e-2, 1e-4}) {
-      MatrixXcd frame = schur.matrixU();
-      double scale = 1.0;
-      for (int j = 0; j < m; ++j) {
-        frame.col(j) *= scale;
-        scale *= t;
-      }
-      frames.push_back(frame);
-    }
-  }
-  // A common flag of the pieces, when they have one (a common triangular form): in it, scaled,
-  // every piece's norm tends to its diagonal's largest entry, so single pieces (k = 1) bound
-  // rho(L) tightly.
-  {
-    const MatrixXcd q = common_flag(pieces);
-    for (double t : {1e-2, 1e-4, 1e-6, 1e-8}) {
-      MatrixXcd frame = q;
-      double scale = 1.0;
-      for (int j = 0; j < m; ++j) {
-        frame.col(j) *= scale;
-        scale *= t;
-      }
-      const Eigen::FullPivLU<MatrixXcd> lu(frame);
-      if (!lu.isInvertible()) continue;
-      const MatrixXcd inverse = lu.inverse();
-      double worst = 0.0;
-      for (const MatrixXd& b : pieces) {
-        worst = std::max(worst, operator_norm(inverse * b.cast<std::complex<double>>() * frame));
-      }
-      if (worst < bracket.upper) {
-        bracket.upper = worst;
-        bracket.upper_length = 1;
-      }
-    }
-  }
-  for (const MatrixXcd& frame : frames) {
-    const Eigen::FullPivLU<MatrixXcd> lu(frame);
-    if (!lu.isInvertible()) continue;
-    const MatrixXcd inverse = lu.inverse();
-    std::vector<MatrixXcd> local;
-    for (const MatrixXd& a : pieces)
-      local.push_back(inverse * a.cast<std::complex<double>>() * frame);
-    const auto [bound, length] =
-        product_bound(local, options.max_product_length, options.max_products);
-    if (bound < bracket.upper) {
-      bracket.upper = bound;
-      bracket.upper_length = length;
-    }
-  }
-  bracket.upper = std::max(bracket.upper, bracket.lower);
-  return bracket;
+  return largest;
 }
+
+std::string cut(const std::string& text, std::size_t limit = 400) {
+  return text.size() <= limit ? text : text.substr(0, limit) + "...";
+}
+
+}  // namespace
 
 PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSection& section,
                                   const Eigen::Ref<const VectorXd>& x_guess,
                                   const OrbitOptions& options) {
   check_options(options);
   check_point("find_periodic_orbit", model, x_guess);
+  check_section("find_periodic_orbit", section, model.states(), x_guess);
   PeriodicOrbit orbit;
-  VectorXd x = project(section, x_guess);
+  VectorXd x = projected(section, x_guess, "find_periodic_orbit: the guess");
   ReturnMap current;
   try {
     current = return_map(model, section, x, options);
@@ -578,7 +578,34 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
     orbit.message = std::string("the guess has no return map: ") + e.what();
     return orbit;
   }
+  // A guess the flow does not carry across the section from s < 0 to s > 0 (it crosses the other
+  // way, or touches it) is no point of an orbit through the section: its return P(x) is.
+  {
+    const Signs sides = sides_at(model, x, options.flow);
+    VectorXd f(model.states());
+    model.field(x.data(), sides, f.data());
+    const VectorXd g = section_gradient(section, x);
+    const double rate = g.dot(f);
+    if (!(rate > 1e-12 * g.norm() * f.norm())) {
+      orbit.decisions.push_back(
+          "the guess does not cross the section from s < 0 to s > 0 (Ds . F = " +
+          format_number(rate) +
+          "): the search started from its return P(guess), at t = " + format_number(current.time));
+      for (const std::string& d : current.decisions) orbit.decisions.push_back(d);
+      x = current.image;
+      try {
+        current = return_map(model, section, x, options);
+      } catch (const InvalidArgument& e) {
+        orbit.x = x;
+        orbit.message = std::string("the guess's return P(guess) has no return map: ") + e.what();
+        return orbit;
+      }
+    }
+  }
+  for (const std::string& d : current.decisions) orbit.decisions.push_back(d);
   double step_length = 0.0;
+  NewtonEquationSolution last_solve;
+  bool solved_once = false;
   for (int iteration = 0;; ++iteration) {
     const VectorXd r = current.image - x;
     const double residual = inf_norm(r);
@@ -591,6 +618,11 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
     for (const EventRecord& e : current.events) {
       step.largest_event = std::max(step.largest_event, e.group_size());
     }
+    if (solved_once) {
+      step.solutions = static_cast<int>(last_solve.solutions.size());
+      step.pieces_checked = last_solve.pieces_checked;
+      step.piece_changed = last_solve.piece_changed;
+    }
     orbit.steps.push_back(step);
     if (options.progress) options.progress(step);
     orbit.newton_iterations = iteration;
@@ -600,17 +632,46 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
     }
     if (iteration >= options.max_newton_iterations) {
       orbit.message = "Newton's method did not converge in " + std::to_string(iteration) +
-                      " iterations: |P(x) - x| = " + format_number(residual) + " > " +
+                      " iterations (OrbitOptions::max_newton_iterations): |P(x) - x| = " +
+                      format_number(residual) + " > " +
                       format_number(options.tolerance * (1.0 + inf_norm(x)));
       break;
     }
-    const MatrixXd basis = orthogonal_complement(section.gradient(x));
-    const VectorXd c = newton_direction(current.derivative, basis, -(basis.transpose() * r));
+    const MatrixXd basis = orthogonal_complement(section_gradient(section, x));
+    last_solve = solve_newton_equation(current.derivative, basis, -(basis.transpose() * r));
+    solved_once = true;
+    if (last_solve.solutions.empty()) {
+      orbit.decisions.push_back(
+          "iteration " + std::to_string(iteration) +
+          ": the Newton equation DP(x; d) - d = -(P(x) - x) has no solution" +
+          (last_solve.exhaustive
+               ? " on any of the " + std::to_string(last_solve.pieces_checked) + " pieces"
+               : " found in " + std::to_string(last_solve.rounds) +
+                     " rounds on the active piece (too many pieces to check)") +
+          "; the step of least residual (" + format_number(last_solve.residual) + ") was tried");
+    } else if (last_solve.solutions.size() > 1) {
+      orbit.decisions.push_back(
+          "iteration " + std::to_string(iteration) + ": the Newton equation has " +
+          std::to_string(last_solve.solutions.size()) +
+          " solutions; the shortest step was taken (|d| = " + format_number(last_solve.c.norm()) +
+          ")");
+    }
+    const VectorXd c = last_solve.c;
     double alpha = 1.0;
     bool accepted = false;
     std::string last_error;
+    std::string stop;
     for (int backtrack = 0; backtrack <= options.max_backtracks; ++backtrack, alpha *= 0.5) {
-      const VectorXd trial = project(section, x + alpha * (basis * c));
+      VectorXd trial = x + alpha * (basis * c);
+      if (!project(section, trial)) {
+        last_error = "the step could not be projected back onto the section";
+        continue;
+      }
+      if (trial == x) {
+        stop = "the step shrank below the round-off of x after " + std::to_string(backtrack) +
+               " halvings";
+        break;
+      }
       try {
         ReturnMap next = return_map(model, section, trial, options);
         if (inf_norm(next.image - trial) < residual) {
@@ -620,7 +681,7 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
           break;
         }
       } catch (const InvalidArgument& e) {
-        last_error = e.what();
+        last_error = cut(e.what());
       }
     }
     step_length = alpha;
@@ -634,6 +695,9 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
       orbit.message =
           "Newton's line search found no decrease of |P(x) - x| = " + format_number(residual) +
           " at iteration " + std::to_string(iteration) +
+          (stop.empty() ? " in " + std::to_string(options.max_backtracks) +
+                              " halvings (OrbitOptions::max_backtracks)"
+                        : " (" + stop + ")") +
           (last_error.empty() ? "" : " (last failure: " + last_error + ")");
       break;
     }
@@ -643,8 +707,23 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
   orbit.residual = inf_norm(current.image - x);
   orbit.events = current.events;
   orbit.notices = current.notices;
-  orbit.tangent_basis = orthogonal_complement(section.gradient(x));
+  orbit.tangent_basis = orthogonal_complement(section_gradient(section, x));
   orbit.return_map = std::move(current.derivative);
+  if (orbit.converged) {
+    // A point whose trajectory stays, over the whole "period", within 1000 times Newton's
+    // tolerance of it is indistinguishable from an equilibrium (the iterates may slide to rest
+    // while P(x) - x shrinks): no periodic orbit.
+    const double reach = excursion(model, x, current, options.flow);
+    const double resolution = 1000.0 * options.tolerance * (1.0 + inf_norm(x));
+    if (!(reach > resolution)) {
+      orbit.converged = false;
+      orbit.message =
+          "the iteration ended at an equilibrium, not a periodic orbit: over the return "
+          "time " +
+          format_number(current.time) + " the trajectory stays within " + format_number(reach) +
+          " of x, not more than 1000 times Newton's tolerance (" + format_number(resolution) + ")";
+    }
+  }
   if (orbit.converged && options.stability) {
     try {
       orbit.bracket = growth_rate_bracket(orbit.return_map, orbit.tangent_basis, options);

@@ -71,9 +71,21 @@ class PoincareSection {
  public:
   virtual ~PoincareSection() = default;
   virtual double value(const Eigen::Ref<const Eigen::VectorXd>& x) const = 0;
-  /** Ds(x), d numbers. */
+  /** Ds(x), d numbers (the library checks the count and that they are finite). */
   virtual Eigen::VectorXd gradient(const Eigen::Ref<const Eigen::VectorXd>& x) const = 0;
+  /** Called once with the model's state count before the section is evaluated: throws
+      InvalidArgument when the section cannot be evaluated on such states (an index out of
+      range). The default accepts every count. */
+  virtual void check(int /*states*/) const {}
 };
+
+namespace orbits_detail {
+template <typename Section, typename = void>
+struct HasCheck : std::false_type {};
+template <typename Section>
+struct HasCheck<Section, std::void_t<decltype(std::declval<const Section&>().check(0))>>
+    : std::true_type {};
+}  // namespace orbits_detail
 
 /** A templated functor `template <typename T> T operator()(const T* x) const` as a section; its
     gradient by Jets (one pass per state). */
@@ -96,6 +108,10 @@ class SectionAdapter final : public PoincareSection {
     }
     return g;
   }
+  /** Forwards to the functor's `void check(int states) const` when it has one. */
+  void check(int states) const override {
+    if constexpr (orbits_detail::HasCheck<Section>::value) section_.check(states);
+  }
 
  private:
   Section section_;
@@ -111,6 +127,8 @@ struct CoordinateSection {
   T operator()(const T* x) const {
     return T(sign) * (x[index] - T(value));
   }
+  /** @throws InvalidArgument unless 0 <= index < states, value is finite and sign is +-1. */
+  void check(int states) const;
 };
 
 /** Parses "x4" (s = x_4), "-x4" (s = -x_4), "x1=0.3" (s = x_1 - 0.3), "-x1=0.3".
@@ -134,6 +152,13 @@ struct OrbitNewtonStep {
   double step_length = 0.0;  ///< the line search's factor (0 before the first step)
   int events = 0;            ///< events in one period
   int largest_event = 0;     ///< the most surfaces crossed at one event
+  /** The Newton equation of the step that led here (0 before the first step): its solutions
+      found, the distinct pieces checked, and whether the piece active at the solution differs
+      from the piece active at the right-hand side (where iterating on the active piece from the
+      right-hand side would have needed a second round). */
+  int solutions = 0;
+  int pieces_checked = 0;
+  bool piece_changed = false;
 };
 
 struct OrbitOptions {
@@ -141,12 +166,17 @@ struct OrbitOptions {
   /** Converged when |P(x) - x|_inf <= tolerance (1 + |x|_inf). */
   double tolerance = 1e-8;
   int max_newton_iterations = 40;
-  /** Backtracking halvings per Newton step before the step is taken as it is. */
+  /** Backtracking halvings per Newton step (<= kMaxBacktracks); a step that shrinks below the
+      round-off of x ends the line search earlier. */
   int max_backtracks = 20;
+  static constexpr int kMaxBacktracks = 1100;
   /** A return is searched for up to this time after leaving x (> 0); the search simulates in
       windows of return_search_window (> 0), the last return time when one is known. */
   double max_return_time = 100.0;
   double return_search_window = 1.0;
+  /** At most this many windows cover max_return_time (a smaller window is refused). The whole
+      search takes at most flow.integrator.max_steps steps. */
+  static constexpr long kMaxReturnWindows = 100000;
   /** Crossings of the section earlier than this after leaving x do not count (>= 0). */
   double min_return_time = 0.0;
   /** The stability bracket: directions for the power iteration, its steps, and the longest
@@ -161,6 +191,30 @@ struct OrbitOptions {
   std::function<void(const OrbitNewtonStep&)> progress;
 };
 
+/** The solutions of a piecewise-linear equation  B^T DP(B c) - c = rhs  (see
+    solve_newton_equation). */
+struct NewtonEquationSolution {
+  /** Every solution found, the least |c| first; empty when there is none. */
+  std::vector<Eigen::VectorXd> solutions;
+  /** The c used: solutions[0], or when there is none the c of least residual among the pieces'
+      solutions (a least-squares step). */
+  Eigen::VectorXd c;
+  /** |B^T DP(B c) - c - rhs|_2 at c. */
+  double residual = 0.0;
+  /** Distinct pieces of B^T DP B solved on. */
+  int pieces_checked = 0;
+  /** True when every piece was checked (the solution list is complete); false when the pieces
+      were too many to enumerate and the equation was solved by iterating on the active piece. */
+  bool exhaustive = true;
+  /** Rounds of the active-piece iteration (0 when exhaustive). */
+  int rounds = 0;
+  /** Pieces whose matrix B^T M B - I is singular: their solutions form an affine set of which
+      only the least-norm point was checked, so a solution in such a piece may be missed. */
+  int singular_pieces = 0;
+  /** The piece active at the solution (or at c) is not the one active at rhs. */
+  bool piece_changed = false;
+};
+
 /** P(x), the return time and the return map's B-derivative at x. */
 struct ReturnMap {
   Eigen::VectorXd x;                ///< where the map was evaluated
@@ -169,6 +223,9 @@ struct ReturnMap {
   FlowDerivative derivative{1};     ///< DP(x; .)
   std::vector<EventRecord> events;  ///< the period's events
   std::vector<FlowNotice> notices;
+  /** What the search decided (a crossing resolved on its own because an event grouped with the
+      section could not be resolved). */
+  std::vector<std::string> decisions;
 };
 
 /** The growth-rate bracket of a piecewise-linear map and how each end was obtained. */
@@ -240,6 +297,19 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const Section& sect
                                   const OrbitOptions& options = {}) {
   return find_periodic_orbit(model, SectionAdapter<Section>(section), x_guess, options);
 }
+
+/** Solves the piecewise-linear equation  B^T DP(B c) - c = rhs  (B = basis, d x m) exactly: on
+    each distinct piece M of DP, the linear system (B^T M B - I) c = rhs, keeping the c that
+    solve the equation on the map itself (each c is checked with DP.apply, not with the piece it
+    came from). Every solution lies in the closed cone of some piece, where DP(B c) = M B c, so
+    when every piece's B^T M B - I is invertible the list is complete. Up to max_pieces distinct
+    pieces are enumerated; beyond, the active piece is iterated on (at most 50 rounds) and
+    `exhaustive` is false. @throws InvalidArgument on sizes that do not match or non-finite
+    input. */
+NewtonEquationSolution solve_newton_equation(const FlowDerivative& map,
+                                             const Eigen::Ref<const Eigen::MatrixXd>& basis,
+                                             const Eigen::Ref<const Eigen::VectorXd>& rhs,
+                                             long max_pieces = 4096);
 
 /** The bracket of the growth rate of L = map restricted to span(basis) (d x m, orthonormal
     columns; the map's images must lie in that span). */
