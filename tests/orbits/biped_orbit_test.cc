@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <string>
 
 #include <gtest/gtest.h>
 #include <Eigen/Dense>
@@ -214,6 +215,95 @@ TEST_F(BipedOrbit, VerdictUnstableMatchesTheGrowthOfTrueIterates) {
     EXPECT_NEAR(observed, orbit.growth_rate_upper, 1e-4 * orbit.growth_rate_upper);
     std::printf("growth: bracket [%.9f, %.9f], true iterates %.9f\n", orbit.growth_rate_lower,
                 orbit.growth_rate_upper, observed);
+  });
+}
+
+// The section y = 0.7 lies below the apex (0.7246): the default guess (at rest at 0.7 after the
+// projection) does not cross it at all, and a guess moving down crosses it the wrong way. Both
+// start from their return P(guess), which crosses upwards, and say so.
+TEST_F(BipedOrbit, SectionBelowTheApexIsFoundFromGuessesThatDoNotCrossItUpwards) {
+  const CoordinateSection section = parse_coordinate_section("x1=0.7", 6);
+  const Hop reference = vertical_orbit(hopper(), 0.8);
+  // The hop by hand crosses y = 0.7 upwards at the speed sqrt(2 g (apex - 0.7)).
+  const double speed = std::sqrt(2.0 * hopper().g * (reference.apex - 0.7));
+  Eigen::VectorXd falling(6);
+  falling << 0.0, 0.75, 0.0, 0.0, -0.5, 0.0;
+  with_model([&](const SegmentModel& model) {
+    for (const Eigen::VectorXd& start : {guess(), falling}) {
+      const PeriodicOrbit orbit = find_periodic_orbit(model, section, start);
+      ASSERT_TRUE(orbit.converged) << orbit.message;
+      std::printf("y = 0.7 from ydot = %g: speed %.12f (by hand %.12f), period %.12f, newton %d\n",
+                  start[4], orbit.x[4], speed, orbit.period, orbit.newton_iterations);
+      EXPECT_NEAR(orbit.x[1], 0.7, 1e-12);
+      // Achieved: 1.1e-8 and 1.3e-8 (the hop's apex error 8e-10 times g / speed = 14).
+      EXPECT_NEAR(orbit.x[4], speed, 5e-8);
+      EXPECT_NEAR(orbit.period, reference.time, 2e-8);
+      ASSERT_FALSE(orbit.decisions.empty());
+      EXPECT_NE(orbit.decisions.front().find("does not cross the section from s < 0 to s > 0"),
+                std::string::npos)
+          << orbit.decisions.front();
+      EXPECT_EQ(orbit.stability, OrbitStability::kUnstable);
+    }
+  });
+}
+
+// Without thrust the biped comes to rest standing: Newton's iterates slide to that equilibrium
+// while |P(x) - x| shrinks with the dying oscillation. That is no periodic orbit, at the default
+// tolerance or a tight one.
+TEST_F(BipedOrbit, IteratesSlidingToRestAreAnEquilibriumNotAnOrbit) {
+  BipedParams passive = hopper();
+  passive.thrust = 0.0;
+  const BipedModeDampingScene scene = make_biped_mode_damping(passive);
+  const auto model = adapt(scene);
+  for (double tolerance : {1e-8, 1e-12}) {
+    OrbitOptions options;
+    options.tolerance = tolerance;
+    const PeriodicOrbit orbit = find_periodic_orbit(model, kApex, guess(), options);
+    EXPECT_FALSE(orbit.converged) << "tolerance " << tolerance << ": period " << orbit.period;
+    EXPECT_NE(orbit.message.find("equilibrium"), std::string::npos) << orbit.message;
+    // It ended at the standing height: the legs' springs carry the weight.
+    const double s = std::sin(passive.psi);
+    const double touchdown = passive.leg_length * std::cos(passive.psi) -
+                             passive.leg_length * passive.leg_length * s * s;
+    const double standing = touchdown - passive.m * passive.g / (2.0 * passive.kappa);
+    EXPECT_NEAR(orbit.x[1], standing, 1e-6) << orbit.message;
+  }
+}
+
+// Loops the user bounds: a search window so small that the windows could not be counted, an
+// unbounded line search with an unreachable tolerance, and a guess far out of range all end
+// with a status that names what bounded them.
+TEST_F(BipedOrbit, EveryLoopEndsWithAStatusNamingItsBound) {
+  with_model([&](const SegmentModel& model) {
+    OrbitOptions tiny_window;
+    tiny_window.return_search_window = 1e-20;
+    try {
+      find_periodic_orbit(model, kApex, guess(), tiny_window);
+      ADD_FAILURE() << "a window of 1e-20 was accepted";
+    } catch (const InvalidArgument& e) {
+      EXPECT_NE(std::string(e.what()).find("windows"), std::string::npos) << e.what();
+    }
+    OrbitOptions endless;
+    endless.max_backtracks = 1 << 30;
+    EXPECT_THROW(find_periodic_orbit(model, kApex, guess(), endless), InvalidArgument);
+    OrbitOptions unreachable;
+    unreachable.max_backtracks = OrbitOptions::kMaxBacktracks;
+    unreachable.tolerance = 1e-300;
+    unreachable.max_newton_iterations = 8;
+    unreachable.stability = false;
+    const PeriodicOrbit orbit = find_periodic_orbit(model, kApex, guess(), unreachable);
+    EXPECT_FALSE(orbit.converged);
+    // Either the iteration budget or a step below the round-off of x ends it.
+    EXPECT_TRUE(orbit.message.find("max_newton_iterations") != std::string::npos ||
+                orbit.message.find("round-off") != std::string::npos)
+        << orbit.message;
+    EXPECT_LE(orbit.newton_iterations, 8);
+
+    Eigen::VectorXd far = Eigen::VectorXd::Zero(6);
+    far[1] = -1e306;
+    const PeriodicOrbit lost = find_periodic_orbit(model, kApex, far);
+    EXPECT_FALSE(lost.converged);
+    EXPECT_FALSE(lost.message.empty());
   });
 }
 
