@@ -23,6 +23,7 @@
 
 #include "bflow/examples/corner_orbit.h"
 #include "bflow/integrators/model_adapter.h"
+#include "bflow/orbits/orbit_family.h"
 #include "bflow/orbits/periodic_orbit.h"
 #include "support/error_message.h"
 
@@ -743,6 +744,59 @@ TEST(PeriodicOrbitInput, SectionsAndBasesOfTheWrongSizeAreRefused) {
               HasSubstr("underflows"));
   const std::string long_text = "x1=" + std::string(100000, '7') + "z";
   EXPECT_LT(testing::message_of([&] { parse_coordinate_section(long_text, 6); }).size(), 400u);
+}
+
+// A family of corner orbits through three surfaces at once, along omega. Every member found
+// crosses the three at one instant (six pieces, 3!) and matches its closed form; the member at
+// omega = 1e-6 has no return within max_return_time (its period is 6e6) and is not found, and
+// the family goes on past it from the last member found.
+TEST(CornerOrbitFamily, SixPiecesAlongAFamilyThatLosesAMemberInTheMiddle) {
+  const std::vector<double> omegas = {kTwoPi, 0.8 * kTwoPi, 0.6 * kTwoPi,
+                                      1e-6,   0.5 * kTwoPi, 0.45 * kTwoPi};
+  const CornerOrbitSection section;
+  std::vector<int> progress;
+  OrbitFamilyOptions options;
+  options.progress = [&](int k, const OrbitFamilyMember&) { progress.push_back(k); };
+  const std::vector<OrbitFamilyMember> family = continue_orbits(
+      omegas, on_section(1.1, 0.0, 4),
+      [&](double omega, const Eigen::VectorXd& guess) {
+        CornerOrbit m = CornerOrbit::with_surfaces(3);
+        m.omega = omega;
+        return find_periodic_orbit(adapt(m), section, guess);
+      },
+      options);
+  ASSERT_EQ(family.size(), omegas.size());
+  EXPECT_EQ(progress, (std::vector<int>{0, 1, 2, 3, 4, 5}));
+  for (std::size_t k = 0; k < family.size(); ++k) {
+    const OrbitFamilyMember& member = family[k];
+    if (k == 3) {
+      EXPECT_FALSE(member.orbit.converged);
+      EXPECT_THAT(member.orbit.message, HasSubstr("max_return_time"));
+      continue;
+    }
+    ASSERT_TRUE(member.orbit.converged) << "omega " << omegas[k] << ": " << member.orbit.message;
+    CornerOrbit m = CornerOrbit::with_surfaces(3);
+    m.omega = omegas[k];
+    const HandOrbit hand = hand_orbit(m);
+    EXPECT_NEAR(member.orbit.period, kTwoPi / omegas[k], 1e-9);
+    EXPECT_LT((member.orbit.x - on_section(1.0, hand.w_star, 4)).lpNorm<Eigen::Infinity>(), 1e-9);
+    int largest = 0;
+    for (const EventRecord& e : member.orbit.events) largest = std::max(largest, e.group_size());
+    EXPECT_EQ(largest, 3);
+    EXPECT_EQ(member.orbit.return_map.pieces().size(), 6u);
+    EXPECT_EQ(member.orbit.stability, OrbitStability::kStable);
+    EXPECT_NEAR(member.orbit.growth_rate_upper, std::max(hand.mu_r, hand.mu_w), 1e-8);
+  }
+  // The predictors: the caller's guess, the first member, then the secant of the last two found
+  // (over the member not found: omega = 0.5 2 pi from 0.8 and 0.6).
+  EXPECT_EQ(family[0].predictor, "guess");
+  EXPECT_EQ(family[1].predictor, "previous");
+  EXPECT_EQ(family[2].predictor, "secant");
+  EXPECT_EQ(family[4].predictor, "secant");
+  EXPECT_TRUE(family[4].guess.isApprox(1.5 * family[2].orbit.x - 0.5 * family[1].orbit.x, 1e-14));
+  EXPECT_THROW(continue_orbits({1.0, std::nan("")}, on_section(1.0, 0.0, 4),
+                               [](double, const Eigen::VectorXd&) { return PeriodicOrbit{}; }),
+               InvalidArgument);
 }
 
 }  // namespace
