@@ -355,7 +355,8 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->allow_extra_args(false);
     flow->add_option("--rtol", flow_options.rtol, "Relative tolerance, > 0 (default 1e-8)")
         ->type_name("R");
-    flow->add_option("--atol", flow_options.atol, "Absolute tolerance, > 0 (default: rtol / 100)")
+    flow->add_option("--atol", flow_options.atol,
+                     "Absolute tolerance, >= 1e-20 (default: rtol / 100)")
         ->type_name("A");
     flow->add_option("--grouping", flow_options.grouping,
                      "How crossings become one event: auto (a window from the tolerances and "
@@ -535,7 +536,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->type_name("R");
     orbit
         ->add_option("--atol", orbit_options.atol,
-                     "Absolute tolerance, > 0 (default 1e-12, or rtol / 100 with --rtol)")
+                     "Absolute tolerance, >= 1e-20 (default 1e-12, or rtol / 100 with --rtol)")
         ->type_name("A");
     orbit
         ->add_option("--plot", orbit_options.plot,
@@ -610,7 +611,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->type_name("R");
     sweep
         ->add_option("--atol", sweep_options.flow.atol,
-                     "Absolute tolerance, > 0 (default: rtol / 100)")
+                     "Absolute tolerance, >= 1e-20 (default: rtol / 100)")
         ->type_name("A");
     sweep
         ->add_option("--grouping", sweep_options.flow.grouping,

@@ -3,13 +3,14 @@
 // bracket and the verdict; with --vary-param a family of orbits by natural-parameter continuation
 // (format in docs/cli.md).
 //
-// Every option is validated before the first simulation, the varied parameter at its ends
-// included, so that bad input is exit code 2 with nothing written. An orbit that Newton's method
-// does not find is a result, not an exception (PeriodicOrbit::converged): the JSON is printed,
-// stderr ends with one "error: orbit: ..." line and the exit code is 1, as for an optimal control
-// problem that is not solved. A family goes on past an orbit that is not found, from the last
-// orbit that was.
+// Every option is validated before the first simulation, every value of the varied parameter and
+// the paths of --output and --plot against each other included, so that bad input is exit code 2
+// with nothing written or created. An orbit that Newton's method does not find is a result, not
+// an exception (PeriodicOrbit::converged): the JSON is printed, stderr ends with one "error:
+// orbit: ..." line and the exit code is 1, as for an optimal control problem that is not solved.
+// A family goes on past an orbit that is not found, from the last orbit that was.
 #include <algorithm>
+#include <cfloat>
 #include <chrono>
 #include <cmath>
 #include <complex>
@@ -75,11 +76,19 @@ struct VaryAxis {
   std::string key;
   double lo = 0.0, hi = 0.0;
   int count = 2;
+  // LO, HI and count - 2 values evenly between; when HI - LO is beyond the double range
+  // (-1e308:1e308), a weighted mean of the ends, which stays within it.
   double value(int k) const {
     if (k == count - 1) return hi;
-    return lo + (hi - lo) * static_cast<double>(k) / static_cast<double>(count - 1);
+    const double s = static_cast<double>(k) / static_cast<double>(count - 1);
+    const double width = hi - lo;
+    if (std::isfinite(width)) return lo + width * s;
+    return lo * (1.0 - s) + hi * s;
   }
 };
+
+// The key as part of an option's name in a message: at most 60 characters, escaped.
+std::string key_text(const VaryAxis& axis) { return escaped(axis.key, 60, false); }
 
 // "key=lo:hi:count" with count >= 2. @throws InputError naming --vary-param.
 VaryAxis parse_vary(const std::string& text) {
@@ -98,7 +107,7 @@ VaryAxis parse_vary(const std::string& text) {
   }
   VaryAxis axis;
   axis.key = trimmed(text.substr(0, equals));
-  const std::string name = option + " " + axis.key;
+  const std::string name = option + " " + key_text(axis);
   axis.lo = parse_number(range.substr(0, first), name + " LO");
   axis.hi = parse_number(range.substr(first + 1, second - first - 1), name + " HI");
   const std::uint64_t count = parse_unsigned(range.substr(second + 1), name + " COUNT", kMaxFamily);
@@ -107,6 +116,22 @@ VaryAxis parse_vary(const std::string& text) {
                      std::to_string(count));
   }
   axis.count = static_cast<int>(count);
+  // Every value of the family, not only the ends: an interior one can underflow (-1e-307:
+  // 1.01e-307:5 has 5e-310 in the middle), which the scene would refuse only when its orbit is
+  // due. The ends were read as normal numbers.
+  for (int k = 1; k + 1 < axis.count; ++k) {
+    const double value = axis.value(k);
+    const std::string which = quote(text) + ": value " + std::to_string(k + 1) + " of " +
+                              std::to_string(axis.count) + ", " + key_text(axis) + " = " +
+                              format_number(value);
+    if (!std::isfinite(value)) fail(option, which + ", is beyond the range of a double");
+    if (value != 0.0 && std::fabs(value) < DBL_MIN) {
+      fail(option, which + ", underflows: a nonzero number must be at least " +
+                       format_number(DBL_MIN) +
+                       " (the smallest normal double) in magnitude; move LO or HI away from 0 "
+                       "or change COUNT");
+    }
+  }
   return axis;
 }
 
@@ -182,7 +207,7 @@ Plan make_plan(const OrbitCommandOptions& options, std::optional<VaryAxis>& vary
     VaryAxis axis = parse_vary(*options.vary_param);
     for (const std::string& p : options.params) {
       if (key_of(p) == axis.key) {
-        fail("--vary-param", axis.key + " is also fixed by --param " + quote(p) +
+        fail("--vary-param", key_text(axis) + " is also fixed by --param " + quote(p) +
                                  "; give it either fixed or varied");
       }
     }
@@ -204,7 +229,7 @@ Plan make_plan(const OrbitCommandOptions& options, std::optional<VaryAxis>& vary
       }
       if (states != plan.d) {
         fail("--vary-param",
-             axis.key + " changes the dimension of the state (d = " + std::to_string(plan.d) +
+             key_text(axis) + " changes the dimension of the state (d = " + std::to_string(plan.d) +
                  " to " + std::to_string(states) + "); it cannot vary along a family");
       }
     }
@@ -503,6 +528,56 @@ void plot_family(const fs::path& dir, const Plan& plan, const VaryAxis& axis,
 // ---------------------------------------------------------------------------------------------
 // The command.
 
+// `path` made absolute, its links followed (also one whose target does not exist yet, which a
+// write would create), and normalised.
+fs::path resolved(const fs::path& path) {
+  std::error_code code;
+  fs::path p = fs::absolute(path, code);
+  for (int links = 0; links < 40 && fs::is_symlink(fs::symlink_status(p, code)); ++links) {
+    const fs::path target = fs::read_symlink(p, code);
+    if (code) break;
+    p = target.is_absolute() ? target : p.parent_path() / target;
+  }
+  const fs::path canonical = fs::weakly_canonical(p, code);
+  return code ? p.lexically_normal() : canonical;
+}
+
+// Whether a and b name one file: the same path once resolved, or one file by two names (a hard
+// link).
+bool same_file(const fs::path& a, const fs::path& b) {
+  if (resolved(a) == resolved(b)) return true;
+  std::error_code code;
+  return fs::exists(a, code) && fs::exists(b, code) && fs::equivalent(a, b, code) && !code;
+}
+
+// Refuses an --output that --plot also needs: the plot's directory, a directory above it, or
+// one of the files drawn there. Before anything is created or computed. @throws InputError.
+void refuse_clashing_paths(const std::string& output, const std::string& plot,
+                           const std::vector<std::string>& files) {
+  // Without a trailing separator ("out/" is "out").
+  const auto normal = [](const std::string& path) {
+    const fs::path p = resolved(path);
+    return p.has_filename() || !p.has_relative_path() ? p : p.parent_path();
+  };
+  const fs::path file = normal(output);
+  const fs::path dir = normal(plot);
+  if (file == dir || same_file(output, plot)) {
+    fail("--output", quote(output, 200) + " is also the --plot directory " + quote(plot, 200) +
+                         "; name another file");
+  }
+  // A directory above the plot's: component by component, so that /a/b is not above /a/bc.
+  if (std::mismatch(file.begin(), file.end(), dir.begin(), dir.end()).first == file.end()) {
+    fail("--output", quote(output, 200) + " is a directory above the --plot directory " +
+                         quote(plot, 200) + "; name another file");
+  }
+  for (const std::string& name : files) {
+    if (same_file(fs::path(plot) / name, output)) {
+      fail("--output",
+           quote(output, 200) + " is also the plot's " + name + " (--plot); name another file");
+    }
+  }
+}
+
 double seconds_since(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
@@ -510,25 +585,18 @@ double seconds_since(std::chrono::steady_clock::time_point start) {
 int orbit_command(const OrbitCommandOptions& options, std::ostream& out, std::ostream& err) {
   std::optional<VaryAxis> vary;
   Plan plan = make_plan(options, vary);
-  // Every file the command writes is checked before anything is computed.
-  if (options.output) {
-    refuse_empty(*options.output, "--output");
-    check_replaceable_file(*options.output, "orbit");
-  }
+  // Every file the command writes is checked before anything is computed, and before anything
+  // is created: the names first, then the file system.
+  std::vector<std::string> files = {"orbit.csv", "orbit.gp", "orbit.png"};
+  if (vary) files.insert(files.end(), {"family.csv", "growth_rate.gp", "growth_rate.png"});
+  if (options.output) refuse_empty(*options.output, "--output");
+  if (options.plot) refuse_empty(*options.plot, "--plot");
+  if (options.output && options.plot) refuse_clashing_paths(*options.output, *options.plot, files);
+  if (options.output) check_replaceable_file(*options.output, "orbit");
   if (options.plot) {
-    refuse_empty(*options.plot, "--plot");
     prepare_output_directory(*options.plot, "orbit");
-    std::vector<std::string> files = {"orbit.csv", "orbit.gp", "orbit.png"};
-    if (vary) files.insert(files.end(), {"family.csv", "growth_rate.gp", "growth_rate.png"});
     for (const std::string& file : files) {
-      const fs::path path = fs::path(*options.plot) / file;
-      check_replaceable_file(path, "orbit");
-      std::error_code a, b;
-      if (options.output &&
-          fs::weakly_canonical(path, a) == fs::weakly_canonical(*options.output, b) && !a && !b) {
-        fail("--output", quote(*options.output, 200) + " is also the plot's " + file +
-                             " (--plot); name another file");
-      }
+      check_replaceable_file(fs::path(*options.plot) / file, "orbit");
     }
   }
 

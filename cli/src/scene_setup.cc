@@ -278,7 +278,11 @@ SceneSetup parse_scene_setup(const FlowCommandOptions& options) {
   }
   if (options.atol) {
     const double atol = parse_number(*options.atol, "--atol");
-    if (!(atol > 0.0)) fail("--atol", "must be > 0, got " + format_number(atol));
+    if (!(atol >= IntegratorOptions::kMinAtol)) {
+      fail("--atol", "must be >= " + format_number(IntegratorOptions::kMinAtol) +
+                         " (below that the field's rounding alone makes the steps tiny), got " +
+                         format_number(atol));
+    }
     request.flow.integrator.atol = atol;
   }
   try {

@@ -384,10 +384,12 @@ void check_request(const SegmentModel& model, const SegmentRequest& request,
                           format_number(request.t0) + ", t_end = " + format_number(request.t_end));
   }
   if (!(options.rtol >= IntegratorOptions::kMinRtol) || !std::isfinite(options.rtol) ||
-      !(options.absolute_tolerance() > 0.0) || !std::isfinite(options.absolute_tolerance())) {
+      !(options.absolute_tolerance() >= IntegratorOptions::kMinAtol) ||
+      !std::isfinite(options.absolute_tolerance())) {
     throw InvalidArgument(who +
                           "need a finite rtol >= " + format_number(IntegratorOptions::kMinRtol) +
-                          " and a positive finite atol, got rtol = " + format_number(options.rtol) +
+                          " and a finite atol >= " + format_number(IntegratorOptions::kMinAtol) +
+                          ", got rtol = " + format_number(options.rtol) +
                           ", atol = " + format_number(options.absolute_tolerance()));
   }
   if (!(options.initial_step >= 0.0) || !(options.min_step >= 0.0) || !(options.max_step > 0.0) ||
@@ -545,15 +547,17 @@ class CvodesIntegrator::Impl {
     }
 
     // CVodeSetMaxNumSteps limits the steps of one CVode call; the budget is for the segment.
+    // Bounded: a call is repeated only after it took steps, and never past max_steps in all.
     double t_reached = request.t0;
     long steps = 0;
     int flag = CV_SUCCESS;
     while (true) {
+      const long before = steps;
       check(CVodeSetMaxNumSteps(mem, options.max_steps - steps), "CVodeSetMaxNumSteps");
       flag = CVode(mem, request.t_end, y, &t_reached, CV_NORMAL);
       if (p.exception) std::rethrow_exception(std::exchange(p.exception, nullptr));
       check(CVodeGetNumSteps(mem, &steps), "CVodeGetNumSteps");
-      if (flag == CV_TOO_MUCH_WORK && steps < options.max_steps) continue;
+      if (flag == CV_TOO_MUCH_WORK && steps < options.max_steps && steps > before) continue;
       break;
     }
 

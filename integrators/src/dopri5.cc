@@ -123,6 +123,7 @@ class Stepper {
         g_middle_(n_),
         velocity_(d_),
         field_(d_),
+        ratios_(d_),
         armed_(n_) {}
 
   SegmentResult run(double t0, double t_end, std::vector<T>& x, bool watch) {
@@ -135,13 +136,28 @@ class Stepper {
       for (int j = 0; j < n_; ++j) armed_[j] = g_[j] > 0.0;
     }
     if (!field(x, k1_, t, result)) return result;
+    for (int i = 0; i < d_; ++i) {
+      // Every later step starts from a field checked finite (error_norm()); the first one too.
+      if (!all_finite(k1_[i])) {
+        return fail(result, IntegrationStatus::kNonFinite, t, x,
+                    "dopri5: F_b(x) row " + std::to_string(i) + " is non-finite (" +
+                        format_number(value_of(k1_[i])) + ") at t = " + format_number(t) +
+                        ", x = " + format_vector(values(x)) + " (b = \"" + sides_.str() + "\")");
+      }
+    }
     if (watch && n_ > 0) surface_g_and_rates(x, k1_, g_, rate_);
-    // The estimate can be tiny when x0 is near zero; steps then grow by up to 5x each.
-    double h = options_.initial_step > 0.0
-                   ? options_.initial_step
-                   : std::max(initial_step(x, t0, t_end),
-                              10 * options_.min_step * std::max(1.0, std::abs(t0)));
+    // The estimate can be tiny when x0 is near zero; steps then grow by up to 5x each. One that
+    // is not a positive number (a field of 1e300 makes its ratios 0/0) starts at the floor.
+    const double first_floor = 10 * options_.min_step * std::max(1.0, std::abs(t0));
+    double h = options_.initial_step;
+    if (!(h > 0.0)) {
+      const double estimate = initial_step(x, t0, t_end);
+      h = estimate > first_floor ? estimate : first_floor;
+    }
     bool rejected_last = false;
+    // Bounded: accepted steps by max_steps, rejected ones by max_steps too, and the rejections
+    // in a row by the step size, which each one divides by at least 1 / 0.9 down to its floor
+    // (the tests against the floor are written to hold for a NaN step as well).
     while (true) {
       h = std::min(h, options_.max_step);
       // Within 1% of the end, stretch the step to land on it (no sliver of a last step).
@@ -149,27 +165,36 @@ class Stepper {
       if (last) h = t_end - t;
       if (result.steps >= options_.max_steps) {
         return fail(result, IntegrationStatus::kTooManySteps, t, x,
-                    "dopri5: " + std::to_string(result.steps) +
-                        " steps taken before t = " + format_number(t_end) + " (max_steps)");
+                    "dopri5: max_steps = " + std::to_string(options_.max_steps) +
+                        " steps taken, stopped at t = " + format_number(t) +
+                        " before t_end = " + format_number(t_end));
+      }
+      if (result.rejected_steps >= options_.max_steps) {
+        return fail(result, IntegrationStatus::kTooManySteps, t, x,
+                    "dopri5: max_steps = " + std::to_string(options_.max_steps) +
+                        " rejected steps (and " + std::to_string(result.steps) +
+                        " accepted), stopped at t = " + format_number(t) +
+                        " before t_end = " + format_number(t_end));
       }
       if (!attempt(x, h, t, result)) return result;
       const double error = error_norm(x);
-      if (!std::isfinite(error)) {
+      const double floor = options_.min_step * std::max(1.0, std::abs(t));
+      if (std::isnan(error)) {
         // A non-finite trial state: retry smaller, as a rejection.
         ++result.rejected_steps;
         h *= 0.2;
         rejected_last = true;
-        if (h <= options_.min_step * std::max(1.0, std::abs(t))) {
+        if (!(h > floor)) {
           return fail(result, IntegrationStatus::kNonFinite, t, x,
                       "dopri5: the state becomes non-finite just after t = " + format_number(t));
         }
         continue;
       }
-      if (error > 1.0) {
+      if (error > 1.0) {  // +inf included: an error beyond the double range relative to atol
         ++result.rejected_steps;
         h *= std::max(0.2, 0.9 * std::pow(error, -0.2));
         rejected_last = true;
-        if (h <= options_.min_step * std::max(1.0, std::abs(t))) {
+        if (!(h > floor)) {
           return fail(result, IntegrationStatus::kStepSizeUnderflow, t, x,
                       "dopri5: step size " + format_number(h) + " underflows at t = " +
                           format_number(t) + " (min_step " + format_number(options_.min_step) +
@@ -223,6 +248,12 @@ class Stepper {
     return true;
   }
 
+  Eigen::VectorXd values(const std::vector<T>& x) const {
+    Eigen::VectorXd out(d_);
+    for (int i = 0; i < d_; ++i) out[i] = value_of(x[i]);
+    return out;
+  }
+
   SegmentResult& fail(SegmentResult& result, IntegrationStatus status, double t,
                       const std::vector<T>&, std::string message) {
     result.status = status;
@@ -247,6 +278,9 @@ class Stepper {
     size1 = std::sqrt(size1 / d_);
     double h0 = (size0 < 1e-5 || size1 < 1e-5) ? 1e-6 : 0.01 * size0 / size1;
     h0 = std::min(h0, t_end - t0);
+    // A field or state beyond the double range once scaled (ratios inf / inf, 0 / 0): no
+    // estimate; the caller starts from its floor.
+    if (!(h0 > 0.0) || !std::isfinite(h0)) return 0.0;
     for (int i = 0; i < d_; ++i) stage_[i] = x[i] + h0 * k1_[i];
     model_.field(stage_.data(), sides_, k2_.data());
     double size2 = 0;
@@ -289,6 +323,9 @@ class Stepper {
     return true;
   }
 
+  // The RMS over components of |e_i| / (atol + rtol max(|x_i|, |x_i(t + h)|)): NaN when the
+  // trial state or its field is not finite, +inf only when the norm itself is beyond the double
+  // range (a tiny atol), never a spurious one from squaring a large ratio.
   double error_norm(const std::vector<T>& x) {
     double sum = 0;
     const bool tangents = options_.tangents_in_error_norm;
@@ -297,11 +334,21 @@ class Stepper {
       if (!all_finite(next_[i]) || !all_finite(k7_[i])) return NAN;
       const T err = last_h_ * (e1 * k1_[i] + e3 * k3_[i] + e4 * k4_[i] + e5 * k5_[i] + e6 * k6_[i] +
                                e7 * k7_[i]);
-      const double s = scale(value_of(x[i]), value_of(next_[i]));
-      sum += std::pow(value_of(err) / s, 2);
+      ratios_[i] = value_of(err) / scale(value_of(x[i]), value_of(next_[i]));
+      sum += std::pow(ratios_[i], 2);
       if (tangents) tangent_norm_.add(err, x[i], next_[i]);
     }
-    const double state = std::sqrt(sum / d_);
+    double state = std::sqrt(sum / d_);
+    if (!std::isfinite(state)) {
+      // A ratio above 1e154: the same norm with the largest ratio factored out.
+      double largest = 0.0;
+      for (int i = 0; i < d_; ++i) largest = std::max(largest, std::abs(ratios_[i]));
+      sum = 0.0;
+      if (std::isfinite(largest)) {
+        for (int i = 0; i < d_; ++i) sum += std::pow(ratios_[i] / largest, 2);
+      }
+      state = std::isfinite(largest) ? largest * std::sqrt(sum / d_) : largest;
+    }
     if (!tangents) return state;
     return std::max(state, tangent_norm_.error(options_.rtol, options_.absolute_tolerance()));
   }
@@ -652,7 +699,8 @@ class Stepper {
   std::vector<double> theta_, g_trial_;  // scratch of locate_crossing(), no allocation per step
   // dg_j/dt at x and at next_, and scratch of surface_g_and_rates().
   std::vector<double> rate_, rate_next_, probe_, g_middle_, velocity_;
-  std::vector<double> field_;  // F_b at a dense-output point (exact_rate())
+  std::vector<double> field_;   // F_b at a dense-output point (exact_rate())
+  std::vector<double> ratios_;  // |e_i| / scale_i of the last trial step (error_norm())
   // Near misses of the step being checked, with their theta; kept if not after the crossing.
   std::vector<std::pair<NearMiss, double>> misses_;
   SegmentResult* result_ = nullptr;  // the result run() is filling
@@ -700,11 +748,22 @@ void check_request(const SegmentModel& model, const SegmentRequest& request,
                           ", t_end = " + format_number(request.t_end));
   }
   if (!(options.rtol >= IntegratorOptions::kMinRtol) || !std::isfinite(options.rtol) ||
-      !(options.absolute_tolerance() > 0) || !std::isfinite(options.absolute_tolerance())) {
+      !(options.absolute_tolerance() >= IntegratorOptions::kMinAtol) ||
+      !std::isfinite(options.absolute_tolerance())) {
     throw InvalidArgument(
         "dopri5: need a finite rtol >= " + format_number(IntegratorOptions::kMinRtol) +
-        " and a positive finite atol, got rtol = " + format_number(options.rtol) +
-        ", atol = " + format_number(options.absolute_tolerance()));
+        " and a finite atol >= " + format_number(IntegratorOptions::kMinAtol) + ", got rtol = " +
+        format_number(options.rtol) + ", atol = " + format_number(options.absolute_tolerance()));
+  }
+  if (!(options.initial_step >= 0.0) || !(options.min_step >= 0.0) || !(options.max_step > 0.0) ||
+      !std::isfinite(options.initial_step) || !std::isfinite(options.min_step)) {
+    throw InvalidArgument("dopri5: need initial_step >= 0, min_step >= 0 and max_step > 0, got " +
+                          format_number(options.initial_step) + ", " +
+                          format_number(options.min_step) + ", " + format_number(options.max_step));
+  }
+  if (options.max_steps < 1) {
+    throw InvalidArgument("dopri5: max_steps must be positive, got " +
+                          std::to_string(options.max_steps));
   }
 }
 

@@ -5,6 +5,7 @@
 // output check, finish_output() of cli_util.h, is tested here too).
 #include <algorithm>
 #include <cerrno>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -311,7 +312,8 @@ TEST(FlowCommandTest, EarlyStopPrintsStatusAndExitsOne) {
   const Outcome o = flow(options);
   EXPECT_EQ(o.code, 1);
   EXPECT_THAT(o.err, StartsWith("error: flow: the simulation stopped at t = "));
-  EXPECT_THAT(o.err, HasSubstr("(too many steps): dopri5: 1 steps taken"));
+  EXPECT_THAT(o.err, HasSubstr("(too many steps): dopri5: max_steps = 1 steps taken, stopped at "
+                               "t = "));
   EXPECT_EQ(std::count(o.err.begin(), o.err.end(), '\n'), 1);
   const Json out = Json::parse(o.out);
   EXPECT_EQ(out["status"], "too many steps");
@@ -394,7 +396,13 @@ TEST(FlowCommandTest, MalformedOptionsExitTwoWithOneLine) {
       {{"--scene", "pwconst", "--rtol", "1e-300"},
        "--rtol: must be >= 1e-15 (below that no step can meet it in double precision), got "
        "1e-300"},
-      {{"--scene", "pwconst", "--atol", "-1e-9"}, "--atol: must be > 0, got -1e-09"},
+      {{"--scene", "pwconst", "--atol", "-1e-9"},
+       "--atol: must be >= 1e-20 (below that the field's rounding alone makes the steps tiny), got "
+       "-1e-09"},
+      // 1e-300 made every step of the biped's orbit tiny: a million per simulation.
+      {{"--scene", "biped", "--atol", "1e-300"},
+       "--atol: must be >= 1e-20 (below that the field's rounding alone makes the steps tiny), got "
+       "1e-300"},
       {{"--scene", "pwconst", "--integrator", "euler"},
        "--integrator: integrator \"euler\" is unknown; choose dopri5, cvodes-bdf or cvodes-adams"},
       {{"--scene", "pwconst", "--max-steps", "0"}, "--max-steps: must be >= 1, got 0"},
@@ -693,6 +701,45 @@ TEST(FlowCommandTest, OverflowingStartIsAFailedComputation) {
     EXPECT_FALSE(out.contains("x_t"));
     EXPECT_FALSE(out.contains("directions"));
   }
+}
+
+// The hopping biped of `bflow orbit` 1e306 below the ground: its contact forces are inf - inf
+// from the start. The integrator's first step was NaN and the command never returned; now the
+// run stops at t = 0 naming the field's row, and the record is printed.
+TEST(FlowCommandTest, StartFarBelowTheGroundStopsAtOnceNamingTheField) {
+  FlowCommandOptions options =
+      biped({"variant=mode-damping", "kappa=1000", "beta=4", "thrust=10", "thrust_speed=0.1"});
+  options.x0 = "0,-1e306,0,0,0,0";
+  const auto start = std::chrono::steady_clock::now();
+  const Outcome o = flow(options);
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 2.0);
+  EXPECT_EQ(o.code, 1);
+  EXPECT_EQ(o.err,
+            "error: flow: the simulation stopped at t = 0 before t = 0.6 (non-finite state): "
+            "dopri5: F_b(x) row 3 is non-finite (nan) at t = 0, x = [0, -1e+306, 0, 0, 0, 0] "
+            "(b = \"++\")\n");
+  const Json out = Json::parse(o.out);
+  EXPECT_EQ(out["status"], "non-finite state");
+  EXPECT_EQ(out["t_reached"], 0.0);
+  EXPECT_FALSE(out.contains("x_t"));
+  // The default biped: its field overflows instead (|F| beyond the double range).
+  FlowCommandOptions plain = biped({});
+  plain.x0 = "0,-1e306,0,0,0,0";
+  const Outcome p = flow(plain);
+  EXPECT_EQ(p.code, 1);
+  EXPECT_THAT(p.err, StartsWith("error: flow: the computation overflowed: |F_++| is beyond the "
+                                "double range at x = [0, -1e+306, 0, 0, 0, 0]"));
+}
+
+// An atol at the minimum is an ordinary tolerance: the biped's run takes as long as at 1e-12.
+TEST(FlowCommandTest, SmallestAtolRunsLikeAnyOther) {
+  FlowCommandOptions options = biped({});
+  options.atol = "1e-20";
+  const auto start = std::chrono::steady_clock::now();
+  const Json out = result_of(options);
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 2.0);
+  EXPECT_EQ(out["atol"], 1e-20);
+  EXPECT_TRUE(out.contains("x_t"));
 }
 
 // B is linear on each piece: a direction scaled by 1e300 has the image scaled by 1e300; at

@@ -5,6 +5,7 @@
 // malformed option is one line naming the option and the value (exit code 2); --plot draws
 // non-empty PNGs from data that hold the orbit.
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -296,6 +297,21 @@ TEST(OrbitCommandTest, MalformedOptionsExitTwoWithOneLineNamingThem) {
       {{"--max-iterations", "-1"}, "--max-iterations: \"-1\" is too small (at least 0)"},
       {{"--param", "kappa=-1"}, "--param: biped parameter \"kappa\" must be > 0, got -1"},
       {{"--section", ""}, "--section: the value is empty"},
+      {{"--section", "-x4=1e-400"},
+       "--section: section \"-x4=1e-400\": \"1e-400\" underflows (its magnitude is below "
+       "2.2250738585072014e-308)" +
+           section_syntax},
+      {{"--vary-param", "thrust=1e-320:1e-300:5"},
+       "--vary-param thrust LO: \"1e-320\" underflows: a nonzero number must be at least "
+       "2.2250738585072014e-308 (the smallest normal double) in magnitude"},
+      // Both ends valid; HI - LO is beyond the double range, the values are not.
+      {{"--vary-param", "thrust=-1e308:1e308:2"},
+       "--vary-param: \"thrust=-1e308:1e308:2\": biped parameter \"thrust\" must be >= 0, got "
+       "-1e+308"},
+      // 1e-20 is the least atol; 1e-300 made every step tiny (75 s for the orbit).
+      {{"--atol", "1e-300"},
+       "--atol: must be >= 1e-20 (below that the field's rounding alone makes the steps tiny), got "
+       "1e-300"},
   };
   for (const Case& c : cases) {
     std::vector<std::string> args = {"orbit", "--scene", "biped"};
@@ -313,6 +329,130 @@ TEST(OrbitCommandTest, MalformedOptionsExitTwoWithOneLineNamingThem) {
             "vary along a family\n");
   const Outcome none = command_line({"orbit"});
   EXPECT_EQ(none.err, "error: --scene: required; the scenes are pwconst and biped\n");
+}
+
+double seconds_since(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// Ends in 5e-310 at the third of five values: refused before the first orbit (it used to stop the
+// family at its third orbit, through --param, which was never given, with the JSON lost).
+TEST(OrbitCommandTest, EveryValueOfTheFamilyIsCheckedBeforeTheFirstOrbit) {
+  const Outcome r =
+      command_line({"orbit", "--scene", "biped", "--vary-param", "g=-1e-307:1.01e-307:5"});
+  EXPECT_EQ(r.code, kExitBadInput);
+  EXPECT_EQ(r.out, "");
+  EXPECT_EQ(r.err,
+            "error: --vary-param: \"g=-1e-307:1.01e-307:5\": value 3 of 5, g = "
+            "5.00000000000003e-310, underflows: a nonzero number must be at least "
+            "2.2250738585072014e-308 (the smallest normal double) in magnitude; move LO or HI away "
+            "from 0 or change COUNT\n");
+}
+
+// HI - LO = 2e308 is beyond the double range; the values are -1e308, 0 and 1e308 (they were NaN).
+TEST(OrbitCommandTest, RangeWiderThanTheDoubleRangeHasFiniteValues) {
+  const auto start = std::chrono::steady_clock::now();
+  const Outcome r = command_line(
+      {"orbit", "--scene", "biped", "--vary-param", "g=-1e308:1e308:3", "--quiet", "--compact"});
+  EXPECT_LT(seconds_since(start), 2.0);
+  EXPECT_EQ(r.code, kExitFailure);  // no orbit at these g: a result, not bad input
+  const Json j = Json::parse(r.out);
+  ASSERT_EQ(j["family"].size(), 3u);
+  EXPECT_EQ(j["family"][0]["value"], -1e308);
+  EXPECT_EQ(j["family"][1]["value"], 0.0);
+  EXPECT_EQ(j["family"][2]["value"], 1e308);
+  EXPECT_THAT(r.err, StartsWith("error: orbit: "));
+  EXPECT_THAT(r.err, ::testing::Not(HasSubstr("nan")));
+}
+
+// A guess 1e306 below the ground (its contact forces are inf - inf) and the least atol: each
+// ends within its bound with a named result. Both used to run without end or for minutes.
+TEST(OrbitCommandTest, FarGuessAndSmallestAtolEndQuickly) {
+  auto start = std::chrono::steady_clock::now();
+  const Outcome far = command_line(
+      {"orbit", "--scene", "biped", "--x0", "0,-1e306,0,0,0,0", "--quiet", "--compact"});
+  EXPECT_LT(seconds_since(start), 2.0);
+  EXPECT_EQ(far.code, kExitFailure);
+  const Json j = Json::parse(far.out);
+  EXPECT_FALSE(j["converged"].get<bool>());
+  EXPECT_EQ(far.err,
+            "error: orbit: no periodic orbit found: " + j["message"].get<std::string>() + "\n");
+
+  start = std::chrono::steady_clock::now();
+  const Outcome tight =
+      command_line({"orbit", "--scene", "biped", "--atol", "1e-20", "--quiet", "--compact"});
+  EXPECT_LT(seconds_since(start), 2.0);
+  ASSERT_EQ(tight.code, kExitOk) << tight.err;
+  EXPECT_EQ(Json::parse(tight.out)["atol"], 1e-20);
+}
+
+// 100 000 characters of input give an error line of at most a few hundred.
+TEST(OrbitCommandTest, LongInputIsQuotedShort) {
+  const std::string huge(100000, 'k');
+  const std::vector<std::vector<std::string>> cases = {
+      {"--section", "-x4=" + huge},
+      {"--section", huge},
+      {"--vary-param", huge + "=1:2:3"},
+      {"--vary-param", huge + "=x:2:3"},
+      {"--vary-param", "thrust=" + huge + ":2:3"},
+      {"--vary-param", "thrust=1:2:" + huge},
+      {"--output", huge, "--plot", huge},
+      {"--output", huge, "--plot", huge + "/x"},
+  };
+  for (const std::vector<std::string>& c : cases) {
+    std::vector<std::string> args = {"orbit", "--scene", "biped"};
+    args.insert(args.end(), c.begin(), c.end());
+    SCOPED_TRACE(c[0] + " " + c[1].substr(0, 20));
+    const Outcome r = command_line(args);
+    EXPECT_EQ(r.code, kExitBadInput);
+    EXPECT_EQ(r.out, "");
+    EXPECT_LT(r.err.size(), 500u) << r.err.substr(0, 200);
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1);
+  }
+}
+
+// --output that --plot needs (the directory, one above it, a file drawn there) is refused before
+// anything is created or computed.
+TEST(OrbitCommandTest, OutputThatThePlotNeedsIsRefusedFirst) {
+  const fs::path dir = fs::path(::testing::TempDir()) / "bflow_orbit_clash";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string d = (dir / "D").string();
+  struct Case {
+    std::vector<std::string> args;
+    std::string line;
+  };
+  const std::vector<Case> cases = {
+      {{"--plot", d, "--output", d},
+       "--output: \"" + d + "\" is also the --plot directory \"" + d + "\"; name another file"},
+      {{"--plot", d + "/", "--output", d},
+       "--output: \"" + d + "\" is also the --plot directory \"" + d + "/\"; name another file"},
+      {{"--plot", d + "/sub", "--output", d},
+       "--output: \"" + d + "\" is a directory above the --plot directory \"" + d +
+           "/sub\"; name another file"},
+      {{"--plot", d, "--output", d + "/orbit.csv"},
+       "--output: \"" + d + "/orbit.csv\" is also the plot's orbit.csv (--plot); " +
+           "name another file"},
+      {{"--plot", d, "--output", d + "/x/../growth_rate.png", "--vary-param", "thrust=10:11:2"},
+       "--output: \"" + d + "/x/../growth_rate.png\" is also the plot's " +
+           "growth_rate.png (--plot); name another file"},
+  };
+  for (const Case& c : cases) {
+    std::vector<std::string> args = {"orbit", "--scene", "biped"};
+    args.insert(args.end(), c.args.begin(), c.args.end());
+    SCOPED_TRACE(::testing::PrintToString(args));
+    const Outcome r = command_line(args);
+    EXPECT_EQ(r.code, kExitBadInput);
+    EXPECT_EQ(r.out, "");
+    EXPECT_EQ(r.err, "error: " + c.line + "\n");
+    EXPECT_FALSE(fs::exists(dir / "D"));
+  }
+  // A directory of that name already there: the same refusal, and it stays empty.
+  fs::create_directories(dir / "D");
+  const Outcome again = command_line({"orbit", "--scene", "biped", "--plot", d, "--output", d});
+  EXPECT_EQ(again.code, kExitBadInput);
+  EXPECT_TRUE(fs::is_empty(dir / "D"));
+  fs::remove_all(dir);
 }
 
 TEST(OrbitCommandTest, PlotDrawsTheOrbitAndTheGrowthRate) {

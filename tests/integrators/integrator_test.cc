@@ -241,7 +241,8 @@ TEST(Dopri5Test, FailuresAreStatusesWithMessages) {
   SegmentRequest request{Signs(0), 0.0, 100.0, Eigen::Vector3d(1, 1, 1), Eigen::MatrixXd(3, 0)};
   const SegmentResult r = integrator.integrate(model, request, o);
   EXPECT_EQ(r.status, IntegrationStatus::kTooManySteps);
-  EXPECT_THAT(r.message, ::testing::HasSubstr("3 steps taken before t = 100"));
+  EXPECT_THAT(r.message, ::testing::HasSubstr("max_steps = 3 steps taken, stopped at t = "));
+  EXPECT_THAT(r.message, ::testing::HasSubstr(" before t_end = 100"));
 }
 
 }  // namespace

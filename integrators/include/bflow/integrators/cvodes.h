@@ -104,9 +104,10 @@ class CvodesIntegrator final : public SegmentIntegrator {
 
   /** Integrates one segment (see segment.h and the header comment above).
       @throws InvalidArgument if x0 does not have d entries, v0 has columns but not d rows,
-      x0, v0, t0 or t_end is not finite, sides does not have n surfaces, rtol or atol is not
-      positive, initial_step or min_step is negative, max_step is not positive, or max_steps
-      is not positive; and any exception the model throws, unchanged. */
+      x0, v0, t0 or t_end is not finite, sides does not have n surfaces, rtol is below
+      IntegratorOptions::kMinRtol or atol below IntegratorOptions::kMinAtol, initial_step or
+      min_step is negative, max_step is not positive, or max_steps is not positive; and any
+      exception the model throws, unchanged. */
   SegmentResult integrate(const SegmentModel& model, const SegmentRequest& request,
                           const IntegratorOptions& options) override;
 

@@ -43,6 +43,13 @@ namespace bflow {
     each by the narrowest compiled Jet that holds it (segment.h: widths 1, 2, 4, 6, 8). */
 class Dopri5Integrator final : public SegmentIntegrator {
  public:
+  /** Integrates one segment (segment.h). Ends within max_steps accepted and max_steps rejected
+      steps; a field that is not finite at x0 ends it at once (kNonFinite, naming the row).
+      @throws InvalidArgument if x0 or the tangents do not have d rows or are not finite, sides
+      does not have n surfaces, t_end is not finite or below t0, rtol is below
+      IntegratorOptions::kMinRtol or atol below IntegratorOptions::kMinAtol (or either is not
+      finite), initial_step or min_step is negative or not finite, max_step is not positive, or
+      max_steps is below 1. */
   SegmentResult integrate(const SegmentModel& model, const SegmentRequest& request,
                           const IntegratorOptions& options) override;
 };

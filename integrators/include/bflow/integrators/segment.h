@@ -81,10 +81,17 @@ struct IntegratorOptions {
       precision, so a smaller value is refused rather than left to shrink steps forever. */
   double rtol = 1e-8;
   static constexpr double kMinRtol = 1e-15;
-  /** Absolute tolerance. Unset (the default): 1e-2 x rtol, so that tightening rtol alone keeps
-      tightening the error on states of order one, instead of stopping where a fixed atol takes
-      over. Set it for states far from order one (atol ~ 1e-2 rtol |x|). */
+  /** Absolute tolerance, >= kMinAtol. Unset (the default): 1e-2 x rtol, so that tightening rtol
+      alone keeps tightening the error on states of order one, instead of stopping where a fixed
+      atol takes over. Set it for states far from order one (atol ~ 1e-2 rtol |x|). */
   std::optional<double> atol;
+  /** Where a component passes zero its error is held to atol alone, and the rounding of the
+      field (eps times the forces summed into it) enters a step's error estimate as about
+      0.05 h eps |F|: on a model in units of order one, an atol below 1e-20 forces steps below
+      1e-3 there whatever the solution, and far below it nearly every step is rejected (the
+      biped's orbit at atol 1e-30: a million steps of 1e-11 per simulation). A smaller atol is
+      refused; rescale a model whose states are that small. */
+  static constexpr double kMinAtol = 1e-20;
   /** The absolute tolerance in force: atol, or 1e-2 x rtol when unset. */
   double absolute_tolerance() const { return atol ? *atol : kAtolPerRtol * rtol; }
   static constexpr double kAtolPerRtol = 1e-2;
@@ -93,6 +100,9 @@ struct IntegratorOptions {
   double max_step = std::numeric_limits<double>::infinity();
   /** Smallest step relative to max(1, |t|) before giving up with kStepSizeUnderflow. */
   double min_step = 1e-14;
+  /** The step budget of one segment, >= 1: a segment that has taken max_steps steps ends with
+      kTooManySteps, its message naming max_steps and the time reached. dopri5 also stops at
+      max_steps rejected steps; CVODES counts its internal steps. */
   long max_steps = 1000000;
   /** Include the tangents in the error norm: each tangent direction's local error is held to
       rtol relative to that direction's size (plus atol), so that rtol bounds the relative error
