@@ -112,6 +112,11 @@ constexpr const char* kFlowFooter =
            default), m, J, g, leg_length, psi, kappa, beta, thrust, thrust_speed (an energy
            source, 0 by default: see bflow orbit). Default x0 = (0,1,0,0,0,0), from
            which both feet touch together at t = 0.3968; default --t 0.6.
+  pronk    a body on two vertical legs at its hips on flat ground, with the legs' thrust and
+           a soft horizontal tether (d = 6, same x, 2 feet; bflow/core/pronk.h): m, J, g, hip,
+           leg_length, kappa, beta, thrust, thrust_speed, tether, tether_damping (defaults:
+           its stable hop, see bflow orbit). Default x0 = (0,1,0,0,0,0), from which both
+           feet touch together at t = 0.3194; default --t 0.6.
 
 Output, one JSON object (numbers print in the shortest form that reads back exactly):
   "scene", "params", "integrator", "rtol", "atol", "grouping", "t", "x0"
@@ -202,6 +207,10 @@ Scenes and defaults:
            thrust_speed=0.1. Section -x4 (the apex: vertical speed from + to -), guess
            --x0 0,0.8,0,0,0,0 (at rest at height 0.8). Both feet land and lift off together:
            every event crosses two surfaces, and the return map has four linear pieces.
+  pronk    (d = 6, same x) the pronking body on its own defaults (J = m hip^2, kappa=300,
+           beta=4, thrust=10, tether=1, tether_damping=1): section -x4, guess --x0
+           0,1,0,0,0,0. Both feet land and lift off together, and the hop is stable: growth
+           rate in [0.555, 0.746]; vary J (stable for J in about [0.235, 0.27]) or thrust.
   pwconst  the field of 'bflow flow --scene pwconst': it crosses every plane once and has no
            periodic orbit (section x0=1, guess rho-): the run reports converged false.
 Newton's method: --tol 1e-8 (|P(x) - x|_inf <= tol (1 + |x|_inf)), --max-iterations 40;
@@ -335,15 +344,15 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     FlowCommandOptions flow_options;
     CLI::App* flow = app.add_subcommand(
         "flow",
-        "Simulate a scene (pwconst or biped) across its switching surfaces and print the "
+        "Simulate a scene (pwconst, biped or pronk) across its switching surfaces and print the "
         "B-derivative of its flow on directions (JSON)");
-    flow->add_option("--scene", flow_options.scene, "pwconst or biped (required)")
+    flow->add_option("--scene", flow_options.scene, "pwconst, biped or pronk (required)")
         ->type_name("NAME");
     flow->add_option("--param", flow_options.params,
                      "A scene parameter, key=value; repeat for several")
         ->type_name("KEY=VALUE")
         ->allow_extra_args(false);
-    flow->add_option("--t", flow_options.t, "Final time, >= 0 (pwconst: 1, biped: 0.6)")
+    flow->add_option("--t", flow_options.t, "Final time, >= 0 (pwconst: 1, biped, pronk: 0.6)")
         ->type_name("T");
     flow->add_option("--x0", flow_options.x0,
                      "Initial state, d comma-separated numbers (default: the scene's)")
@@ -504,7 +513,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         "orbit",
         "Find a periodic orbit of a scene through a Poincare section by a nonsmooth Newton "
         "method: fixed point, period, the return map's pieces and a stability verdict (JSON)");
-    orbit->add_option("--scene", orbit_options.scene, "pwconst or biped (required)")
+    orbit->add_option("--scene", orbit_options.scene, "pwconst, biped or pronk (required)")
         ->type_name("NAME");
     orbit
         ->add_option("--param", orbit_options.params,
@@ -515,11 +524,12 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     orbit
         ->add_option("--x0", orbit_options.x0,
                      "The guess, d comma-separated numbers, projected onto the section "
-                     "(biped: 0,0.8,0,0,0,0)")
+                     "(biped: 0,0.8,0,0,0,0; pronk: 0,1,0,0,0,0)")
         ->type_name("A,B,...");
     orbit
         ->add_option("--section", orbit_options.section,
-                     "The Poincare section, e.g. x4, -x4, x1=0.3 (below; biped: -x4, the apex)")
+                     "The Poincare section, e.g. x4, -x4, x1=0.3 (below; biped, pronk: -x4, the "
+                     "apex)")
         ->type_name("TEXT");
     orbit->add_option("--tol", orbit_options.tol, "Newton's tolerance, > 0 (default 1e-8)")
         ->type_name("X");
@@ -555,14 +565,16 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         "sweep",
         "The flow of a scene and its B-derivative over a grid of initial states and parameters, "
         "on threads: one record per sample (JSON lines or CSV), in grid order");
-    sweep->add_option("--scene", sweep_options.flow.scene, "pwconst or biped (required)")
+    sweep->add_option("--scene", sweep_options.flow.scene, "pwconst, biped or pronk (required)")
         ->type_name("NAME");
     sweep
         ->add_option("--param", sweep_options.flow.params,
                      "A scene parameter, key=value; repeat for several")
         ->type_name("KEY=VALUE")
         ->allow_extra_args(false);
-    sweep->add_option("--t", sweep_options.flow.t, "Final time, >= 0 (pwconst: 1, biped: 0.6)")
+    sweep
+        ->add_option("--t", sweep_options.flow.t,
+                     "Final time, >= 0 (pwconst: 1, biped, pronk: 0.6)")
         ->type_name("T");
     sweep
         ->add_option("--x0", sweep_options.flow.x0,

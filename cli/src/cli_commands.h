@@ -71,13 +71,15 @@ int run_jump_file(const std::string& path, std::istream& stdin_stream, std::ostr
 /** `bflow flow`: the options as given on the command line. Numbers stay text so that
     run_flow() validates them and names the option in its message. */
 struct FlowCommandOptions {
-  /** "pwconst" or "biped"; required. */
+  /** "pwconst", "biped" or "pronk"; required. */
   std::string scene;
-  /** "key=value", each key at most once: pwconst d, delta, seed; biped as bflow::set_param. */
+  /** "key=value", each key at most once: pwconst d, delta, seed; biped and pronk as
+      bflow::set_param. */
   std::vector<std::string> params;
-  /** Final time (default 1 for pwconst, 0.6 for biped), >= 0. */
+  /** Final time (default 1 for pwconst, 0.6 for biped and pronk), >= 0. */
   std::optional<std::string> t;
-  /** "a,b,..." with d numbers (default: rho- = -F_--(0)/2 for pwconst, biped_initial_state()). */
+  /** "a,b,..." with d numbers (default: rho- = -F_--(0)/2 for pwconst, biped_initial_state(),
+      pronk_initial_state()). */
   std::optional<std::string> x0;
   /** Directions "a,b,..." with d numbers each (default: the unit vectors e_0 ... e_{d-1}). */
   std::vector<std::string> dx;
@@ -238,17 +240,17 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
 /** `bflow orbit`: the options as given on the command line. Numbers stay text so that
     run_orbit() validates them and names the option in its message. */
 struct OrbitCommandOptions {
-  /** "pwconst" or "biped"; required. */
+  /** "pwconst", "biped" or "pronk"; required. */
   std::string scene;
   /** "key=value", each key at most once, as for `bflow flow`. For the biped they override the
       orbit's defaults variant=mode-damping, kappa=1000, beta=4, thrust=10, thrust_speed=0.1 (a
       hopping biped), each key on its own. */
   std::vector<std::string> params;
   /** The guess, "a,b,..." with d numbers (default: biped (0, 0.8, 0, 0, 0, 0), at rest at the
-      apex; pwconst rho- = -F_--(0)/2). */
+      apex; pronk (0, 1, 0, 0, 0, 0); pwconst rho- = -F_--(0)/2). */
   std::optional<std::string> x0;
   /** The Poincare section as bflow::parse_coordinate_section() reads it: "x4", "-x4", "x1=0.3",
-      "-x1=0.3" (default: biped "-x4", the apex; pwconst "x0=1"). */
+      "-x1=0.3" (default: biped and pronk "-x4", the apex; pwconst "x0=1"). */
   std::optional<std::string> section;
   /** Newton's tolerance (OrbitOptions::tolerance), finite and > 0; default 1e-8. */
   std::optional<std::string> tol;

@@ -55,6 +55,10 @@ const std::pair<const char*, const char*> kBipedOrbitParams[] = {{"variant", "mo
 // and never again: it has no periodic orbit.
 constexpr const char* kBipedSection = "-x4";
 constexpr const char* kPwconstSection = "x0=1";
+// The pronk's own defaults are its stable hop (core/pronk.h): no parameter is overridden. Its
+// section is the apex too, and its guess pronk_initial_state(), at rest at height 1, just above
+// the apex 0.977 (tests/orbits/pronk_orbit_test.cc).
+constexpr const char* kPronkSection = "-x4";
 // Families of more orbits than this are refused: each orbit takes a Newton run.
 constexpr std::uint64_t kMaxFamily = 100000;
 // Pieces of the return map printed; above, "pieces" is null and "piece_count" says how many.
@@ -173,8 +177,9 @@ Plan make_plan(const OrbitCommandOptions& options, std::optional<VaryAxis>& vary
       });
   plan.d = start.first;
   const bool biped = plan.setup.biped;
-  const std::string section_text =
-      options.section ? *options.section : (biped ? kBipedSection : kPwconstSection);
+  const char* default_section =
+      biped ? kBipedSection : (plan.setup.pronk ? kPronkSection : kPwconstSection);
+  const std::string section_text = options.section ? *options.section : default_section;
   if (options.section) refuse_empty(*options.section, "--section");
   try {
     plan.section = parse_coordinate_section(section_text, plan.d);
@@ -392,7 +397,7 @@ std::string gnuplot_text(const std::string& text) {
 }
 
 std::vector<std::string> state_names(const Plan& plan) {
-  if (plan.setup.biped) return {"x", "y", "theta", "xdot", "ydot", "thetadot"};
+  if (plan.setup.biped || plan.setup.pronk) return {"x", "y", "theta", "xdot", "ydot", "thetadot"};
   std::vector<std::string> names;
   for (int i = 0; i < plan.d; ++i) names.push_back("x_" + std::to_string(i));
   return names;

@@ -222,11 +222,38 @@ BipedParams biped_params(const Params& params) {
   return p;
 }
 
+// As biped_params: set_param sets the value and judges its range.
+PronkParams pronk_params(const Params& params) {
+  const std::string known = kPronkParamKeys;
+  PronkParams p;
+  for (const auto& [key, raw] : params) {
+    if (key.empty() || key.find_first_of(", ") != std::string::npos ||
+        (", " + known + ",").find(", " + key + ",") == std::string::npos) {
+      fail("--param", "unknown pronk parameter " + quote(key) + " (known: " + known + ")");
+    }
+    const std::string value = trimmed(raw);
+    double number = 0.0;
+    if (const std::string problem = number_problem(value, number); !problem.empty()) {
+      fail("--param", "pronk parameter " + quote(key) + " = " + quote(raw) + " " + problem);
+    }
+    try {
+      set_param(p, key, value);
+    } catch (const InvalidArgument& e) {
+      std::string message = e.what();
+      const std::string prefix = "set_param: ";
+      if (message.rfind(prefix, 0) == 0) message.erase(0, prefix.size());
+      fail("--param", message);
+    }
+  }
+  return p;
+}
+
 SceneSetup parse_scene_setup(const FlowCommandOptions& options) {
   // Scene and parameters.
-  if (options.scene.empty()) fail("--scene", "required; the scenes are pwconst and biped");
-  if (options.scene != "pwconst" && options.scene != "biped") {
-    fail("--scene", "unknown scene " + quote(options.scene) + "; the scenes are pwconst and biped");
+  if (options.scene.empty()) fail("--scene", "required; the scenes are pwconst, biped and pronk");
+  if (options.scene != "pwconst" && options.scene != "biped" && options.scene != "pronk") {
+    fail("--scene",
+         "unknown scene " + quote(options.scene) + "; the scenes are pwconst, biped and pronk");
   }
   // An option given with an empty value ("--t ''") is refused, not taken as its default.
   for (const std::string& text : options.params) refuse_empty(text, "--param");
@@ -252,17 +279,21 @@ SceneSetup parse_scene_setup(const FlowCommandOptions& options) {
     params.emplace_back(key, text.substr(equals + 1));
   }
   const bool biped = options.scene == "biped";
+  const bool pronk = options.scene == "pronk";
   std::optional<PwconstParams> pwconst;
   BipedParams biped_p;
+  PronkParams pronk_p;
   if (biped) {
     biped_p = biped_params(params);
+  } else if (pronk) {
+    pronk_p = pronk_params(params);
   } else {
     pwconst = pwconst_params(params);
   }
 
   // Time and integrator.
   Request request;
-  request.t = biped ? 0.6 : 1.0;
+  request.t = biped || pronk ? 0.6 : 1.0;
   if (options.t) {
     request.t = parse_number(*options.t, "--t");
     if (!(request.t >= 0.0)) fail("--t", "must be >= 0, got " + format_number(request.t));
@@ -336,6 +367,18 @@ SceneSetup parse_scene_setup(const FlowCommandOptions& options) {
       params_json["thrust"] = biped_p.thrust;
       params_json["thrust_speed"] = biped_p.thrust_speed;
     }
+  } else if (pronk) {
+    params_json["m"] = pronk_p.m;
+    params_json["J"] = pronk_p.J;
+    params_json["g"] = pronk_p.g;
+    params_json["hip"] = pronk_p.hip;
+    params_json["leg_length"] = pronk_p.leg_length;
+    params_json["kappa"] = pronk_p.kappa;
+    params_json["beta"] = pronk_p.beta;
+    params_json["thrust"] = pronk_p.thrust;
+    params_json["thrust_speed"] = pronk_p.thrust_speed;
+    params_json["tether"] = pronk_p.tether;
+    params_json["tether_damping"] = pronk_p.tether_damping;
   } else {
     params_json["d"] = pwconst->d;
     if (pwconst->seed) {
@@ -357,6 +400,7 @@ SceneSetup parse_scene_setup(const FlowCommandOptions& options) {
   SceneSetup setup;
   setup.scene = options.scene;
   setup.biped = biped;
+  setup.pronk = pronk;
   setup.params = std::move(params);
   setup.request = std::move(request);
   setup.head = std::move(head);

@@ -16,6 +16,7 @@
 #include <Eigen/Core>
 
 #include "bflow/core/biped.h"
+#include "bflow/core/pronk.h"
 #include "bflow/examples/piecewise_constant.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
@@ -59,6 +60,7 @@ using Params = std::vector<std::pair<std::string, std::string>>;
 PwconstParams pwconst_params(const Params& params);
 examples::PiecewiseConstantField make_pwconst(const PwconstParams& p);
 BipedParams biped_params(const Params& params);
+PronkParams pronk_params(const Params& params);
 
 struct Request {
   double t = 0.0;
@@ -70,8 +72,9 @@ struct Request {
 
 /** What the scene options of `bflow flow` (and `bflow sweep`) ask for, validated. */
 struct SceneSetup {
-  std::string scene;  ///< "pwconst" or "biped"
+  std::string scene;  ///< "pwconst", "biped" or "pronk"
   bool biped = false;
+  bool pronk = false;
   Params params;  ///< the --param pairs, in order, each key once
   Request request;
   /** The record's head: scene, params (all of them, defaults included), integrator, rtol,
@@ -84,7 +87,8 @@ SceneSetup parse_scene_setup(const FlowCommandOptions& options);
 
 /** f(model, default_x0) on the scene of `setup` with `overrides` (key=value) replacing or adding
     to its parameters; default_x0 is rho- = -F_--(0)/2 for pwconst (it reaches the origin at
-    t = 1/2, [B] Sec. 3.1) and biped_initial_state() for the biped.
+    t = 1/2, [B] Sec. 3.1), biped_initial_state() for the biped and pronk_initial_state() for
+    the pronk.
     @throws InputError for a parameter the scene refuses. */
 template <typename F>
 auto with_scene(const SceneSetup& setup, const Params& overrides, F&& f) {
@@ -98,6 +102,10 @@ auto with_scene(const SceneSetup& setup, const Params& overrides, F&& f) {
       }
     }
     if (!replaced) params.emplace_back(key, value);
+  }
+  if (setup.pronk) {
+    const auto model = adapt(make_pronk(pronk_params(params)));
+    return f(static_cast<const SegmentModel&>(model), Eigen::VectorXd(pronk_initial_state()));
   }
   if (setup.biped) {
     return visit_biped(biped_params(params), [&f](const auto& scene) {

@@ -358,9 +358,9 @@ struct BadOption {
 
 TEST(FlowCommandTest, MalformedOptionsExitTwoWithOneLine) {
   const std::vector<BadOption> cases = {
-      {{}, "--scene: required; the scenes are pwconst and biped"},
+      {{}, "--scene: required; the scenes are pwconst, biped and pronk"},
       {{"--scene", "pendulum"},
-       "--scene: unknown scene \"pendulum\"; the scenes are pwconst and biped"},
+       "--scene: unknown scene \"pendulum\"; the scenes are pwconst, biped and pronk"},
       {{"--scene", "biped", "--param", "mass=2"},
        "--param: unknown biped parameter \"mass\" (known: m, J, g, leg_length, psi, kappa, beta, "
        "thrust, thrust_speed, variant)"},
@@ -611,10 +611,11 @@ TEST(FlowCommandTest, OffendingTextIsQuotedShortAndPrintable) {
       {{"--scene", "pwconst", "--max-steps", huge},
        "--max-steps: \"" + cut + "\" is too large (at most 1000000000)"},
       {{"--scene", huge},
-       "--scene: unknown scene \"" + cut + "\"; the scenes are pwconst and biped"},
+       "--scene: unknown scene \"" + cut + "\"; the scenes are pwconst, biped and pronk"},
       // Bytes that are not UTF-8 as \xNN, control characters as \u00NN, UTF-8 kept.
       {{"--scene", "\xff\xfe\x01x\xc3\xa9"},
-       "--scene: unknown scene \"\\xff\\xfe\\u0001x\xc3\xa9\"; the scenes are pwconst and biped"},
+       "--scene: unknown scene \"\\xff\\xfe\\u0001x\xc3\xa9\"; the scenes are pwconst, biped and "
+       "pronk"},
       {{"--scene", "pwconst", "--param", "d=\xe2\x88\x92\x31"},
        "--param: pwconst parameter \"d\" must be an integer in [1, 16], got \"\xe2\x88\x92\x31\""},
       {{"--scene", "pwconst", "--param", "delta=\xe2\x88"},

@@ -328,7 +328,7 @@ TEST(OrbitCommandTest, MalformedOptionsExitTwoWithOneLineNamingThem) {
             "error: --vary-param: d changes the dimension of the state (d = 2 to 3); it cannot "
             "vary along a family\n");
   const Outcome none = command_line({"orbit"});
-  EXPECT_EQ(none.err, "error: --scene: required; the scenes are pwconst and biped\n");
+  EXPECT_EQ(none.err, "error: --scene: required; the scenes are pwconst, biped and pronk\n");
 }
 
 double seconds_since(std::chrono::steady_clock::time_point start) {
