@@ -31,6 +31,7 @@
 #include "bflow/core/errors.h"
 #include "bflow/core/flow_derivative.h"
 #include "bflow/integrators/hybrid_flow.h"
+#include "bflow/orbits/orbit_family.h"
 #include "bflow/orbits/periodic_orbit.h"
 #include "cli_commands.h"
 #include "cli_json.h"
@@ -343,6 +344,9 @@ void add_orbit(OrderedJson& j, const PeriodicOrbit& orbit) {
 struct Member {
   double value = 0.0;
   PeriodicOrbit orbit;
+  std::string predictor;  // where its Newton run started (OrbitFamilyMember::predictor)
+  int runs = 0;
+  std::vector<std::string> decisions;  // the family's, then the orbit's
 };
 
 OrderedJson member_json(const Member& m) {
@@ -350,6 +354,8 @@ OrderedJson member_json(const Member& m) {
   const bool returned = !o.steps.empty();
   OrderedJson j = OrderedJson::object();
   j["value"] = m.value;
+  j["predictor"] = m.predictor;
+  j["runs"] = m.runs;
   j["converged"] = o.converged;
   j["message"] = o.message;
   j["x"] = vector_json(o.x);
@@ -359,6 +365,7 @@ OrderedJson member_json(const Member& m) {
   j["growth_rate_lower"] = number_or_null(o.converged, o.growth_rate_lower);
   j["growth_rate_upper"] = number_or_null(o.converged, o.growth_rate_upper);
   j["stability"] = o.converged ? OrderedJson(to_string(o.stability)) : OrderedJson(nullptr);
+  j["decisions"] = m.decisions;
   return j;
 }
 
@@ -627,27 +634,38 @@ int orbit_command(const OrbitCommandOptions& options, std::ostream& out, std::os
   std::vector<Member> family;
   if (vary) {
     OrbitOptions member_options = plan.options;
-    Eigen::VectorXd guess = plan.x0;
-    for (int k = 0; k < vary->count; ++k) {
-      Member m;
-      m.value = vary->value(k);
-      const auto start = std::chrono::steady_clock::now();
-      try {
-        m.orbit =
-            with_scene(plan.setup, {{vary->key, format_number(m.value)}},
-                       [&](const SegmentModel& model, const Eigen::VectorXd&) {
-                         return find_periodic_orbit(model, plan.section, guess, member_options);
-                       });
-      } catch (const InvalidArgument& e) {
-        m.orbit = PeriodicOrbit{};
-        m.orbit.x = guess;
-        m.orbit.message = e.what();
-      }
-      if (m.orbit.converged) guess = m.orbit.x;
+    std::vector<double> values;
+    for (int k = 0; k < vary->count; ++k) values.push_back(vary->value(k));
+    auto start = std::chrono::steady_clock::now();
+    OrbitFamilyOptions family_options;
+    family_options.progress = [&](int k, const OrbitFamilyMember& member) {
       if (!options.quiet) {
-        err << member_line(*vary, k, m.orbit, seconds_since(start)) << '\n' << std::flush;
+        err << member_line(*vary, k, member.orbit, seconds_since(start)) << '\n' << std::flush;
       }
-      family.push_back(std::move(m));
+      start = std::chrono::steady_clock::now();
+    };
+    const std::vector<OrbitFamilyMember> members = continue_orbits(
+        values, plan.x0,
+        [&](double value, const Eigen::VectorXd& guess) {
+          try {
+            return with_scene(plan.setup, {{vary->key, format_number(value)}},
+                              [&](const SegmentModel& model, const Eigen::VectorXd&) {
+                                return find_periodic_orbit(model, plan.section, guess,
+                                                           member_options);
+                              });
+          } catch (const InputError& e) {
+            // Every value was checked in make_plan; should the scene still refuse one, the
+            // family's JSON is kept and the orbit recorded as not found.
+            throw InvalidArgument(e.what());
+          }
+        },
+        family_options);
+    for (const OrbitFamilyMember& member : members) {
+      std::vector<std::string> decisions = member.decisions;
+      decisions.insert(decisions.end(), member.orbit.decisions.begin(),
+                       member.orbit.decisions.end());
+      family.push_back(
+          Member{member.value, member.orbit, member.predictor, member.runs, std::move(decisions)});
     }
   }
 
