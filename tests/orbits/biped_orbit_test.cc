@@ -3,9 +3,10 @@
 //
 // References, independent of the library's flow and jump code:
 //  - the fixed point and period from the vertical motion alone, written by hand as one scalar
-//    equation and integrated by a classic RK4 written here (on the orbit x = theta = 0 and both
-//    feet act alike: flight y'' = -g; stance y'' = -g + 2 kappa a - 2 beta y' + 2 F tanh(y'/v0)
-//    with a = l cos psi - l^2 sin^2 psi - y, the mode-damping biped's beta with both feet down);
+//    equation and integrated by a classic RK4 (tests/support/vertical_hop.h; on the orbit
+//    x = theta = 0 and both feet act alike: flight y'' = -g; stance y'' = -g + 2 kappa a - 2 beta
+//    y' + 2 F tanh(y'/v0) with a = l cos psi - l^2 sin^2 psi - y, the mode-damping biped's beta
+//    with both feet down);
 //  - the return map against one-sided differences of the return map itself;
 //  - the verdict against the growth of true iterates of P from a perturbed point.
 #include <algorithm>
@@ -19,6 +20,7 @@
 #include "bflow/core/biped.h"
 #include "bflow/integrators/model_adapter.h"
 #include "bflow/orbits/periodic_orbit.h"
+#include "support/vertical_hop.h"
 
 namespace bflow {
 namespace {
@@ -35,70 +37,24 @@ BipedParams hopper() {
 
 const CoordinateSection kApex{4, 0.0, -1.0};  // vertical speed from + to -
 
-// The vertical hop by hand: from the apex at height y (at rest), the next apex height and the
-// time it takes. Flight in closed form, stance by RK4 with step h, liftoff located by Newton on
-// the last step.
-struct Hop {
-  double apex = 0.0;
-  double time = 0.0;
-};
+using testing::Hop;
 
-Hop vertical_hop(const BipedParams& p, double y) {
+// The vertical hop of support/vertical_hop.h with this body's numbers.
+testing::VerticalHop hop_of(const BipedParams& p) {
+  testing::VerticalHop hop;
+  hop.m = p.m;
+  hop.g = p.g;
+  hop.kappa = p.kappa;
+  hop.beta = p.beta;
+  hop.thrust = p.thrust;
+  hop.thrust_speed = p.thrust_speed;
   const double s = std::sin(p.psi);
-  const double y_td = p.leg_length * std::cos(p.psi) - p.leg_length * p.leg_length * s * s;
-  auto accel = [&](double yy, double v) {
-    const double a = y_td - yy;
-    return (-p.m * p.g + 2.0 * p.kappa * a - 2.0 * p.beta * v +
-            2.0 * p.thrust * std::tanh(v / p.thrust_speed)) /
-           p.m;
-  };
-  auto rk4 = [&](double& yy, double& v, double h) {
-    const double k1y = v, k1v = accel(yy, v);
-    const double k2y = v + 0.5 * h * k1v, k2v = accel(yy + 0.5 * h * k1y, v + 0.5 * h * k1v);
-    const double k3y = v + 0.5 * h * k2v, k3v = accel(yy + 0.5 * h * k2y, v + 0.5 * h * k2v);
-    const double k4y = v + h * k3v, k4v = accel(yy + h * k3y, v + h * k3v);
-    yy += h / 6.0 * (k1y + 2.0 * k2y + 2.0 * k3y + k4y);
-    v += h / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v);
-  };
-  const double fall = std::sqrt(2.0 * (y - y_td) / p.g);
-  double yy = y_td;
-  double v = -p.g * fall;
-  double t = fall;
-  const double h = 2e-5;
-  while (true) {
-    double y1 = yy, v1 = v;
-    rk4(y1, v1, h);
-    if (y1 > y_td && v1 > 0.0) {
-      // Liftoff inside this step: Newton on the step length.
-      double step = h * (y_td - yy) / (y1 - yy);
-      for (int k = 0; k < 8; ++k) {
-        double y2 = yy, v2 = v;
-        rk4(y2, v2, step);
-        step -= (y2 - y_td) / v2;
-      }
-      rk4(yy, v, step);
-      t += step;
-      break;
-    }
-    yy = y1;
-    v = v1;
-    t += h;
-  }
-  return {y_td + v * v / (2.0 * p.g), t + v / p.g};
+  hop.touchdown = p.leg_length * std::cos(p.psi) - p.leg_length * p.leg_length * s * s;
+  return hop;
 }
 
-// The apex height of the vertical periodic hop by the secant method on vertical_hop.
 Hop vertical_orbit(const BipedParams& p, double y0) {
-  double a = y0, b = y0 + 0.01;
-  double fa = vertical_hop(p, a).apex - a, fb = vertical_hop(p, b).apex - b;
-  for (int k = 0; k < 40 && std::abs(fb) > 1e-13; ++k) {
-    const double c = b - fb * (b - a) / (fb - fa);
-    a = b;
-    fa = fb;
-    b = c;
-    fb = vertical_hop(p, b).apex - b;
-  }
-  return {b, vertical_hop(p, b).time};
+  return testing::vertical_orbit(hop_of(p), y0);
 }
 
 class BipedOrbit : public ::testing::Test {
