@@ -30,18 +30,32 @@
 // iterates stay on the section (projected back along Ds for a curved section).
 //
 // The verdict. L = DP(x*) restricted to the tangent space T of the section is piecewise linear and
-// positively homogeneous. Its growth rate  rho(L) = max over z of lim |L^k z|^(1/k)  is the
+// positively homogeneous: one linear piece per combination of the events' crossing orders, each
+// active on a closed polyhedral cone of T (the tangent arriving at every event takes that event's
+// order, crossing_order_cone). Its growth rate  rho(L) = max over z of lim |L^k z|^(1/k)  is the
 // spectral radius when L is linear; rho(L) < 1 implies the orbit is locally exponentially
-// stable, rho(L) > 1 that it is unstable. The bracket [lower, upper] on rho(L):
-//   lower: directions z with L^p z = c z, c > 0 (p = 1 or 2), checked exactly on the pieces
-//     active along the cycle: the real eigenvectors of every piece and the ends of a normalised
-//     power iteration of L from many directions. Each found gives rho(L) >= c^(1/p).
-//   upper: rho(L) <= max over products of k pieces of |M_k ... M_1|^(1/k) in any fixed norm, for
-//     every k (the joint spectral radius of the pieces bounds rho(L)); bflow takes the least over
-//     k <= max_product_length and over the norms of the pieces' Schur bases and of a flag the
-//     pieces share (a common triangular form, where they have one), scaled to shrink their
-//     off-diagonal parts. Every product is counted, also those no direction realises, so the
-//     bound can only be loose, never wrong.
+// stable, rho(L) > 1 that it is unstable. The bracket [lower, upper] holds rho(L):
+//   lower: a direction cycle L^p z = c z with c > 0 and p <= max_product_length gives
+//     rho(L) >= c^(1/p). Candidates are the real eigenvectors of every piece and the ends of a
+//     normalised power iteration of L from many directions; where L^p z comes back near a
+//     positive multiple of z, c is computed exactly, as a real eigenvalue of the product P of
+//     the pieces active along the p steps, and counts only when its eigenvector lies in the
+//     closed cones of those pieces in turn (so L^p z = P z = c z) and L^p z = c z holds on the
+//     map itself. lower_direction and lower_period are the certificate; lower = 0 when none.
+//   upper: rho(L) <= (max |P|)^(1/k) for every k and every norm, the max over the products P of
+//     k pieces that some direction realises (z in the first piece's cone, its image in the
+//     second's, ...). For any z, L^{nk} z is n blocks of k steps, each the product realised by
+//     the block's first direction, so |L^{nk} z| <= (max |P|)^n |z|. Whether a product is
+//     realised is a linear program (its cone is polyhedral); the products form a tree in which
+//     a prefix no direction realises is not extended; a cone counts as nonempty when it is so to
+//     within 1e-9, so rounding only ever adds products and loosens the bound. bflow takes the
+//     least over k <= max_product_length (while a length has at most max_products realisable
+//     products) and over the norms of the pieces' Schur bases and of a flag the pieces share (a
+//     common triangular form, where they have one), scaled to shrink their off-diagonal parts;
+//     in that flag every single piece, realised or not, is counted (k = 1).
+//   Both ends are moved outwards by a relative 1e-11 for rounding. The ends bound one number, so
+//   an upper end below the lower one is an error of bflow: it throws std::logic_error, never
+//   lifted to the lower end.
 // With one piece (every event crosses one surface) both ends are the spectral radius of the
 // Jacobian: the classic Floquet multipliers (multipliers lists them). Stable when upper < 1,
 // unstable when lower > 1, undecided otherwise. The verdict is about L; where the return map is
@@ -51,6 +65,7 @@
 
 #include <complex>
 #include <functional>
+#include <limits>
 #include <string>
 #include <type_traits>
 #include <utility>
@@ -179,8 +194,10 @@ struct OrbitOptions {
   static constexpr long kMaxReturnWindows = 100000;
   /** Crossings of the section earlier than this after leaving x do not count (>= 0). */
   double min_return_time = 0.0;
-  /** The stability bracket: directions for the power iteration, its steps, and the longest
-      products of pieces (and at most max_products products per length) for the upper bound. */
+  /** The stability bracket: directions for the power iteration and its steps (the lower end);
+      the longest products of pieces, which is also the longest direction cycle looked for, and
+      at most max_products realisable products per length (the upper end; a length with more, or
+      with more than 64 max_products candidate products to test, is not used). */
   int growth_directions = 64;
   int growth_iterations = 400;
   int max_product_length = 12;
@@ -238,6 +255,14 @@ struct GrowthBracket {
       direction (0 when none was found, then lower = 0). */
   int upper_length = 0;
   int lower_period = 0;
+  /** The lower end's certificate: z (m numbers, unit length) with L^p z = c z, lower = c^(1/p)
+      (up to the rounding margin); empty when lower_period = 0 or L is linear. */
+  Eigen::VectorXd lower_direction;
+  /** realisable_products[k - 1]: the products of k pieces that some direction realises, counted
+      for the upper end (the tree of products, pruned where no direction realises a prefix). Ends
+      before the first length with more than max_products of them (OrbitOptions); empty when L
+      is linear. */
+  std::vector<long> realisable_products;
   /** When L is linear: its eigenvalues (the nontrivial Floquet multipliers), by modulus. */
   std::vector<std::complex<double>> multipliers;
 };
@@ -312,15 +337,78 @@ NewtonEquationSolution solve_newton_equation(const FlowDerivative& map,
                                              long max_pieces = 4096);
 
 /** The bracket of the growth rate of L = map restricted to span(basis) (d x m, orthonormal
-    columns; the map's images must lie in that span). */
+    columns; the map's images must lie in that span): see "The verdict" above.
+    @throws InvalidArgument for options out of range, a basis of the wrong size or not
+    orthonormal, or a map with too many pieces to enumerate (FlowDerivative::pieces()).
+    @throws std::logic_error when the ends cross (upper < lower): an error of bflow's. */
 GrowthBracket growth_rate_bracket(const FlowDerivative& map, const Eigen::MatrixXd& basis,
                                   const OrbitOptions& options = {});
 
 /** The verdict from a bracket: stable when upper < 1, unstable when lower > 1. */
 OrbitStability classify(const GrowthBracket& bracket);
 
+/** The cone where a jump takes the crossing order sigma (surface indices of the jump, first
+    crossed first), as n - 1 rows R (n - 1 x d): the tangent dx takes order sigma exactly when
+    R dx >= 0 (closed: at a tie both orders hold; order() then reports the lower index first).
+    Row k - 1 is the time from the k-th to the (k+1)-th crossing, t_sigma(k+1) - t_sigma(k) of
+    [B] (6.8)-(6.9), as a linear function of dx (the differences of CrossingOrder::times).
+    Where a row's update would leave the double range it is dropped (the cone only grows).
+    @throws InvalidArgument unless sigma is a permutation of 0..n-1. */
+Eigen::MatrixXd crossing_order_cone(const JumpMap& jump, const std::vector<int>& sigma);
+
 /** An orthonormal basis of the orthogonal complement of the vector g (d x (d - 1)). */
 Eigen::MatrixXd orthogonal_complement(const Eigen::Ref<const Eigen::VectorXd>& g);
+
+// The parts of growth_rate_bracket that its tests check on their own; not a stable interface.
+namespace internal {
+
+/** The result of simplex_from_origin. */
+struct SimplexResult {
+  enum class Status { kOptimal, kTargetReached, kUnbounded, kIterationLimit };
+  Status status = Status::kOptimal;
+  double value = 0.0;  ///< c . x at the x returned
+  Eigen::VectorXd x;
+  int pivots = 0;
+};
+
+/** Maximises c . x subject to G x <= h and x >= 0, where h >= 0 (so x = 0 is feasible and the
+    dense simplex starts there, on the slack basis). Dantzig's rule, then Bland's after a run of
+    degenerate pivots (no cycling). Stops early with kTargetReached once c . x >= target.
+    @throws InvalidArgument on mismatched sizes, non-finite numbers or a negative h. */
+SimplexResult simplex_from_origin(const Eigen::MatrixXd& g, const Eigen::VectorXd& h,
+                                  const Eigen::VectorXd& c,
+                                  double target = std::numeric_limits<double>::infinity());
+
+/** Whether the cone {z : rows z >= 0} (r rows of unit length) holds a z != 0, erring only
+    towards yes: true whenever it does exactly, and also for cones empty only to within the
+    tolerance. True when the rows have a numerical kernel (r < m, or smallest singular value
+    <= 1e-9 times the largest); otherwise one LP from z = 0, max 1 . R z subject to
+    -tolerance <= R z <= 1, answers true when it reaches 1/2 (a nonempty cone reaches >= 1; a
+    solution reaching 1/2 lies in the cone relaxed by 2 r tolerance) or does not finish.
+    witness, when given and the answer is true, gets a unit z in that relaxed cone. */
+bool cone_is_nontrivial(const Eigen::MatrixXd& rows, double tolerance,
+                        Eigen::VectorXd* witness = nullptr);
+
+/** A linear piece of L = B^T DP(B z): the crossing order at every event (model indices, as in
+    FlowPiece), its matrix B^T M B and its cone, unit rows R with R z >= 0 exactly where every
+    event's tangent (Phi_{i-1} M_{i-1} ... Phi_0 B z) takes its order. */
+struct ConePiece {
+  std::vector<std::vector<int>> orders;
+  Eigen::MatrixXd matrix;
+  Eigen::MatrixXd cone;
+};
+
+/** Every combination of the events' orders (as FlowDerivative::pieces(), which it calls and
+    whose throws it passes on) with its cone. */
+std::vector<ConePiece> cone_pieces(const FlowDerivative& map, const Eigen::MatrixXd& basis);
+
+/** The bracket's last step: both ends move outwards by a relative 1e-11 (the rounding of the
+    products, norms and eigenvalues behind them), then upper >= lower must hold.
+    @throws std::logic_error quoting both ends when upper < lower (or either is NaN): the ends
+    bound the same number, so one of them is wrong; it is reported, never repaired. */
+void finish_bracket(GrowthBracket& bracket);
+
+}  // namespace internal
 
 }  // namespace bflow
 
