@@ -24,10 +24,14 @@
 //
 // The fixed point. Newton's method on P(x) - x = 0 restricted to the section: each step solves
 // the piecewise-linear equation  DP(x_k; delta) - delta = -(P(x_k) - x_k)  for delta in the
-// section's tangent space by iterating on the active piece (solve with one piece's Jacobian,
-// look which piece is active at the solution, repeat until the piece holds), then backtracks
-// until |P(x) - x| decreases. It converges to unstable orbits as well as stable ones; the
-// iterates stay on the section (projected back along Ds for a curved section).
+// section's tangent space exactly (solve_newton_equation: the linear system of every distinct
+// piece, each solution checked on the map; none or several are reported in `decisions`), then
+// backtracks until |P(x) - x| decreases. It converges to unstable orbits as well as stable ones;
+// the iterates stay on the section (projected back along Ds for a curved section). A guess that
+// does not cross the section upwards is replaced by its return P(guess); a run that ends where
+// the trajectory stays within 1000 times the tolerance of x over the return time is an
+// equilibrium, not an orbit (converged = false). Every loop is bounded by an option and names it
+// when it ends there (docs/orbits.md).
 //
 // The verdict. L = DP(x*) restricted to the tangent space T of the section is piecewise linear and
 // positively homogeneous: one linear piece per combination of the events' crossing orders, each
@@ -156,7 +160,8 @@ enum class OrbitStability { kStable, kUnstable, kUndecided };
 /** "stable", "unstable", "undecided". */
 const char* to_string(OrbitStability stability);
 
-/** FlowOptions with the tolerances an orbit needs by default: rtol 1e-10, atol 1e-12. */
+/** FlowOptions with the tolerances an orbit needs by default: rtol 1e-10, atol 1e-12, and the
+    tangents in the error norm (the return map's derivative held to the tolerance as well). */
 FlowOptions default_orbit_flow_options();
 
 /** One Newton step, for progress reports. */
@@ -285,11 +290,14 @@ struct PeriodicOrbit {
   std::vector<EventRecord> events;  ///< one period's events
   std::vector<FlowNotice> notices;
   std::vector<OrbitNewtonStep> steps;
-  /** What the solver decided for the caller: every Newton step it shortened (or gave up)
-      because the return map could not be evaluated at a longer one, with the reason (e.g. an
-      event whose surfaces' normals are dependent); and a bracket not computed because the
-      return map has too many pieces to enumerate (then [0, inf] and kUndecided). Empty when
-      every step was taken as solved or shortened only for lack of decrease. */
+  /** What the solver decided for the caller: a guess that does not cross the section upwards,
+      replaced by its return; a search for the return that resolved crossings one by one; every
+      Newton equation with no solution or several (and the step taken); every Newton step it
+      shortened (or gave up) because the return map could not be evaluated at a longer one, with
+      the reason (e.g. an event whose surfaces' normals are dependent); and a bracket not
+      computed because the return map has too many pieces to enumerate (then [0, inf] and
+      kUndecided). Empty when every step was taken as solved or shortened only for lack of
+      decrease. */
   std::vector<std::string> decisions;
 };
 
