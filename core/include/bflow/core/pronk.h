@@ -53,7 +53,7 @@
 // c_x = tether_damping = 1. From (0, 1, 0) at rest the body falls straight down and both feet
 // touch at the same instant (pronk_touchdown()); its hop has the apex 0.977396 and the period
 // 0.764871, and the growth rate of its return map is 0.7447 (bflow orbit's bracket
-// [0.5545, 0.7456]).
+// [0.5545, 0.7447]).
 //
 //   bflow::PronkParams p;                                  // the defaults: a stable pronk
 //   bflow::set_param(p, "thrust", "12");                   // from "thrust=12" on a command line
