@@ -24,12 +24,12 @@
 #include "bflow/integrators/model_adapter.h"
 #include "bflow/orbits/periodic_orbit.h"
 #include "cli_commands.h"
+#include "orbit_json.h"
 #include "support/run_command.h"
 
 namespace bflow::cli {
 namespace {
 
-using bflow::testing::capture;
 using bflow::testing::command_line;
 using bflow::testing::Outcome;
 
@@ -38,24 +38,24 @@ using ::testing::StartsWith;
 using Json = nlohmann::json;
 namespace fs = std::filesystem;
 
+using bflow::testing::columns_of;
+using bflow::testing::gnuplot_on_path;
+using bflow::testing::vector_of;
+
 Outcome orbit(const OrbitCommandOptions& options) {
-  return capture(
-      [&](std::ostream& out, std::ostream& err) { return run_orbit(options, out, err); });
+  return bflow::testing::run_orbit_command(options);
 }
 
-Eigen::VectorXd vector_of(const Json& v) {
-  Eigen::VectorXd out(static_cast<Eigen::Index>(v.size()));
-  for (std::size_t i = 0; i < v.size(); ++i) out[static_cast<Eigen::Index>(i)] = v[i].get<double>();
-  return out;
+BipedParams params_of(const Json& params) {
+  return bflow::testing::params_from_json<BipedParams>(params);
 }
 
-Eigen::MatrixXd columns_of(const Json& columns) {
-  Eigen::MatrixXd out(static_cast<Eigen::Index>(columns[0].size()),
-                      static_cast<Eigen::Index>(columns.size()));
-  for (std::size_t c = 0; c < columns.size(); ++c) {
-    out.col(static_cast<Eigen::Index>(c)) = vector_of(columns[c]);
-  }
-  return out;
+// One period of the biped of `params` by a plain simulation (orbit_json.h).
+bflow::testing::PeriodReturn simulate_one_period(const Json& params, const Eigen::VectorXd& x,
+                                                 double period) {
+  return visit_biped(params_of(params), [&](const auto& scene) {
+    return bflow::testing::one_period(adapt(scene), x, period);
+  });
 }
 
 std::vector<std::string> lines_of(const std::string& text) {
@@ -65,58 +65,11 @@ std::vector<std::string> lines_of(const std::string& text) {
   return lines;
 }
 
-// The biped of the JSON's "params", built here from the printed values (set_param reads each
-// number back exactly).
-BipedParams params_of(const Json& params) {
-  BipedParams p;
-  for (const auto& [key, value] : params.items()) {
-    if (key == "variant") {
-      set_param(p, key, value.get<std::string>());
-    } else {
-      std::ostringstream text;
-      text.precision(17);
-      text << value.get<double>();
-      set_param(p, key, text.str());
-    }
-  }
-  return p;
-}
-
-// |phi_T(x) - x|_inf on the biped of `params`, by a plain simulation at tight tolerances, and
-// the vertical speed a little before T (the section -x4 is crossed from ydot > 0 to ydot < 0).
-struct Return {
-  double error = 0.0;
-  double ydot_before = 0.0;
-};
-
-Return simulate_one_period(const Json& params, const Eigen::VectorXd& x, double period) {
-  FlowOptions flow;
-  flow.integrator.rtol = 1e-12;
-  flow.integrator.atol = 1e-14;
-  return visit_biped(params_of(params), [&](const auto& scene) {
-    const auto model = adapt(scene);
-    const FlowResult end = simulate(model, x, period, flow);
-    const FlowResult before = simulate(model, x, 0.99 * period, flow);
-    EXPECT_TRUE(end.ok()) << end.message;
-    EXPECT_TRUE(before.ok()) << before.message;
-    return Return{(end.x - x).lpNorm<Eigen::Infinity>(), before.x[4]};
-  });
-}
-
 OrbitCommandOptions biped() {
   OrbitCommandOptions o;
   o.scene = "biped";
   o.compact = true;
   return o;
-}
-
-bool gnuplot_on_path() {
-  const char* path = std::getenv("PATH");
-  std::istringstream dirs(path == nullptr ? "" : path);
-  for (std::string dir; std::getline(dirs, dir, ':');) {
-    if (!dir.empty() && fs::exists(fs::path(dir) / "gnuplot")) return true;
-  }
-  return false;
 }
 
 TEST(OrbitCommandTest, BipedDefaultsFindTheHoppingOrbit) {
@@ -144,7 +97,7 @@ TEST(OrbitCommandTest, BipedDefaultsFindTheHoppingOrbit) {
   EXPECT_LE(j["residual"].get<double>(), 1e-8 * (1.0 + x.lpNorm<Eigen::Infinity>()));
 
   // The independent check: x is a fixed point of the flow after one period, reached rising.
-  const Return back = simulate_one_period(j["params"], x, period);
+  const bflow::testing::PeriodReturn back = simulate_one_period(j["params"], x, period);
   EXPECT_LE(back.error, 1e-6);
   EXPECT_GT(back.ydot_before, 0.0);
 
@@ -221,7 +174,8 @@ TEST(OrbitCommandTest, FamilyAlongThrustConvergesAtEveryValue) {
     last_period = m["period"].get<double>();
     Json params = j["params"];
     params["thrust"] = values[k];
-    const Return back = simulate_one_period(params, vector_of(m["x"]), m["period"].get<double>());
+    const bflow::testing::PeriodReturn back =
+        simulate_one_period(params, vector_of(m["x"]), m["period"].get<double>());
     EXPECT_LE(back.error, 1e-6);
   }
   // thrust = 10 is the orbit of the defaults, found again from the orbit at 9.

@@ -20,12 +20,12 @@
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
 #include "cli_commands.h"
+#include "orbit_json.h"
 #include "support/run_command.h"
 
 namespace bflow::cli {
 namespace {
 
-using bflow::testing::capture;
 using bflow::testing::command_line;
 using bflow::testing::Outcome;
 
@@ -34,9 +34,19 @@ using ::testing::StartsWith;
 using Json = nlohmann::json;
 namespace fs = std::filesystem;
 
+using bflow::testing::gnuplot_on_path;
+using bflow::testing::rows_of;
+using bflow::testing::vector_of;
+
 Outcome orbit(const OrbitCommandOptions& options) {
-  return capture(
-      [&](std::ostream& out, std::ostream& err) { return run_orbit(options, out, err); });
+  return bflow::testing::run_orbit_command(options);
+}
+
+// One period of the pronk of `params` by a plain simulation (orbit_json.h).
+bflow::testing::PeriodReturn simulate_one_period(const Json& params, const Eigen::VectorXd& x,
+                                                 double period) {
+  return bflow::testing::one_period(
+      adapt(make_pronk(bflow::testing::params_from_json<PronkParams>(params))), x, period);
 }
 
 OrbitCommandOptions pronk() {
@@ -44,53 +54,6 @@ OrbitCommandOptions pronk() {
   o.scene = "pronk";
   o.compact = true;
   return o;
-}
-
-Eigen::VectorXd vector_of(const Json& v) {
-  Eigen::VectorXd out(static_cast<Eigen::Index>(v.size()));
-  for (std::size_t i = 0; i < v.size(); ++i) out[static_cast<Eigen::Index>(i)] = v[i].get<double>();
-  return out;
-}
-
-Eigen::MatrixXd matrix_of(const Json& rows) {
-  Eigen::MatrixXd out(static_cast<Eigen::Index>(rows.size()),
-                      static_cast<Eigen::Index>(rows[0].size()));
-  for (std::size_t r = 0; r < rows.size(); ++r) {
-    out.row(static_cast<Eigen::Index>(r)) = vector_of(rows[r]).transpose();
-  }
-  return out;
-}
-
-// The pronk of the JSON's "params", built here from the printed values (set_param reads each
-// number back exactly).
-PronkParams params_of(const Json& params) {
-  PronkParams p;
-  for (const auto& [key, value] : params.items()) {
-    std::ostringstream text;
-    text.precision(17);
-    text << value.get<double>();
-    set_param(p, key, text.str());
-  }
-  return p;
-}
-
-// |phi_T(x) - x|_inf on the pronk of `params` by a plain simulation at tight tolerances, and the
-// vertical speed a little before T (the section -x4 is crossed from ydot > 0 to ydot < 0).
-struct Return {
-  double error = 0.0;
-  double ydot_before = 0.0;
-};
-
-Return simulate_one_period(const Json& params, const Eigen::VectorXd& x, double period) {
-  FlowOptions flow;
-  flow.integrator.rtol = 1e-12;
-  flow.integrator.atol = 1e-14;
-  const auto model = adapt(make_pronk(params_of(params)));
-  const FlowResult end = simulate(model, x, period, flow);
-  const FlowResult before = simulate(model, x, 0.99 * period, flow);
-  EXPECT_TRUE(end.ok()) << end.message;
-  EXPECT_TRUE(before.ok()) << before.message;
-  return Return{(end.x - x).lpNorm<Eigen::Infinity>(), before.x[4]};
 }
 
 TEST(PronkCommandTest, OrbitWithNoOptionIsTheStableHop) {
@@ -118,7 +81,7 @@ TEST(PronkCommandTest, OrbitWithNoOptionIsTheStableHop) {
   EXPECT_NEAR(period, 0.764871, 1e-6);
 
   // Independent: x is a fixed point of the flow after one period, reached rising.
-  const Return back = simulate_one_period(j["params"], x, period);
+  const bflow::testing::PeriodReturn back = simulate_one_period(j["params"], x, period);
   EXPECT_LE(back.error, 1e-6);
   EXPECT_GT(back.ydot_before, 0.0);
 
@@ -135,7 +98,7 @@ TEST(PronkCommandTest, OrbitWithNoOptionIsTheStableHop) {
   std::vector<Eigen::MatrixXd> pieces;
   for (const Json& piece : map["pieces"]) {
     EXPECT_EQ(piece["orders"].size(), 2u);
-    pieces.push_back(matrix_of(piece["matrix"]));
+    pieces.push_back(rows_of(piece["matrix"]));
     ASSERT_EQ(pieces.back().rows(), 5);
     ASSERT_EQ(pieces.back().cols(), 5);
   }
@@ -210,7 +173,8 @@ TEST(PronkCommandTest, FamilyAlongThrustStaysStable) {
     last_period = m["period"].get<double>();
     Json params = j["params"];
     params["thrust"] = m["value"];
-    const Return back = simulate_one_period(params, vector_of(m["x"]), m["period"].get<double>());
+    const bflow::testing::PeriodReturn back =
+        simulate_one_period(params, vector_of(m["x"]), m["period"].get<double>());
     EXPECT_LE(back.error, 1e-6);
   }
   EXPECT_NEAR(j["family"][1]["period"].get<double>(), j["period"].get<double>(), 1e-9);
@@ -264,15 +228,6 @@ TEST(PronkCommandTest, BadParametersAreOneLineNamingThem) {
     EXPECT_EQ(r.out, "");
     EXPECT_EQ(r.err, "error: " + c.line + "\n");
   }
-}
-
-bool gnuplot_on_path() {
-  const char* path = std::getenv("PATH");
-  std::istringstream dirs(path == nullptr ? "" : path);
-  for (std::string dir; std::getline(dirs, dir, ':');) {
-    if (!dir.empty() && fs::exists(fs::path(dir) / "gnuplot")) return true;
-  }
-  return false;
 }
 
 TEST(PronkCommandTest, PlotDrawsTheOrbitAndTheFamily) {
