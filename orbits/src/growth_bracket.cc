@@ -20,6 +20,7 @@
 #include <Eigen/Dense>
 
 #include "bflow/core/errors.h"
+#include "bflow/orbits/internal/growth_cones.h"
 #include "bflow/orbits/periodic_orbit.h"
 
 namespace bflow {

@@ -31,6 +31,7 @@
 
 #include "bflow/core/flow_derivative.h"
 #include "bflow/core/jump_map.h"
+#include "bflow/orbits/internal/growth_cones.h"
 #include "bflow/orbits/periodic_orbit.h"
 #include "support/error_message.h"
 #include "support/random_jump.h"
