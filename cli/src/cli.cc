@@ -178,6 +178,14 @@ constexpr const char* kOcpFooter =
                  that start from the ground) and "t_physical_end" (the clock at T); "exact"
                  gives the target and the errors against it. --plot also draws
                  monoped_frames.png, monoped_states.png and monoped_controls.png.
+  hopper         the hopping robot of nosnoc's Python package by time-freezing
+                 (bflow/examples/hopper.h): a body on a telescopic leg, five jumps from
+                 x = 0.1 to x = 5 in T = 5 along a reference, N = 50 (a multiple of 5),
+                 Stewart's formulation on the eight base sets, the package's settings
+                 (sigma 100 x 0.1 for at most six NLPs, stopping at complementarity 1e-9,
+                 IPOPT tol 1e-8). x = (x, y, angle, leg length, their velocities, clock),
+                 u = (torque, leg force, slack, speed of time). Adds "hops" and
+                 "t_physical_end"; "exact" gives the target and the errors against it.
 
 Output, one JSON object: "example", "N", "nfe", "status", "message", "ipopt_status" and
 "kkt_error" (how IPOPT ended the result's NLP; "solved" needs kkt_error <= --tol either way),
@@ -452,9 +460,10 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         "Solve an optimal control problem of a nonsmooth example through FESD (IPOPT) and "
         "print the optimum, the switch times and the errors against the exact optimum (JSON)");
     ocp->add_option("--example", ocp_options.example,
-                    "turbo-car, braking-block or monoped (required)")
+                    "turbo-car, braking-block, monoped or hopper (required)")
         ->type_name("NAME");
-    ocp->add_option("--N", numbers.ocp_n, "Control stages N, >= 1 (default 10; 30 for the monoped)")
+    ocp->add_option("--N", numbers.ocp_n,
+                    "Control stages N, >= 1 (default 10; 30 for the monoped, 50 for the hopper)")
         ->type_name("N");
     ocp->add_option("--nfe", numbers.ocp_nfe, "Finite elements per control stage, >= 1")
         ->type_name("N_FE")
@@ -465,9 +474,9 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     ocp->add_option("--scheme", ocp_options.scheme, "radau (Radau IIA) or gauss (Gauss-Legendre)")
         ->type_name("NAME")
         ->capture_default_str();
-    ocp->add_option("--formulation", ocp_options.formulation, "step or stewart")
-        ->type_name("NAME")
-        ->capture_default_str();
+    ocp->add_option("--formulation", ocp_options.formulation,
+                    "step or stewart (default step; stewart for the hopper)")
+        ->type_name("NAME");
     ocp->add_flag("--standard", ocp_options.standard,
                   "Standard time-stepping: equal fixed elements, no switch detection");
     ocp->add_option("--setup", ocp_options.setup,

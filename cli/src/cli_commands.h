@@ -198,15 +198,16 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
 /** `bflow ocp`: the options as given on the command line. run_ocp() checks every range and
     names the option in its message. */
 struct OcpCommandOptions {
-  /** turbo-car or braking-block (bflow/examples/ocp_examples.h) or monoped
-      (bflow/examples/monoped_ocp.h); required. */
+  /** turbo-car or braking-block (bflow/examples/ocp_examples.h), monoped
+      (bflow/examples/monoped_ocp.h) or hopper (bflow/examples/hopper.h); required. */
   std::string example;
-  /** --N: control stages, >= 1; not given: 10, or 30 for the monoped. */
+  /** --N: control stages, >= 1; not given: 10, 30 for the monoped, 50 for the hopper. */
   std::optional<int> n;
-  int nfe = 3;                          ///< finite elements per control stage, >= 1
-  int stages = 2;                       ///< n_s, 1..9
-  std::string scheme = "radau";         ///< radau or gauss
-  std::string formulation = "step";     ///< step or stewart
+  int nfe = 3;                   ///< finite elements per control stage, >= 1
+  int stages = 2;                ///< n_s, 1..9
+  std::string scheme = "radau";  ///< radau or gauss
+  /** step or stewart; not given: stewart for the hopper, else step. */
+  std::optional<std::string> formulation;
   bool standard = false;                ///< standard time-stepping, no switch detection
   std::string relaxation = "scholtes";  ///< scholtes or l1
   /** --cross: element-sums or point-pairs (bflow::CrossComplementarity); not given: the

@@ -18,6 +18,7 @@
 
 #include "bflow/core/errors.h"
 #include "bflow/core/filippov.h"
+#include "bflow/examples/hopper.h"
 #include "bflow/examples/monoped.h"
 #include "bflow/examples/monoped_ocp.h"
 #include "bflow/examples/ocp_examples.h"
@@ -34,7 +35,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-constexpr const char* kExamples[] = {"turbo-car", "braking-block", "monoped"};
+constexpr const char* kExamples[] = {"turbo-car", "braking-block", "monoped", "hopper"};
 
 // The smallest --tol: IPOPT's tolerance on the scaled optimality error of the last NLP. Measured
 // at the defaults (N = 10): the braking block meets 1e-14 (the last NLP in 254 iterations) but
@@ -71,11 +72,19 @@ auto with_example(const std::string& name, const examples::MonopedTask& monoped,
     return f(adapt_ocp(examples::TurboCar{}), examples::TurboCar::problem());
   }
   if (name == "monoped") return examples::with_monoped(monoped, formulation, stages, f);
+  if (name == "hopper") {
+    const OcpProblem problem = examples::HopperTask(stages).problem();
+    if (formulation == DcsFormulation::kStewart) {
+      return f(adapt_ocp(examples::hopper_model<TimeFreezingRegions::kBaseSets>()), problem);
+    }
+    return f(adapt_ocp(examples::hopper_model<TimeFreezingRegions::kUnions>()), problem);
+  }
   return f(adapt_ocp(examples::BrakingBlock{}), examples::BrakingBlock::problem());
 }
 
 // The number of control stages: --N, or the example's default.
 int stages_of(const OcpCommandOptions& options) {
+  if (options.example == "hopper") return options.n.value_or(examples::HopperTask{}.stages);
   return options.n.value_or(options.example == "monoped" ? 30 : 10);
 }
 
@@ -177,6 +186,19 @@ OrderedJson exact_json(const std::string& example, const OcpResult& r) {
       j["switch_times_error"] = worst;
     } else {
       j["switch_times_error"] = nullptr;
+    }
+  } else if (example == "hopper") {
+    using examples::HopperTask;
+    const Eigen::VectorXd target = HopperTask::target();
+    j["q_target"] = std::vector<double>(target.data(), target.data() + 4);
+    j["t_physical_end"] = HopperTask::kHorizon;
+    if (r.x_stages.cols() > 0) {
+      const Eigen::VectorXd end = r.x_stages.col(r.x_stages.cols() - 1);
+      j["q_error"] = HopperTask::target_error(end);
+      j["t_physical_end_error"] = std::abs(end[8] - HopperTask::kHorizon);
+    } else {
+      j["q_error"] = nullptr;
+      j["t_physical_end_error"] = nullptr;
     }
   } else if (example == "monoped") {
     using examples::MonopedTask;
@@ -456,9 +478,10 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
     }
     DcsFormulation formulation;
     try {
-      formulation = parse_dcs_formulation(options.formulation);
+      formulation = parse_dcs_formulation(
+          options.formulation.value_or(options.example == "hopper" ? "stewart" : "step"));
     } catch (const InvalidArgument&) {
-      report_error(err, "--formulation: unknown formulation " + quote(options.formulation) +
+      report_error(err, "--formulation: unknown formulation " + quote(*options.formulation) +
                             ": use step or stewart");
       return kExitBadInput;
     }
@@ -473,10 +496,21 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
         fail("--setup", "unknown setup " + quote(*options.setup) + "; use nosnoc or strict");
       }
     }
-    // The monoped starts from its setup's options (MonopedTask::options), nosnoc's by default.
-    OcpOptions o = options.example == "monoped"
-                       ? monoped.options(std::max(stages_of(options), 1), formulation)
-                       : OcpOptions{};
+    const int hopper_jumps = examples::HopperTask::kJumps;
+    if (options.example == "hopper" &&
+        (stages_of(options) < hopper_jumps || stages_of(options) % hopper_jumps != 0)) {
+      fail("--N", "the hopper's number of control stages must be a positive multiple of " +
+                      std::to_string(hopper_jumps) + " (its reference samples each of the " +
+                      std::to_string(hopper_jumps) + " jumps at N / " +
+                      std::to_string(hopper_jumps) + " stages), got " +
+                      std::to_string(stages_of(options)));
+    }
+    // The monoped starts from its setup's options (MonopedTask::options), nosnoc's by default;
+    // the hopper from nosnoc's settings of its example (HopperTask::options).
+    OcpOptions o =
+        options.example == "monoped" ? monoped.options(std::max(stages_of(options), 1), formulation)
+        : options.example == "hopper" ? examples::HopperTask(stages_of(options)).options()
+                                      : OcpOptions{};
     o.formulation = formulation;
     try {
       o.scheme = parse_collocation_scheme(options.scheme);
@@ -564,8 +598,11 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
           j["ipopt_iterations"] = r.ipopt_iterations;
           j["cpu_seconds"] = r.cpu_seconds;
           j["cpu_per_iteration"] = r.cpu_per_iteration;
-          if (options.example == "monoped") {
-            j["hops"] = r.x_grid.cols() > 0 ? examples::MonopedTask::hops(r.x_grid) : 0;
+          if (options.example == "monoped" || options.example == "hopper") {
+            const bool monoped_run = options.example == "monoped";
+            j["hops"] = r.x_grid.cols() == 0 ? 0
+                        : monoped_run        ? examples::MonopedTask::hops(r.x_grid)
+                                             : examples::HopperTask::hops(r.x_grid);
             j["t_physical_end"] =
                 r.x_stages.cols() > 0 ? OrderedJson(r.x_stages(8, r.x_stages.cols() - 1)) : nullptr;
           }

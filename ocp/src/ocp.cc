@@ -135,7 +135,19 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
                           std::to_string(p.clock_state) + ") needs a fixed horizon");
   }
   check_bounds(p.u_lower, p.u_upper, nu, "u_lower", "u_upper");
+  if (!(p.clock_tolerance >= 0.0) || !std::isfinite(p.clock_tolerance)) {
+    throw InvalidArgument("ocp: clock_tolerance = " + number(p.clock_tolerance) +
+                          " must be finite and >= 0");
+  }
+  if (p.clock_tolerance > 0.0 && p.clock_state < 0) {
+    throw InvalidArgument("ocp: clock_tolerance = " + number(p.clock_tolerance) +
+                          " is given without a clock_state");
+  }
   check_bounds(p.path_lower, p.path_upper, model.path_constraints(), "path_lower", "path_upper");
+  if (p.track_time_scale < -1 || p.track_time_scale >= nu) {
+    throw InvalidArgument("ocp: track_time_scale = " + std::to_string(p.track_time_scale) +
+                          " is no control index (0.." + std::to_string(nu - 1) + ") and not -1");
+  }
   check_bounds(p.terminal_lower, p.terminal_upper, model.terminal_constraints(), "terminal_lower",
                "terminal_upper");
   check_vector(p.track_Q, d, "track_Q");
@@ -288,6 +300,7 @@ class OcpTerms final : public fesd::TranscriptionTerms {
     return value;
   }
   template <typename T>
+    if (p_.track_time_scale >= 0) value *= u[p_.track_time_scale];
   T terminal_value(const T* x) const {
     T value = model_.mayer(x);
     for (Eigen::Index i = 0; i < p_.track_Q_terminal.size(); ++i) {
@@ -516,6 +529,8 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   setup.standard = options.standard;
   setup.relaxation = options.relaxation == OcpRelaxation::kL1Penalty ? fesd::Relaxation::kL1Penalty
                                                                      : fesd::Relaxation::kScholtes;
+  setup.clock_tolerance = problem.clock_tolerance;
+  setup.x_bounds_at_stage_points = problem.x_bounds_at_stage_points;
   setup.equilibration_weight = options.equilibration_weight;
   setup.equilibration_fades = true;
   setup.step_deviation_weight = options.step_deviation_weight;

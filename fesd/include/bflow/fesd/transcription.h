@@ -124,11 +124,13 @@ struct TranscriptionSetup {
   bool time_optimal = false;
   double T_min = 0.0, T_max = 0.0;
   Eigen::VectorXd x_lower, x_upper;                ///< on every element's end state
+  bool x_bounds_at_stage_points = false;           ///< and on every stage's state X_m
   Eigen::VectorXd u_lower, u_upper;                ///< on every stage's control
   Eigen::VectorXd path_lower, path_upper;          ///< empty: (-inf, 0]
   Eigen::VectorXd terminal_lower, terminal_upper;  ///< empty: 0
   /** A clock state pinned to k H / N at the end of stage k, or -1. */
   int clock_state = -1;
+  double clock_tolerance = 0.0;  ///< the clock within this distance of k H / N, 0: pinned
   bool standard = false;  ///< standard time-stepping: fixed lengths, products per point
   Relaxation relaxation = Relaxation::kScholtes;
   /** Weight of the step equilibration (39) between the elements of a stage. */

@@ -303,6 +303,9 @@ struct OcpProblem {
   double T_min = 0.0;  ///< > 0 is enforced as max(T_min, 1e-9 horizon)
   double T_max = std::numeric_limits<double>::infinity();
   Eigen::VectorXd x_lower, x_upper;        ///< at every element boundary (d each)
+  /** x_lower and x_upper also on the states of every collocation stage inside the elements
+      (nosnoc's Python package bounds every stage point), not only at the element boundaries. */
+  bool x_bounds_at_stage_points = false;
   Eigen::VectorXd u_lower, u_upper;        ///< on every stage (nu each)
   Eigen::VectorXd path_lower, path_upper;  ///< g(x, u) (kPath each; empty: g <= 0)
   /** g_T(x(T)) (kTerminal each; empty: g_T = 0, equalities). */
@@ -312,6 +315,9 @@ struct OcpProblem {
       clock (which stands still during impacts) keeps up with the stages. Fixed horizon only;
       -1: none. */
   int clock_state = -1;
+  /** With clock_state: the clock at the end of stage k lies within this distance of
+      (k + 1) horizon / N instead of on it (nosnoc's time_freezing_tolerance); 0: pinned. */
+  double clock_tolerance = 0.0;
   /** Least-squares tracking added to the Lagrange cost:
         (x - x_ref(t_k))' diag(Q) (x - x_ref(t_k)) + (u - u_ref)' diag(R) (u - u_ref),
       x_ref evaluated at the middle t_k of each stage (fixed horizon only), and
@@ -319,6 +325,10 @@ struct OcpProblem {
   Eigen::VectorXd track_Q, track_R, track_Q_terminal;
   std::function<Eigen::VectorXd(double)> x_ref;
   Eigen::VectorXd u_ref;
+  /** A control index j >= 0: the tracking of x_ref and u_ref in the stage cost is multiplied by
+      u_j, so that with the speed of time of time-freezing (time_freezing.h) as u_j it is
+      integrated over physical time, s dtau (the terminal tracking is not); -1: none. */
+  int track_time_scale = -1;
   /** The initial guess. guess_u: one column per stage (nu x N) or a single column used on every
       stage; empty means 0 clamped into the u bounds. */
   OcpGuess guess = OcpGuess::kConstant;
