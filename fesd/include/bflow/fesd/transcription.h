@@ -131,7 +131,7 @@ struct TranscriptionSetup {
   /** A clock state pinned to k H / N at the end of stage k, or -1. */
   int clock_state = -1;
   double clock_tolerance = 0.0;  ///< the clock within this distance of k H / N, 0: pinned
-  bool standard = false;  ///< standard time-stepping: fixed lengths, products per point
+  bool standard = false;         ///< standard time-stepping: fixed lengths, products per point
   Relaxation relaxation = Relaxation::kScholtes;
   /** Weight of the step equilibration (39) between the elements of a stage. */
   double equilibration_weight = 1.0;

@@ -302,7 +302,7 @@ struct OcpProblem {
   bool time_optimal = false;
   double T_min = 0.0;  ///< > 0 is enforced as max(T_min, 1e-9 horizon)
   double T_max = std::numeric_limits<double>::infinity();
-  Eigen::VectorXd x_lower, x_upper;        ///< at every element boundary (d each)
+  Eigen::VectorXd x_lower, x_upper;  ///< at every element boundary (d each)
   /** x_lower and x_upper also on the states of every collocation stage inside the elements
       (nosnoc's Python package bounds every stage point), not only at the element boundaries. */
   bool x_bounds_at_stage_points = false;
