@@ -21,8 +21,13 @@
 //                         LinearSystemSymbolicFactorization, LinearSystemScaling and
 //                         LinearSystemStructureConverter (checked against MUMPS's own calls
 //                         with bench/tools/mumps_timer.c)
-//   symbolic, hessian ("Lagrangian Hessian" of the function evaluations), overall
-//                         (OverallAlgorithm): CPU seconds of those timing-statistics lines
+//   symbolic, hessian ("Lagrangian Hessian" of the function evaluations), functions
+//                         (all "Function Evaluations": objective, constraints, their
+//                         derivatives and the Hessian), overall (OverallAlgorithm): CPU seconds
+//                         of those timing-statistics lines
+//   variables, equalities, inequalities, jacobian_nonzeros (equality + inequality),
+//   hessian_nonzeros      the NLP as IPOPT sees it (fixed variables removed), from the first
+//                         NLP's problem statistics
 // Every time read is IPOPT's user time plus its "sys:" time (process CPU time).
 // The file is deleted when the IpoptLog is destroyed (unless BFLOW_KEEP_IPOPT_LOG=1).
 #pragma once
@@ -138,7 +143,9 @@ struct IpoptCounts {
   long factorizations = 0;        // MUMPS numeric factorizations (INFO(9) lines)
   double factorization = 0.0;     // CPU seconds, see above
   double multi_solve = 0.0, back_solve = 0.0, scaling = 0.0, converter = 0.0;
-  double symbolic = 0.0, hessian = 0.0, overall = 0.0;  // CPU seconds
+  double symbolic = 0.0, hessian = 0.0, functions = 0.0, overall = 0.0;  // CPU seconds
+  long variables = -1, equalities = -1, inequalities = -1;               // -1: not in the log
+  long jacobian_nonzeros = -1, hessian_nonzeros = -1;
 };
 
 // The split of an IPOPT solve's CPU (`cpu` seconds over `iterations` IPOPT iterations) from its
@@ -210,9 +217,28 @@ class IpoptLog {
     const auto starts = [](const std::string& s, const char* p) {
       return s.compare(0, std::char_traits<char>::length(p), p) == 0;
     };
+    // "Name....: count" of the first NLP's problem statistics.
+    const auto first_count = [](long& field, const std::string& s) {
+      if (field < 0) field = std::strtol(s.c_str() + s.find(':') + 1, nullptr, 10);
+    };
+    long jacobian_equalities = -1, jacobian_inequalities = -1;
     while (std::getline(in, line)) {
       const std::string t = trimmed(line);
-      if (starts(t, "Number of trial factorizations performed:")) {
+      if (starts(t, "Total number of variables.")) {
+        first_count(c.variables, t);
+      } else if (starts(t, "Total number of equality constraints.")) {
+        first_count(c.equalities, t);
+      } else if (starts(t, "Total number of inequality constraints.")) {
+        first_count(c.inequalities, t);
+      } else if (starts(t, "Number of nonzeros in equality constraint Jacobian.")) {
+        first_count(jacobian_equalities, t);
+      } else if (starts(t, "Number of nonzeros in inequality constraint Jacobian.")) {
+        first_count(jacobian_inequalities, t);
+      } else if (starts(t, "Number of nonzeros in Lagrangian Hessian.")) {
+        first_count(c.hessian_nonzeros, t);
+      } else if (starts(t, "Function Evaluations.")) {
+        c.functions += after_colon(t);
+      } else if (starts(t, "Number of trial factorizations performed:")) {
         c.trial_factorizations += std::strtol(t.c_str() + t.find(':') + 1, nullptr, 10);
       } else if (starts(t, "Number of doubles for MUMPS to hold factorization")) {
         ++c.factorizations;
@@ -234,6 +260,9 @@ class IpoptLog {
       }
     }
     c.factorization = c.multi_solve - c.back_solve - c.symbolic - c.scaling - c.converter;
+    if (jacobian_equalities >= 0 && jacobian_inequalities >= 0) {
+      c.jacobian_nonzeros = jacobian_equalities + jacobian_inequalities;
+    }
     return c;
   }
 
