@@ -87,6 +87,7 @@ struct Flags {
   int acceptable_iterations = 15, max_nlp_iterations = -1;
   bool no_polish = false, stop_at_complementarity = false, continue_after_failure = false;
   bool first_from_zero_multipliers = false, neutral_guess = false, no_newton = false;
+  bool x_bounds_at_stage_points = false;
 };
 
 bool is_simulation(const std::string& problem) {
@@ -233,7 +234,8 @@ Eigen::VectorXd sliding_enter_exact(double t) {
 template <typename Example>
 ordered_json run_ocp(const Flags& f, const bflow_bench::IpoptFlags& ipopt_flags) {
   const auto model = bflow::adapt_ocp(Example{});
-  const bflow::OcpProblem problem = Example::problem();
+  bflow::OcpProblem problem = Example::problem();
+  problem.x_bounds_at_stage_points = f.x_bounds_at_stage_points;
   bflow::OcpOptions o = ocp_options(f);
   const bflow_bench::IpoptLog log;
   add_ipopt_options(o, log, ipopt_flags);
@@ -426,6 +428,9 @@ int main(int argc, char** argv) {
   app.add_option("--max-nlp-iterations", f.max_nlp_iterations);
   app.add_flag("--continue-after-failure", f.continue_after_failure);
   app.add_flag("--neutral-guess", f.neutral_guess);
+  app.add_flag("--x-bounds-at-stage-points", f.x_bounds_at_stage_points,
+               "the state bounds (turbo car: |v| <= 20) on every collocation stage, not only at "
+               "the element boundaries");
   app.add_flag("--no-newton", f.no_newton, "fesd_simulate without its Newton attempts");
   CLI11_PARSE(app, argc, argv);
   if (f.solver == "fesd" && !is_simulation(f.problem)) {

@@ -38,6 +38,7 @@ MATCHED = {
     "ipopt": "mu_strategy adaptive, mu_oracle quality-function, bound_relax_factor 0, "
              "acceptable_tol 1e-6 after 15 iterations, max_iter 500, exact Hessian, MUMPS",
     "guess": "x = x0, u = 0, step a = lambda = 1/2 (Stewart theta = 1/2)",
+    "state_bounds": "at every collocation stage point",
 }
 
 
@@ -51,6 +52,7 @@ def matched_bflow_flags(rho_h):
         "--no-polish", "--warm-start", "cold", "--later-mu-init", "0.1",
         "--acceptable-tolerance", "1e-6", "--acceptable-iterations", "15",
         "--max-nlp-iterations", "500", "--continue-after-failure", "--neutral-guess",
+        "--x-bounds-at-stage-points",
         f"--ipopt-num=dual_inf_tol={tol!r}", f"--ipopt-num=compl_inf_tol={tol!r}",
         f"--ipopt-num=mu_target={tol!r}", "--ipopt-str=mu_oracle=quality-function",
     ]
