@@ -446,11 +446,11 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       for (int i = 0; i < l_.d; ++i) {
         x_l[l_.x_end(e, i)] = bound(p_.x_lower, i, -kInfinity);
         x_u[l_.x_end(e, i)] = bound(p_.x_upper, i, kInfinity);
-      }
         for (int m = 0; p_.x_bounds_at_stage_points && m < l_.s; ++m) {
           x_l[l_.var(e, 1 + m * l_.d + i)] = bound(p_.x_lower, i, -kInfinity);
           x_u[l_.var(e, 1 + m * l_.d + i)] = bound(p_.x_upper, i, kInfinity);
         }
+      }
       if (p_.clock_state >= 0 && (e + 1) % l_.per_stage == 0) {
         const double clock = (e + 1) / l_.per_stage * p_.horizon / l_.stages;
         x_l[l_.x_end(e, p_.clock_state)] = clock - p_.clock_tolerance;

@@ -134,7 +134,6 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
     throw InvalidArgument("ocp: the stage-wise clock constraint (clock_state = " +
                           std::to_string(p.clock_state) + ") needs a fixed horizon");
   }
-  check_bounds(p.u_lower, p.u_upper, nu, "u_lower", "u_upper");
   if (!(p.clock_tolerance >= 0.0) || !std::isfinite(p.clock_tolerance)) {
     throw InvalidArgument("ocp: clock_tolerance = " + number(p.clock_tolerance) +
                           " must be finite and >= 0");
@@ -143,11 +142,12 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
     throw InvalidArgument("ocp: clock_tolerance = " + number(p.clock_tolerance) +
                           " is given without a clock_state");
   }
-  check_bounds(p.path_lower, p.path_upper, model.path_constraints(), "path_lower", "path_upper");
+  check_bounds(p.u_lower, p.u_upper, nu, "u_lower", "u_upper");
   if (p.track_time_scale < -1 || p.track_time_scale >= nu) {
     throw InvalidArgument("ocp: track_time_scale = " + std::to_string(p.track_time_scale) +
                           " is no control index (0.." + std::to_string(nu - 1) + ") and not -1");
   }
+  check_bounds(p.path_lower, p.path_upper, model.path_constraints(), "path_lower", "path_upper");
   check_bounds(p.terminal_lower, p.terminal_upper, model.terminal_constraints(), "terminal_lower",
                "terminal_upper");
   check_vector(p.track_Q, d, "track_Q");
@@ -297,10 +297,10 @@ class OcpTerms final : public fesd::TranscriptionTerms {
       const T e = u[j] - p_.u_ref[j];
       value += p_.track_R[j] * e * e;
     }
+    if (p_.track_time_scale >= 0) value *= u[p_.track_time_scale];
     return value;
   }
   template <typename T>
-    if (p_.track_time_scale >= 0) value *= u[p_.track_time_scale];
   T terminal_value(const T* x) const {
     T value = model_.mayer(x);
     for (Eigen::Index i = 0; i < p_.track_Q_terminal.size(); ++i) {
@@ -526,11 +526,11 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   setup.terminal_lower = problem.terminal_lower;
   setup.terminal_upper = problem.terminal_upper;
   setup.clock_state = problem.clock_state;
+  setup.clock_tolerance = problem.clock_tolerance;
+  setup.x_bounds_at_stage_points = problem.x_bounds_at_stage_points;
   setup.standard = options.standard;
   setup.relaxation = options.relaxation == OcpRelaxation::kL1Penalty ? fesd::Relaxation::kL1Penalty
                                                                      : fesd::Relaxation::kScholtes;
-  setup.clock_tolerance = problem.clock_tolerance;
-  setup.x_bounds_at_stage_points = problem.x_bounds_at_stage_points;
   setup.equilibration_weight = options.equilibration_weight;
   setup.equilibration_fades = true;
   setup.step_deviation_weight = options.step_deviation_weight;
