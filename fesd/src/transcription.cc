@@ -17,6 +17,7 @@
 
 #include "bflow/core/errors.h"
 #include "bflow/fesd/ipopt_options.h"
+#include "bflow/fesd/linear_solver.h"
 
 namespace bflow {
 namespace fesd {
@@ -857,6 +858,7 @@ std::vector<int> Transcription::sides(const Eigen::VectorXd& w, int e, double to
 
 struct HomotopySolver::Impl {
   IpoptSettings settings;
+  std::string linear_solver;  // the one in use: settings' or the caller's string option
   Ipopt::SmartPtr<Ipopt::IpoptApplication> app;
 
   // One NLP at the options set on `app`, recorded in `steps`.
@@ -865,6 +867,14 @@ struct HomotopySolver::Impl {
     apply_ipopt_options(*app, settings, settings.who);
     const double start = process_cpu_seconds();
     status = app->OptimizeTNLP(&nlp);
+    if (status == Ipopt::Invalid_Option) {
+      // Not an outcome of the NLP: no NLP of this solver can run.
+      const std::string what = settings.who + ": IPOPT refused its options (Invalid_Option) " +
+                               "with linear solver \"" + linear_solver +
+                               "\"; print_level 5 shows IPOPT's reason";
+      if (linear_solver != "mumps") throw LinearSolverUnavailable(what);
+      throw InvalidArgument(what);
+    }
     HomotopyStep step;
     step.index = index;
     step.sigma = sigma;
@@ -884,8 +894,15 @@ HomotopySolver::HomotopySolver(const IpoptSettings& settings) : impl_(new Impl) 
   impl_->settings = settings;
   impl_->app = IpoptApplicationFactory();
   impl_->app->RethrowNonIpoptException(false);
+  // Before IPOPT sees it: a solver missing from its library makes IPOPT 3.11 return
+  // Invalid_Option at the first NLP, or end the process (HSL_MA97).
+  impl_->linear_solver = settings.linear_solver;
+  for (const auto& [name, value] : settings.ipopt_string_options) {
+    if (name == "linear_solver") impl_->linear_solver = value;
+  }
+  check_linear_solver(impl_->linear_solver, settings.who);
   set_ipopt_defaults(*impl_->app, settings.print_level, settings.exact_hessian,
-                     settings.max_iterations);
+                     settings.max_iterations, settings.linear_solver);
   apply_ipopt_options(*impl_->app, settings, settings.who);
   if (impl_->app->Initialize() != Ipopt::Solve_Succeeded) {
     throw InvalidArgument(settings.who + ": IPOPT failed to initialise");

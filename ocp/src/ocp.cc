@@ -11,6 +11,7 @@
 #include "bflow/core/errors.h"
 #include "bflow/fesd/dcs.h"
 #include "bflow/fesd/element.h"
+#include "bflow/fesd/linear_solver.h"
 #include "bflow/fesd/transcription.h"
 
 namespace bflow {
@@ -222,6 +223,8 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
     throw InvalidArgument("ocp: exact_hessian_scale = " + number(o.exact_hessian_scale) +
                           " must be finite");
   }
+  // Before the simulated guess: HomotopySolver checks it again, for every solver it builds.
+  check_linear_solver(o.linear_solver, "ocp");
 }
 
 // Lower or upper bound k of an optional bound vector.
@@ -558,6 +561,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     FesdOptions sim = shape;
     sim.steps = 1;
     sim.newton = true;
+    sim.linear_solver = options.linear_solver;
     simulation = simulate_controls(model, problem.x0, problem.horizon, per_stage, sim);
     simulated = simulation.ok() && static_cast<int>(simulation.step_sizes.size()) == l.elements;
     if (!simulated) {

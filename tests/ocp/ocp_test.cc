@@ -625,5 +625,52 @@ TEST(OcpFeatures, ReferenceAndSimulatedGuessesReachTheOptimum) {
   }
 }
 
+// IPOPT's linear solver: MUMPS named explicitly is the default (the same iterates to the last
+// bit on the braking block, N = 4, with its simulated guess); an unknown name and, without
+// libhsl.so, MA27 are refused before anything is computed, the latter as LinearSolverUnavailable
+// naming the library.
+TEST(OcpLinearSolver, MumpsExplicitlyIsTheDefaultAndOthersAreChecked) {
+  OcpProblem p = BrakingBlock::problem();
+  p.guess = OcpGuess::kSimulation;
+  p.guess_u = Eigen::MatrixXd::Constant(1, 1, -0.5);
+  OcpOptions o;
+  o.stages = 4;
+  const OcpResult by_default = ocp_solve(adapt_ocp(BrakingBlock{}), p, o);
+  o.linear_solver = "mumps";
+  const OcpResult mumps = ocp_solve(adapt_ocp(BrakingBlock{}), p, o);
+  ASSERT_TRUE(by_default.ok()) << by_default.message;
+  ASSERT_TRUE(mumps.ok()) << mumps.message;
+  EXPECT_EQ(mumps.objective, by_default.objective);
+  EXPECT_EQ(mumps.u, by_default.u);
+  EXPECT_EQ(mumps.switch_times, by_default.switch_times);
+  EXPECT_EQ(mumps.ipopt_iterations, by_default.ipopt_iterations);
+
+  std::vector<std::string> steps;
+  o.progress = [&steps](const OcpHomotopyStep& s) { steps.push_back(s.ipopt_status); };
+  o.linear_solver = "ma-27";
+  try {
+    ocp_solve(adapt_ocp(BrakingBlock{}), p, o);
+    ADD_FAILURE() << "ma-27 was taken";
+  } catch (const LinearSolverUnavailable&) {
+    ADD_FAILURE() << "an unknown name is not a missing library";
+  } catch (const InvalidArgument& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "ocp: unknown linear solver \"ma-27\"; use mumps, ma27, ma57, ma77, ma86, ma97 or "
+              "pardiso");
+  }
+  if (!linear_solver_load_error("ma27", "libhsl.so").empty()) {
+    o.linear_solver = "ma27";
+    try {
+      ocp_solve(adapt_ocp(BrakingBlock{}), p, o);
+      ADD_FAILURE() << "ma27 was taken without libhsl.so";
+    } catch (const LinearSolverUnavailable& e) {
+      EXPECT_THAT(e.what(), testing::StartsWith("ocp: linear solver \"ma27\" needs HSL's "
+                                                "libhsl.so, which cannot be loaded (libhsl.so: "));
+      EXPECT_THAT(e.what(), testing::HasSubstr("LD_LIBRARY_PATH"));
+    }
+  }
+  EXPECT_TRUE(steps.empty()) << "an NLP was solved before the refusal";
+}
+
 }  // namespace
 }  // namespace bflow

@@ -59,6 +59,7 @@
 #include "bflow/core/errors.h"
 #include "bflow/core/filippov.h"
 #include "bflow/fesd/butcher.h"
+#include "bflow/fesd/linear_solver.h"
 #include "bflow/fesd/step_model.h"
 
 namespace bflow {
@@ -108,6 +109,11 @@ struct FesdOptions {
   bool newton = true;
   bool sensitivities = true;
   int print_level = 0;  ///< IPOPT's print_level (0 silent)
+  /** IPOPT's linear solver, one of kLinearSolvers (linear_solver.h): "mumps" (linked into
+      IPOPT), HSL's "ma27", "ma57", "ma77", "ma86", "ma97" (from libhsl.so) or "pardiso".
+      @throws InvalidArgument (from fesd_simulate) for another name, LinearSolverUnavailable
+      when its library cannot be loaded (docs/ocp.md, "Linear solvers: MUMPS and HSL"). */
+  std::string linear_solver = "mumps";
   /** Further IPOPT options, set after bflow's, both once at the start and before every NLP of
       the homotopy (which resets tol, mu_init, warm_start_*, acceptable_* each time), so these
       win (e.g. {"output_file", "ipopt.log"}, {"derivative_test", "second-order"},

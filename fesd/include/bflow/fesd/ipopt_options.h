@@ -12,17 +12,21 @@ namespace bflow {
 namespace fesd {
 
 /** bflow's own IPOPT options, the same for fesd_simulate's step NLPs and ocp_solve's NLP (set
-    before the caller's, which win): exact or limited-memory Hessians, the iteration limit, the
-    adaptive barrier update and no relaxation of the bounds (the complementarity pairs sit on
-    them). The KKT systems are factorised by MUMPS with IPOPT's defaults (its automatic ordering,
-    pivot tolerance 1e-6): docs/ocp.md measures the alternatives on the monoped, the turbo car and
-    the braking block; the faster AMD ordering changes round-off enough to send the small
-    examples' homotopies along paths up to four times longer (the turbo car at N = 10: 1494 IPOPT
-    iterations against 359, both with OpenBLAS), so it is left to the caller
-    ({"mumps_pivot_order", 0}, {"mumps_mem_percent", 200}). */
+    before the caller's, which win): exact or limited-memory Hessians, the linear solver, the
+    iteration limit, the adaptive barrier update and no relaxation of the bounds (the
+    complementarity pairs sit on them). By default the KKT systems are factorised by MUMPS with
+    IPOPT's defaults (its automatic ordering, pivot tolerance 1e-6): docs/ocp.md measures the
+    alternatives on the monoped, the turbo car and the braking block; the faster AMD ordering
+    changes round-off enough to send the small examples' homotopies along paths up to four times
+    longer (the turbo car at N = 10: 1494 IPOPT iterations against 359, both with OpenBLAS), so
+    it is left to the caller ({"mumps_pivot_order", 0}, {"mumps_mem_percent", 200}). Another
+    linear solver (HSL's, from libhsl.so) is the caller's choice, checked before it gets here
+    (check_linear_solver, linear_solver.h). */
 template <typename App>
-void set_ipopt_defaults(App& app, int print_level, bool exact_hessian, int max_iterations) {
+void set_ipopt_defaults(App& app, int print_level, bool exact_hessian, int max_iterations,
+                        const std::string& linear_solver) {
   app.Options()->SetIntegerValue("print_level", print_level);
+  app.Options()->SetStringValue("linear_solver", linear_solver);
   app.Options()->SetStringValue("sb", "yes");
   app.Options()->SetStringValue("hessian_approximation",
                                 exact_hessian ? "exact" : "limited-memory");

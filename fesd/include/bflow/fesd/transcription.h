@@ -221,13 +221,14 @@ struct IpoptSettings {
   int print_level = 0;
   bool exact_hessian = true;
   int max_iterations = 3000;
+  std::string linear_solver = "mumps";  ///< one of kLinearSolvers (linear_solver.h)
   std::vector<std::pair<std::string, std::string>> ipopt_string_options;
   std::vector<std::pair<std::string, double>> ipopt_numeric_options;
   std::vector<std::pair<std::string, int>> ipopt_integer_options;
 };
 
 /** IpoptSettings from FesdOptions or OcpOptions (their print_level, exact_hessian,
-    max_nlp_iterations and ipopt_*_options). */
+    max_nlp_iterations, linear_solver and ipopt_*_options). */
 template <typename Options>
 IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
   IpoptSettings s;
@@ -235,6 +236,7 @@ IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
   s.print_level = options.print_level;
   s.exact_hessian = options.exact_hessian;
   s.max_iterations = options.max_nlp_iterations;
+  s.linear_solver = options.linear_solver;
   s.ipopt_string_options = options.ipopt_string_options;
   s.ipopt_numeric_options = options.ipopt_numeric_options;
   s.ipopt_integer_options = options.ipopt_integer_options;
@@ -352,8 +354,12 @@ struct PolishOutcome {
 };
 
 /** IPOPT for transcriptions: the relaxation homotopy and the polish.
-    @throws InvalidArgument (constructor) naming an option IPOPT does not take, or when IPOPT
-    fails to initialise. */
+    @throws InvalidArgument (constructor) naming an option IPOPT does not take or an unknown
+    linear solver, or when IPOPT fails to initialise; LinearSolverUnavailable (constructor) when
+    the linear solver's library cannot be loaded (check_linear_solver, on settings.linear_solver
+    or on a "linear_solver" among the caller's string options, which wins).
+    @throws InvalidArgument (run, polish) when IPOPT refuses its options (Invalid_Option), a
+    LinearSolverUnavailable when the solver is not MUMPS. */
 class HomotopySolver {
  public:
   explicit HomotopySolver(const IpoptSettings& settings);

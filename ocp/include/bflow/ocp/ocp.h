@@ -443,6 +443,13 @@ struct OcpOptions {
       solved NLP at sqrt(sigma sigma_last) (bflow's rule, up to 6 times). */
   bool continue_after_failure = false;
   int print_level = 0;  ///< IPOPT's print_level
+  /** IPOPT's linear solver for every NLP (and for the simulated guess): "mumps" (linked into
+      IPOPT) or HSL's "ma27", "ma57", "ma77", "ma86", "ma97" (loaded from libhsl.so), or
+      "pardiso" (libpardiso.so); kLinearSolvers in bflow/fesd/linear_solver.h. nosnoc's
+      benchmarks use MA27. Checked before anything is computed.
+      @throws InvalidArgument (from ocp_solve) for another name, LinearSolverUnavailable when its
+      library cannot be loaded (docs/ocp.md, "Linear solvers: MUMPS and HSL"). */
+  std::string linear_solver = "mumps";
   /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
   std::function<void(const OcpHomotopyStep&)> progress;
   /** IPOPT options set after bflow's own (mu_strategy adaptive, bound_relax_factor 0 and those
