@@ -183,6 +183,9 @@ struct FesdCommandOptions {
   bool sizes = false;          ///< print [F] Table 4 and the NLP size for the example instead
   /** Lifting depth n_d: 0 (none) or 2..max(2, n_c), also for --sizes. */
   int lifting = 0;
+  /** --linear-solver: IPOPT's, one of bflow::kLinearSolvers (mumps, HSL's ma27 ... ma97 from
+      libhsl.so, pardiso); unknown or without its library: exit code 2 before computing. */
+  std::string linear_solver = "mumps";
   bool compact = false;
 };
 
@@ -190,9 +193,9 @@ struct FesdCommandOptions {
     prints the horizon and steps used, x(T), the switch times, the complementarity residual, the
     CPU time and the sensitivity dx(T)/dx0 as JSON (see docs/cli.md); with `sizes`, the problem
     sizes of Stewart's and the step reformulation ([F] Table 4) and of one step's NLP. Exit code
-    2 for a bad option (out of range, or a problem above the size limits), 1 when an integration
-    step does not converge (the JSON then holds what was reached, and `err` one "error: fesd:"
-    line). Never throws. */
+    2 for a bad option (out of range, a problem above the size limits, a linear solver whose
+    library cannot be loaded), 1 when an integration step does not converge (the JSON then holds
+    what was reached, and `err` one "error: fesd:" line). Never throws. */
 int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream& err);
 
 /** `bflow ocp`: the options as given on the command line. run_ocp() checks every range and
@@ -221,6 +224,9 @@ struct OcpCommandOptions {
   /** --max-iterations: IPOPT iterations of the whole homotopy, >= 0 (0: no limit but IPOPT's
       per NLP); not given: bflow::OcpOptions::max_total_iterations of the example. */
   std::optional<int> max_iterations;
+  /** --linear-solver: IPOPT's, one of bflow::kLinearSolvers (mumps, HSL's ma27 ... ma97 from
+      libhsl.so, pardiso); unknown or without its library: exit code 2 before the solve. */
+  std::string linear_solver = "mumps";
   bool trajectory = false;  ///< add every element boundary, the states there, h, active sets
   /** Directory (created if missing) for ocp_states.png, ocp_controls.png, ocp_switching.png
       and their data and gnuplot scripts; not given: no plots. */
@@ -233,9 +239,10 @@ struct OcpCommandOptions {
     status, the optimal cost, T, the states and controls on the stages, the switch times, the
     homotopy, the counters and the errors against the example's exact optimum as JSON (see
     docs/cli.md). Unless `quiet`, one progress line per NLP of the homotopy goes to `err` while
-    it runs. Exit code 2 for a bad option, 1 when the status is not "solved" (the JSON is still
-    printed, and `err` gets one "error: ocp: <status>: <message>" line), when the plot
-    directory cannot be written or gnuplot fails. Never throws. */
+    it runs. Exit code 2 for a bad option (a --linear-solver whose library cannot be loaded
+    included), 1 when the status is not "solved" (the JSON is still printed, and `err` gets one
+    "error: ocp: <status>: <message>" line), when the plot directory cannot be written or
+    gnuplot fails. Never throws. */
 int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& err);
 
 /** `bflow orbit`: the options as given on the command line. Numbers stay text so that

@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "bflow/fesd/linear_solver.h"
 #include "cli_commands.h"
 #include "support/run_command.h"
 
@@ -295,6 +296,35 @@ TEST(FesdCommandTest, OptionTextIsReadWholeAndChecked) {
   EXPECT_EQ(j["T"].get<double>(), 0.5);
   EXPECT_EQ(j["nsim"].get<int>(), 2);
   EXPECT_NEAR(j["x_T"][0].get<double>(), 1.0 / 6.0, 1e-14);
+}
+
+// --linear-solver as for `bflow ocp`: recorded in the JSON, an unknown name and a missing
+// libhsl.so refused before the run (HSL_MA97 would end the process inside IPOPT).
+TEST(FesdCommandTest, TheLinearSolverIsCheckedFirstAndRecorded) {
+  const Outcome run =
+      command_line({"fesd", "--example", "crossing", "--linear-solver", "mumps", "--compact"});
+  ASSERT_EQ(run.code, kExitOk) << run.err;
+  EXPECT_EQ(nlohmann::json::parse(run.out)["linear_solver"], "mumps");
+  const Outcome unknown =
+      command_line({"fesd", "--example", "crossing", "--linear-solver", "ma28"});
+  EXPECT_EQ(unknown.code, kExitBadInput);
+  EXPECT_EQ(unknown.out, "");
+  EXPECT_EQ(unknown.err,
+            "error: --linear-solver: unknown linear solver \"ma28\"; use mumps, ma27, ma57, ma77, "
+            "ma86, ma97 or pardiso\n");
+  const std::string reason = linear_solver_load_error("ma97", "libhsl.so");
+  if (reason.empty()) GTEST_SKIP() << "libhsl.so is installed here";
+  const Outcome missing =
+      command_line({"fesd", "--example", "crossing", "--linear-solver", "ma97"});
+  EXPECT_EQ(missing.code, kExitBadInput);
+  EXPECT_EQ(missing.out, "");
+  EXPECT_EQ(missing.err,
+            "error: --linear-solver: linear solver \"ma97\" needs HSL's libhsl.so, which cannot "
+            "be loaded (" +
+                reason +
+                "); get Coin-HSL (https://licences.stfc.ac.uk/product/coin-hsl), build libhsl.so "
+                "and put the directory holding libhsl.so on LD_LIBRARY_PATH (docs/ocp.md, "
+                "\"Linear solvers: MUMPS and HSL\"), or use mumps\n");
 }
 
 }  // namespace

@@ -17,6 +17,7 @@
 
 #include "bflow/core/errors.h"
 #include "bflow/examples/monoped_ocp.h"
+#include "bflow/fesd/linear_solver.h"
 #include "cli_commands.h"
 #include "support/run_command.h"
 
@@ -633,6 +634,57 @@ TEST(OcpCommandTest, OptionTextIsReadWholeAndChecked) {
                     "--sigma0", "100", "--sigma-final", "1e-10", "--tol", "1e-10", "--quiet"});
   ASSERT_EQ(defaults.code, kExitOk) << defaults.err;
   EXPECT_NEAR(defaults.json["objective"].get<double>(), 13.0 / 6.0, 1e-12);
+}
+
+// --linear-solver: an unknown name, and without libhsl.so an HSL solver, are refused before the
+// solve (exit code 2, one line, no JSON, no progress line); mumps named is the default (the same
+// run to the last bit), and the JSON says which solver ran.
+TEST(OcpCommandTest, TheLinearSolverIsCheckedFirstAndRecorded) {
+  OcpCommandOptions o;
+  o.example = "braking-block";
+  o.n = 2;
+  o.nfe = 1;
+  o.quiet = true;
+  const Outcome by_default = solve(o);
+  o.linear_solver = "mumps";
+  const Outcome mumps = solve(o);
+  ASSERT_EQ(by_default.code, kExitOk) << by_default.err;
+  ASSERT_EQ(mumps.code, kExitOk) << mumps.err;
+  EXPECT_EQ(by_default.json["linear_solver"], "mumps");
+  EXPECT_EQ(mumps.json["linear_solver"], "mumps");
+  EXPECT_EQ(mumps.json["objective"], by_default.json["objective"]);
+  EXPECT_EQ(mumps.json["u"], by_default.json["u"]);
+  EXPECT_EQ(mumps.json["ipopt_iterations"], by_default.json["ipopt_iterations"]);
+
+  o.quiet = false;
+  o.linear_solver = "ma99";
+  Outcome r = solve(o);
+  EXPECT_EQ(r.code, kExitBadInput);
+  EXPECT_TRUE(r.json.is_null());
+  EXPECT_EQ(r.err,
+            "error: --linear-solver: unknown linear solver \"ma99\"; use mumps, ma27, ma57, ma77, "
+            "ma86, ma97 or pardiso\n");
+  const bflow::testing::Outcome line = bflow::testing::command_line(
+      {"ocp", "--example", "braking-block", "--linear-solver", "MUMPS"});
+  EXPECT_EQ(line.code, kExitBadInput);
+  EXPECT_EQ(line.out, "");
+  EXPECT_EQ(line.err,
+            "error: --linear-solver: unknown linear solver \"MUMPS\"; use mumps, ma27, ma57, "
+            "ma77, ma86, ma97 or pardiso\n");
+
+  const std::string reason = linear_solver_load_error("ma27", "libhsl.so");
+  if (reason.empty()) GTEST_SKIP() << "libhsl.so is installed here";
+  o.linear_solver = "ma27";
+  r = solve(o);
+  EXPECT_EQ(r.code, kExitBadInput);
+  EXPECT_TRUE(r.json.is_null());
+  EXPECT_EQ(r.err,
+            "error: --linear-solver: linear solver \"ma27\" needs HSL's libhsl.so, which "
+            "cannot be loaded (" +
+                reason +
+                "); get Coin-HSL (https://licences.stfc.ac.uk/product/coin-hsl), build libhsl.so "
+                "and put the directory holding libhsl.so on LD_LIBRARY_PATH (docs/ocp.md, "
+                "\"Linear solvers: MUMPS and HSL\"), or use mumps\n");
 }
 
 }  // namespace
