@@ -588,7 +588,7 @@ def report(data, ctx):
                  f"({m.get('build_type')}), IPOPT {m.get('bflow_ipopt')} with "
                  f"{m.get('bflow_mumps')}; Python {m.get('python')}; load average "
                  f"{m.get('load_average_before'):.2f} before the run. "
-                 f"JSON: `bench/results/peers/{NAME}.json`.")
+                 f"JSON: `{'out' if data.get('quick') else 'bench/results'}/peers/{NAME}.json`.")
     lines.append("")
     nos = next((r for r in rows if r["tool"] == "nosnoc" and r.get("version")), None)
     if nos:
@@ -739,27 +739,33 @@ def _plots(rows, ctx):
         fig.savefig(os.path.join(common.DOCS, name), dpi=110)
         plt.close(fig)
         names.append(name)
-    # Error against CPU time, every row (a work-precision view).
+    # Error against CPU time, every row (a work-precision view): colour by problem, marker by
+    # tool, filled for the matched settings; errors of 0 drawn at 1e-16.
+    from matplotlib.lines import Line2D
     fig, ax = plt.subplots(figsize=(8, 5))
     markers = {"bflow": "o", "nosnoc": "s"}
     fill = {"matched": "full", "default": "none"}
+    problems = []
+    for r in rows:
+        if r["problem"] not in problems:
+            problems.append(r["problem"])
+    palette = ["#4c72b0", "#c44e52", "#55a868", "#8172b2", "#ccb974", "#64b5cd"]
+    color = {p: palette[i % len(palette)] for i, p in enumerate(problems)}
     for r in rows:
         if r.get("error") is None or not r.get("cpu_s"):
             continue
         ax.loglog(r["cpu_s"], max(r["error"], 1e-16), marker=markers[r["tool"]],
-                  fillstyle=fill[r["setting"]], linestyle="none",
-                  color="#4c72b0" if r["tool"] == "bflow" else "#c44e52")
-        ax.annotate(r["case"].split(" (")[0], (r["cpu_s"], max(r["error"], 1e-16)), fontsize=6,
-                    xytext=(3, 2), textcoords="offset points")
-    from matplotlib.lines import Line2D
-    handles = [Line2D([], [], marker=markers[t], color=c, fillstyle=fill[s], linestyle="none",
-                      label=f"{t}, {s}")
-               for t, c in (("bflow", "#4c72b0"), ("nosnoc", "#c44e52"))
-               for s in ("matched", "default")]
-    ax.legend(handles=handles, fontsize=8)
+                  fillstyle=fill[r["setting"]], linestyle="none", color=color[r["problem"]],
+                  markersize=7)
+    handles = [Line2D([], [], marker="o", color=color[p], linestyle="none", label=p)
+               for p in problems]
+    handles += [Line2D([], [], marker=markers[t], color="black", fillstyle=fill[st],
+                       linestyle="none", label=f"{t}, {st}")
+                for t in ("bflow", "nosnoc") for st in ("matched", "default")]
+    ax.legend(handles=handles, fontsize=8, ncol=2)
     ax.set_xlabel("CPU time of the run [s]")
-    ax.set_ylabel("error against the exact solution")
-    ax.set_title("Error against CPU time")
+    ax.set_ylabel("error against the exact solution (0 drawn at 1e-16)")
+    ax.set_title("Error against CPU time, every row")
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     name = f"peers_{NAME}_error.png"
