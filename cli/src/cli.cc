@@ -186,6 +186,8 @@ constexpr const char* kOcpFooter =
                  IPOPT tol 1e-8). x = (x, y, angle, leg length, their velocities, clock),
                  u = (torque, leg force, slack, speed of time). Adds "hops" and
                  "t_physical_end"; "exact" gives the target and the errors against it.
+                 --plot also draws hopper_frames.png, hopper_states.png and
+                 hopper_controls.png.
 
 Output, one JSON object: "example", "N", "nfe", "status", "message", "ipopt_status" and
 "kkt_error" (how IPOPT ended the result's NLP; "solved" needs kkt_error <= --tol either way),

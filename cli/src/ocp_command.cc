@@ -1,9 +1,11 @@
 // `bflow ocp`: optimal control of a built-in nonsmooth example through FESD (format in
 // docs/cli.md), with the errors of the run against the example's exact optimum.
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <exception>
 #include <filesystem>
+#include <functional>
 #include <iterator>
 #include <new>
 #include <optional>
@@ -376,87 +378,147 @@ void write_plots(const fs::path& dir, const OcpModel& model, const OcpResult& r)
   script("ocp_switching", "Switching functions; dashed: the switch times", "c(x)", switching);
 }
 
-// The monoped's pictures against physical time (the clock, x_8): the robot drawn every 0.25 s
-// over the ground, its positions and velocities, and its torques and speed of time.
+// How a time-freezing robot (x = (q, v, clock), four positions) is drawn: its name (the files'
+// prefix), the points of its outline at q, the frame's ranges and the titles of its positions,
+// velocities and first two controls (then the slack, if any, and the speed of time, last).
+struct RobotPicture {
+  std::string name, outline, xrange, yrange;
+  double horizon = 0.0, frame_step = 0.25;
+  std::function<std::vector<std::array<double, 2>>(const Eigen::Vector4d&)> points;
+  std::array<std::string, 8> states;
+  std::array<std::string, 2> controls;
+  std::string torque_label;
+};
+
+RobotPicture robot_picture(const std::string& example) {
+  RobotPicture p;
+  if (example == "monoped") {
+    p.name = "monoped";
+    p.outline = "body, thigh, shank";
+    p.horizon = examples::MonopedTask::kHorizon;
+    p.xrange = "[-0.35:3.45]";
+    p.yrange = "[-0.05:0.85]";
+    p.points = [](const Eigen::Vector4d& q) {
+      const examples::Monoped robot;
+      double knee[2], foot[2];
+      robot.knee(q.data(), knee);
+      robot.foot(q.data(), foot);
+      // head (5 cm above the base), base (the hip), knee and foot
+      return std::vector<std::array<double, 2>>{
+          {q[0], q[1] + 0.05}, {q[0], q[1]}, {knee[0], knee[1]}, {foot[0], foot[1]}};
+    };
+    p.states = {
+        "q_x [m]",   "q_z [m]",   "{/Symbol f}_{hip} [rad]",   "{/Symbol f}_{knee} [rad]",
+        "v_x [m/s]", "v_z [m/s]", "{/Symbol w}_{hip} [rad/s]", "{/Symbol w}_{knee} [rad/s]"};
+    p.controls = {"u_{hip}", "u_{knee}"};
+    p.torque_label = "torque [N m]";
+    return p;
+  }
+  p.name = "hopper";
+  p.outline = "body and leg";
+  p.horizon = examples::HopperTask::kHorizon;
+  p.xrange = "[-0.2:5.4]";
+  p.yrange = "[-0.05:1.55]";
+  p.points = [](const Eigen::Vector4d& q) {
+    const double foot_x = examples::Hopper{}.tangential_position(q.data());
+    const double foot_z = examples::Hopper{}.gap(q.data());
+    return std::vector<std::array<double, 2>>{{q[0], q[1]}, {foot_x, foot_z}};
+  };
+  p.states = {"x [m]",     "y [m]",     "{/Symbol q} [rad]",   "l [m]",
+              "v_x [m/s]", "v_y [m/s]", "{/Symbol w} [rad/s]", "dl/dt [m/s]"};
+  p.controls = {"torque [N m]", "leg force [N]"};
+  p.torque_label = "torque, force";
+  return p;
+}
+
+// A time-freezing robot's pictures against physical time (the clock, x_8): the robot drawn every
+// 0.25 s over the ground, its positions and velocities, and its first two controls and speed of
+// time. Files NAME_frames, NAME_states (.dat, .gp, .png) and NAME_controls (.gp, .png).
 // @throws DemoError.
-void write_monoped_plots(const fs::path& dir, const OcpResult& r) {
-  const examples::Monoped robot;
-  const double horizon = examples::MonopedTask::kHorizon;
+void write_robot_plots(const fs::path& dir, const RobotPicture& pic, const OcpResult& r) {
   const Eigen::MatrixXd& x = r.x_grid;
+  const std::string& name = pic.name;
   std::ostringstream frames;
-  frames << "# x z t: head (5 cm above the base), base (the hip), knee and foot of the robot, one "
-            "block per frame (bflow ocp)\n";
-  const int count = 13;
+  frames << "# x z t: the points of the " << name << " (" << pic.outline
+         << "), one block per frame (bflow ocp)\n";
+  const int count = static_cast<int>(std::lround(pic.horizon / pic.frame_step)) + 1;
   Eigen::Index j = 0;
   for (int f = 0; f < count && x.cols() > 0; ++f) {
-    const double t = horizon * f / (count - 1);
+    const double t = pic.horizon * f / (count - 1);
     while (j + 1 < x.cols() && x(8, j) < t - 1e-9) ++j;
-    const Eigen::Vector4d q = x.col(j).head(4);
-    double knee[2], foot[2];
-    robot.knee(q.data(), knee);
-    robot.foot(q.data(), foot);
-    const double points[4][2] = {
-        {q[0], q[1] + 0.05}, {q[0], q[1]}, {knee[0], knee[1]}, {foot[0], foot[1]}};
-    for (const auto& p : points) {
-      frames << format_number(p[0]) << ' ' << format_number(p[1]) << ' ' << format_number(t)
+    for (const auto& point : pic.points(x.col(j).head(4))) {
+      frames << format_number(point[0]) << ' ' << format_number(point[1]) << ' ' << format_number(t)
              << '\n';
     }
     frames << "\n\n";
   }
-  write_file(dir / "monoped_frames.dat", frames.str(), "ocp");
+  write_file(dir / (name + "_frames.dat"), frames.str(), "ocp");
 
   std::ostringstream states;
-  states << "# t q_x q_z phi_hip phi_knee v_x v_z w_hip w_knee, t the clock (physical time), at "
-            "every element boundary\n";
+  states << "# t, then the positions and velocities, t the clock (physical time), at every element "
+            "boundary\n";
   for (Eigen::Index k = 0; k < x.cols(); ++k) {
     states << format_number(x(8, k));
     for (int i = 0; i < 8; ++i) states << ' ' << format_number(x(i, k));
     states << '\n';
   }
-  write_file(dir / "monoped_states.dat", states.str(), "ocp");
+  write_file(dir / (name + "_states.dat"), states.str(), "ocp");
 
-  const auto script = [&](const std::string& name, const std::string& body) {
-    const std::string text = "# Written by `bflow ocp`; run in this directory: gnuplot " + name +
-                             ".gp\nset encoding utf8\n" + body;
-    write_file(dir / (name + ".gp"), text, "ocp");
-    run_gnuplot(dir, name + ".gp", name + ".png", "ocp", "leave out --plot");
+  const auto script = [&](const std::string& plot, const std::string& body) {
+    const std::string file = name + "_" + plot;
+    const std::string text = "# Written by `bflow ocp`; run in this directory: gnuplot " + file +
+                             ".gp\nset encoding utf8\n" +
+                             "set output (exists('bflow_output') ? bflow_output : '" + file +
+                             ".png')\n" + body;
+    write_file(dir / (file + ".gp"), text, "ocp");
+    run_gnuplot(dir, file + ".gp", file + ".png", "ocp", "leave out --plot");
   };
-  script("monoped_frames",
+  const auto step = format_number(pic.frame_step);
+  script("frames",
          "set terminal pngcairo size 1400,420 enhanced font 'Sans,12'\n"
-         "set output (exists('bflow_output') ? bflow_output : 'monoped_frames.png')\n"
-         "set title 'The monoped every 0.25 s (body, thigh, shank); colour: physical time'\n"
-         "set size ratio -1\nset xlabel 'x [m]'\nset ylabel 'z [m]'\n"
-         "set xrange [-0.35:3.45]\nset yrange [-0.05:0.85]\n"
-         "set cblabel 't [s]'\nset palette rgbformulae 33,13,10\nset grid lc rgb '#dddddd'\n"
-         "plot 0 with lines lc rgb '#555555' lw 2 title 'ground', \\\n"
-         "  'monoped_frames.dat' using 1:2:3 with linespoints lw 2 pt 7 ps 0.6 lc palette "
-         "notitle\n");
-  script("monoped_states",
-         "set terminal pngcairo size 1000,800 enhanced font 'Sans,12'\n"
-         "set output (exists('bflow_output') ? bflow_output : 'monoped_states.png')\n"
-         "set multiplot layout 2,1 title 'The monoped against physical time'\n"
-         "set grid lc rgb '#dddddd'\nset key outside right top\nset xlabel 't [s]'\n"
-         "set ylabel 'position'\n"
-         "plot 'monoped_states.dat' using 1:2 with lines lw 2 title 'q_x [m]', \\\n"
-         "  '' using 1:3 with lines lw 2 title 'q_z [m]', \\\n"
-         "  '' using 1:4 with lines lw 2 title '{/Symbol f}_{hip} [rad]', \\\n"
-         "  '' using 1:5 with lines lw 2 title '{/Symbol f}_{knee} [rad]'\n"
-         "set ylabel 'velocity'\n"
-         "plot 'monoped_states.dat' using 1:6 with lines lw 2 title 'v_x [m/s]', \\\n"
-         "  '' using 1:7 with lines lw 2 title 'v_z [m/s]', \\\n"
-         "  '' using 1:8 with lines lw 2 title '{/Symbol w}_{hip} [rad/s]', \\\n"
-         "  '' using 1:9 with lines lw 2 title '{/Symbol w}_{knee} [rad/s]'\n"
-         "unset multiplot\n");
-  script("monoped_controls",
+         "set title 'The " +
+             name + " every " + step + " s (" + pic.outline +
+             "); colour: physical time'\n"
+             "set size ratio -1\nset xlabel 'x [m]'\nset ylabel 'z [m]'\n"
+             "set xrange " +
+             pic.xrange + "\nset yrange " + pic.yrange +
+             "\n"
+             "set cblabel 't [s]'\nset palette rgbformulae 33,13,10\n"
+             "set grid lc rgb '#dddddd'\n"
+             "plot 0 with lines lc rgb '#555555' lw 2 title 'ground', \\\n"
+             "  '" +
+             name +
+             "_frames.dat' using 1:2:3 with linespoints lw 2 pt 7 ps 0.6 "
+             "lc palette notitle\n");
+  std::string body =
+      "set terminal pngcairo size 1000,800 enhanced font 'Sans,12'\n"
+      "set multiplot layout 2,1 title 'The " +
+      name +
+      " against physical time'\n"
+      "set grid lc rgb '#dddddd'\nset key outside right top\nset xlabel 't [s]'\n";
+  for (int half = 0; half < 2; ++half) {
+    body += std::string("set ylabel '") + (half == 0 ? "position" : "velocity") + "'\nplot ";
+    for (int i = 0; i < 4; ++i) {
+      body += (i == 0 ? "'" + name + "_states.dat'" : std::string("  ''")) +
+              " using 1:" + std::to_string(2 + 4 * half + i) + " with lines lw 2 title '" +
+              pic.states[static_cast<std::size_t>(4 * half + i)] + "'" + (i < 3 ? ", \\\n" : "\n");
+    }
+  }
+  script("states", body + "unset multiplot\n");
+  // ocp_controls.dat: t, then the controls; the speed of time is the last.
+  const int speed_column = 1 + static_cast<int>(r.u.rows());
+  script("controls",
          "set terminal pngcairo size 1000,500 enhanced font 'Sans,12'\n"
-         "set output (exists('bflow_output') ? bflow_output : 'monoped_controls.png')\n"
-         "set title 'Torques and speed of time, constant on each stage'\n"
+         "set title 'Controls and speed of time, constant on each stage'\n"
          "set grid lc rgb '#dddddd'\nset key outside right top\nset xlabel 't [s]'\n"
-         "set ylabel 'torque [N m]'\nset y2label 'speed of time s'\nset ytics nomirror\n"
-         "set y2tics\n"
-         "plot 'ocp_controls.dat' using 1:2 with lines lw 2 title 'u_{hip}', \\\n"
-         "  '' using 1:3 with lines lw 2 title 'u_{knee}', \\\n"
-         "  '' using 1:4 axes x1y2 with lines lw 2 dt 2 title 's'\n");
+         "set ylabel '" +
+             pic.torque_label +
+             "'\nset y2label 'speed of time s'\n"
+             "set ytics nomirror\nset y2tics\n"
+             "plot 'ocp_controls.dat' using 1:2 with lines lw 2 title '" +
+             pic.controls[0] + "', \\\n  '' using 1:3 with lines lw 2 title '" + pic.controls[1] +
+             "', \\\n  '' using 1:" + std::to_string(speed_column) +
+             " axes x1y2 with lines lw 2 dt 2 title 's'\n");
 }
 
 }  // namespace
@@ -564,10 +626,11 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
       for (const char* plot : {"ocp_states", "ocp_controls", "ocp_switching"}) {
         files.insert(files.end(), {std::string(plot) + ".gp", std::string(plot) + ".png"});
       }
-      if (options.example == "monoped") {
-        files.insert(files.end(), {"monoped_frames.dat", "monoped_states.dat"});
-        for (const char* plot : {"monoped_frames", "monoped_states", "monoped_controls"}) {
-          files.insert(files.end(), {std::string(plot) + ".gp", std::string(plot) + ".png"});
+      if (options.example == "monoped" || options.example == "hopper") {
+        const std::string name = options.example;
+        files.insert(files.end(), {name + "_frames.dat", name + "_states.dat"});
+        for (const char* plot : {"_frames", "_states", "_controls"}) {
+          files.insert(files.end(), {name + plot + ".gp", name + plot + ".png"});
         }
       }
       for (const std::string& file : files) {
@@ -628,7 +691,9 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
           if (options.plot) {
             try {
               write_plots(*options.plot, model, r);
-              if (options.example == "monoped") write_monoped_plots(*options.plot, r);
+              if (options.example == "monoped" || options.example == "hopper") {
+                write_robot_plots(*options.plot, robot_picture(options.example), r);
+              }
             } catch (const DemoError& e) {
               plot_error = e.what();
             }

@@ -16,6 +16,7 @@
 #include <nlohmann/json.hpp>
 
 #include "bflow/core/errors.h"
+#include "bflow/examples/hopper.h"
 #include "bflow/examples/monoped_ocp.h"
 #include "bflow/fesd/linear_solver.h"
 #include "cli_commands.h"
@@ -313,11 +314,19 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
   };
   const Case cases[] = {
       {"no example", [](OcpCommandOptions& o) { o.example = ""; },
-       "error: --example: is required; use turbo-car, braking-block, monoped"},
+       "error: --example: is required; use turbo-car, braking-block, monoped, hopper"},
       {"example", [](OcpCommandOptions& o) { o.example = "rocket"; },
-       "error: --example: unknown example \"rocket\"; use turbo-car, braking-block, monoped"},
+       "error: --example: unknown example \"rocket\"; use turbo-car, braking-block, monoped, "
+       "hopper"},
       {"N", [](OcpCommandOptions& o) { o.n = 0; },
        "error: --N: the number of control stages must be >= 1, got 0"},
+      {"hopper N",
+       [](OcpCommandOptions& o) {
+         o.example = "hopper";
+         o.n = 12;
+       },
+       "error: --N: the hopper's number of control stages must be a positive multiple of 5 (its "
+       "reference samples each of the 5 jumps at N / 5 stages), got 12"},
       {"nfe", [](OcpCommandOptions& o) { o.nfe = -2; },
        "error: --nfe: the number of finite elements per control stage must be >= 1, got -2"},
       {"stages 0", [](OcpCommandOptions& o) { o.stages = 0; },
@@ -481,6 +490,53 @@ TEST(OcpCommandTest, MonopedReportsHopsAndThePhysicalEnd) {
   fs::remove_all(dir);
 }
 
+// The hopper at N = 5 and one NLP (sigma = 100): Stewart's formulation by default, the
+// package's settings, the stage ends' clock within 1e-3 of k T / N, the errors against the
+// target computed from the printed x(T), and its three pictures.
+TEST(OcpCommandTest, HopperReportsHopsAndThePhysicalEnd) {
+  const fs::path dir = fs::path(::testing::TempDir()) / "bflow_ocp_hopper";
+  fs::remove_all(dir);
+  OcpCommandOptions o;
+  o.example = "hopper";
+  o.n = 5;
+  o.sigma_final = 100.0;
+  o.quiet = true;
+  o.trajectory = true;
+  const bool draw = gnuplot_on_path();
+  if (draw) o.plot = dir.string();
+  const Outcome r = solve(o);
+  const nlohmann::json& j = r.json;
+  ASSERT_EQ(j["status"], "complementarity_not_reached") << r.err;
+  EXPECT_EQ(r.code, kExitFailure);
+  EXPECT_EQ(j["cross_complementarity"], "element-sums");
+  ASSERT_EQ(j["x"].size(), 6u);
+  ASSERT_EQ(j["u"][0].size(), 4u);
+  ASSERT_EQ(j["homotopy"].size(), 1u);
+  for (int k = 0; k <= 5; ++k) {
+    EXPECT_NEAR(j["x"][k][8].get<double>(), k * 1.0, 1e-3 + 1e-9) << "stage end " << k;
+  }
+  const std::vector<double> end = j["x"][5].get<std::vector<double>>();
+  const double target[4] = {5.0, 0.5, 0.0, 0.5};
+  double q_error = 0.0;
+  for (int i = 0; i < 4; ++i) q_error = std::max(q_error, std::abs(end[i] - target[i]));
+  EXPECT_NEAR(j["exact"]["q_error"].get<double>(), q_error, 1e-14);
+  EXPECT_EQ(j["exact"]["t_physical_end_error"].get<double>(), std::abs(end[8] - 5.0));
+  const auto grid = j["x_grid"].get<std::vector<std::vector<double>>>();
+  Eigen::MatrixXd x(9, static_cast<Eigen::Index>(grid.size()));
+  for (std::size_t k = 0; k < grid.size(); ++k) {
+    for (int i = 0; i < 9; ++i) x(i, static_cast<Eigen::Index>(k)) = grid[k][i];
+  }
+  EXPECT_EQ(j["hops"].get<int>(), examples::HopperTask::hops(x));
+  if (draw) {
+    for (const char* png : {"hopper_frames.png", "hopper_states.png", "hopper_controls.png"}) {
+      const fs::path file = dir / png;
+      ASSERT_TRUE(fs::exists(file)) << file;
+      EXPECT_GT(fs::file_size(file), 1000u) << file;
+    }
+  }
+  fs::remove_all(dir);
+}
+
 TEST(OcpCommandTest, MissingGnuplotIsOneErrorLine) {
   const fs::path dir = fs::path(::testing::TempDir()) / "bflow_ocp_no_gnuplot";
   fs::remove_all(dir);
@@ -603,7 +659,7 @@ TEST(OcpCommandTest, OptionTextIsReadWholeAndChecked) {
        "--scheme: unknown collocation scheme \"\xc3\xa9\\xff\": use radau or gauss"},
       {{"--example", "\xe2\x88\x92" + std::string(100, 'x')},
        "--example: unknown example \"\xe2\x88\x92" + std::string(59, 'x') +
-           "...\"; use turbo-car, braking-block, monoped"},
+           "...\"; use turbo-car, braking-block, monoped, hopper"},
   };
   for (const auto& [args, error] : cases) {
     std::vector<std::string> all = {"ocp", "--example", "turbo-car", "--quiet"};
