@@ -179,30 +179,11 @@ struct HopperTask {
   static double target_error(const Eigen::Ref<const Eigen::VectorXd>& x) {
     return (x.head(4) - target().head(4)).cwiseAbs().maxCoeff();
   }
-  /** Hops: flight phases that start from the ground (foot's gap <= contact, then > lift), as
-      MonopedTask::hops. @throws InvalidArgument if x has other than 9 rows or the levels are
-      out of order. */
+  /** Hops: flight phases that start from the ground (count_hops of time_freezing.h).
+      @throws InvalidArgument if x has other than 9 rows or the levels are out of order. */
   static int hops(const Eigen::Ref<const Eigen::MatrixXd>& x, double contact = 1e-4,
                   double lift = 1e-2) {
-    if (x.rows() != 9 || !(contact >= 0.0 && contact < lift)) {
-      throw InvalidArgument("HopperTask::hops: x has " + std::to_string(x.rows()) +
-                            " rows (9 expected), contact " + format_number(contact) + ", lift " +
-                            format_number(lift) + " (0 <= contact < lift expected)");
-    }
-    const Hopper robot;
-    int count = 0;
-    bool grounded = false, flying = false;
-    for (Eigen::Index j = 0; j < x.cols(); ++j) {
-      const double gap = robot.gap(x.col(j).data());
-      if (gap <= contact) {
-        grounded = true;
-        flying = false;
-      } else if (gap > lift && grounded && !flying) {
-        ++count;
-        flying = true;
-      }
-    }
-    return count;
+    return count_hops(Hopper{}, x, contact, lift);
   }
 
   /** The package's solver settings (see the top of the file) at N stages. */

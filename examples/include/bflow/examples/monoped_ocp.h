@@ -223,34 +223,13 @@ struct MonopedTask {
     return (x.head(4) - target()).cwiseAbs().maxCoeff();
   }
 
-  /** The number of hops in a run: flight phases that start from the ground. Walking through the
-      columns of `x` (time-freezing states (q, v, clock) in time order), the foot is on the ground
-      where its gap is at most `contact` and in flight where it is above `lift`; a hop is counted
-      when the foot rises above `lift` after having been on the ground (the published start
-      stands on it), so a fall from a state in the air is no hop.
+  /** The number of hops in a run: flight phases that start from the ground, the foot on the
+      ground where its gap is at most `contact` and in flight above `lift` (count_hops of
+      time_freezing.h: a fall from a state in the air is no hop).
       @throws InvalidArgument if x has other than 9 rows or 0 <= contact < lift fails. */
   static int hops(const Eigen::Ref<const Eigen::MatrixXd>& x, double contact = 1e-4,
                   double lift = 1e-2) {
-    if (x.rows() != 9 || !(contact >= 0.0 && contact < lift)) {
-      throw InvalidArgument("MonopedTask::hops: x has " + std::to_string(x.rows()) +
-                            " rows (9 expected), contact " + format_number(contact) + ", lift " +
-                            format_number(lift) + " (0 <= contact < lift expected)");
-    }
-    const Monoped robot;
-    int count = 0;
-    bool grounded = false, flying = false;
-    for (Eigen::Index j = 0; j < x.cols(); ++j) {
-      const Eigen::Vector4d q = x.col(j).head(4);
-      const double gap = robot.gap(q.data());
-      if (gap <= contact) {
-        grounded = true;
-        flying = false;
-      } else if (gap > lift && grounded && !flying) {
-        ++count;
-        flying = true;
-      }
-    }
-    return count;
+    return count_hops(Monoped{}, x, contact, lift);
   }
 
   /** The OCP at N control stages (the nosnoc setup's terminal weight is (T / N) Q_T). The

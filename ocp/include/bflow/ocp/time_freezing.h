@@ -257,6 +257,39 @@ inline std::vector<int> clock_running_points(const Eigen::Ref<const Eigen::Matri
   return kept;
 }
 
+/** The hops of a time-freezing run of `system`: flight phases that start from the ground.
+    Walking through the columns of `states` (time-freezing states (q, v, clock) in time order),
+    the contact is on the ground where its gap is at most `contact` and in flight where it is above
+    `lift`; a hop is counted when the gap rises above `lift` after having been on the ground, so a
+    fall from a state in the air is no hop.
+    @throws InvalidArgument if `states` has other than 2 kDof + 1 rows or 0 <= contact < lift
+    fails. */
+template <typename System>
+int count_hops(const System& system, const Eigen::Ref<const Eigen::MatrixXd>& states,
+               double contact = 1e-4, double lift = 1e-2) {
+  constexpr int rows = 2 * System::kDof + 1;
+  if (states.rows() != rows || !(contact >= 0.0 && contact < lift)) {
+    throw InvalidArgument("count_hops: the states have " + std::to_string(states.rows()) +
+                          " rows (" + std::to_string(rows) + " expected), contact " +
+                          format_number(contact) + ", lift " + format_number(lift) +
+                          " (0 <= contact < lift expected)");
+  }
+  int count = 0;
+  bool grounded = false, flying = false;
+  for (Eigen::Index j = 0; j < states.cols(); ++j) {
+    const Eigen::VectorXd q = states.col(j).head(System::kDof);
+    const double gap = system.gap(q.data());
+    if (gap <= contact) {
+      grounded = true;
+      flying = false;
+    } else if (gap > lift && grounded && !flying) {
+      ++count;
+      flying = true;
+    }
+  }
+  return count;
+}
+
 namespace detail {
 template <typename S, typename = void>
 struct HasTangentialPosition : std::false_type {};
