@@ -269,7 +269,7 @@ struct NumericTexts {
   std::optional<std::string> max_input_bytes, max_output_bytes;
   std::optional<std::string> fesd_stages, fesd_nfe, fesd_nsim, fesd_t, fesd_lifting;
   std::optional<std::string> ocp_n, ocp_nfe, ocp_stages, ocp_sigma0, ocp_sigma_final, ocp_tol,
-      ocp_max_iterations;
+      ocp_max_iterations, ocp_lifting;
 };
 
 int read_int(const std::string& text, const char* option) {
@@ -303,6 +303,7 @@ void read_numbers(const NumericTexts& t, JumpOptions& jump, FesdCommandOptions& 
   if (t.ocp_tol) ocp.tol = read_double(*t.ocp_tol, "--tol");
   if (t.ocp_max_iterations)
     ocp.max_iterations = read_int(*t.ocp_max_iterations, "--max-iterations");
+  if (t.ocp_lifting) ocp.lifting = read_int(*t.ocp_lifting, "--lifting");
 }
 
 // Refuses an option of `command` given with an empty value ("--N ''"), which CLI11 would take
@@ -501,9 +502,10 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->capture_default_str();
     ocp->add_option("--cross", ocp_options.cross,
                     "Cross complementarity rows: element-sums (one product of sums per element "
-                    "and pair) or point-pairs (every product of two points on its own row); "
-                    "default point-pairs for the monoped with stewart (nosnoc's), else "
-                    "element-sums")
+                    "and pair), point-pairs (every product of two points on its own row) or "
+                    "point-sums (each point against the sum over the element's points, nosnoc's "
+                    "Python default); default point-pairs for the monoped with stewart "
+                    "(nosnoc's), else element-sums")
         ->type_name("NAME");
     ocp->add_option("--sigma0", numbers.ocp_sigma0,
                     "Initial relaxation sigma, > 0 (default 100; 1 for the monoped)")
@@ -516,6 +518,10 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                     "IPOPT's tolerance for the last NLP, >= 1e-14 (default 1e-10; monoped: 1e-5 "
                     "for --setup nosnoc, 1e-6 for --setup strict)")
         ->type_name("X");
+    ocp->add_option("--lifting", numbers.ocp_lifting,
+                    "Step formulation: lifting depth n_d of Algorithm 1, 0 (none) or 2.."
+                    "max(2, n_c) (default 0; 2 for the monoped's nosnoc setup)")
+        ->type_name("ND");
     ocp->add_option("--max-iterations", numbers.ocp_max_iterations,
                     "IPOPT iterations of the whole homotopy, >= 0; when they run out the status "
                     "is budget_exhausted with the last solved NLP's result (default 0: no limit "

@@ -224,6 +224,9 @@ struct OcpCommandOptions {
   /** --max-iterations: IPOPT iterations of the whole homotopy, >= 0 (0: no limit but IPOPT's
       per NLP); not given: bflow::OcpOptions::max_total_iterations of the example. */
   std::optional<int> max_iterations;
+  /** --lifting: the step formulation's lifting depth (OcpOptions::lifting_depth); not given:
+      the example's (2 for the monoped's nosnoc setup, else 0). */
+  std::optional<int> lifting;
   /** --linear-solver: IPOPT's, one of bflow::kLinearSolvers (mumps, HSL's ma27 ... ma97 from
       libhsl.so, pardiso); unknown or without its library: exit code 2 before the solve. */
   std::string linear_solver = "mumps";

@@ -588,9 +588,11 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
         o.cross_complementarity = CrossComplementarity::kElementSums;
       } else if (*options.cross == "point-pairs") {
         o.cross_complementarity = CrossComplementarity::kPointPairs;
+      } else if (*options.cross == "point-sums") {
+        o.cross_complementarity = CrossComplementarity::kPointSums;
       } else {
         fail("--cross", "unknown cross complementarity " + quote(*options.cross) +
-                            "; use element-sums or point-pairs");
+                            "; use element-sums, point-pairs or point-sums");
       }
     }
     check_ranges(options, o);
@@ -608,6 +610,16 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
     if (options.sigma_final) o.sigma_final = *options.sigma_final;
     if (options.tol) o.nlp_tolerance = *options.tol;
     if (options.max_iterations) o.max_total_iterations = *options.max_iterations;
+    if (options.lifting) {
+      if (*options.lifting != 0 && (*options.lifting < 2 || formulation != DcsFormulation::kStep)) {
+        fail("--lifting",
+             "the lifting depth must be 0 (none) or at least 2, and only the step "
+             "formulation lifts; got " +
+                 std::to_string(*options.lifting) + " with the " + to_string(formulation) +
+                 " formulation");
+      }
+      o.lifting_depth = *options.lifting;
+    }
     if (!options.quiet) {
       o.progress = [&err](const OcpHomotopyStep& s) {
         err << progress_line(s) << '\n' << std::flush;

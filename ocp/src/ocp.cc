@@ -482,6 +482,12 @@ OcpProblemSize ocp_problem_size(const OcpModel& model, const OcpOptions& options
     size.constraints += extra;
     size.jacobian_nonzeros += 2 * extra;
   }
+  if (!options.standard && options.cross_complementarity == CrossComplementarity::kPointSums) {
+    // Every pair's P rows, each one u and the P + 1 v's, in place of its one aggregated row.
+    const std::int64_t extra = size.elements * elements.point_pairs * (elements.points - 1);
+    size.constraints += extra;
+    size.jacobian_nonzeros += (elements.points + 2) * extra;
+  }
   size.hessian_nonzeros = elements.hessian_nonzeros;
   size.bytes = elements.step_bytes;
   return size;

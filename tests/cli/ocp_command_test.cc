@@ -320,6 +320,9 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
        "hopper"},
       {"N", [](OcpCommandOptions& o) { o.n = 0; },
        "error: --N: the number of control stages must be >= 1, got 0"},
+      {"lifting", [](OcpCommandOptions& o) { o.lifting = 1; },
+       "error: --lifting: the lifting depth must be 0 (none) or at least 2, and only the step "
+       "formulation lifts; got 1 with the step formulation"},
       {"hopper N",
        [](OcpCommandOptions& o) {
          o.example = "hopper";
@@ -340,8 +343,8 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
       {"relaxation", [](OcpCommandOptions& o) { o.relaxation = "smooth"; },
        "error: --relaxation: unknown relaxation \"smooth\"; use scholtes or l1"},
       {"cross", [](OcpCommandOptions& o) { o.cross = "stage-stage"; },
-       "error: --cross: unknown cross complementarity \"stage-stage\"; use element-sums or "
-       "point-pairs"},
+       "error: --cross: unknown cross complementarity \"stage-stage\"; use element-sums, "
+       "point-pairs or point-sums"},
       {"setup", [](OcpCommandOptions& o) { o.setup = "nosnoc"; },
        "error: --setup: only the monoped has setups, not \"turbo-car\""},
       {"monoped setup",

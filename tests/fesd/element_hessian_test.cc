@@ -42,11 +42,13 @@ struct Config {
   CollocationScheme scheme;
   bool standard;
   bool point_pairs = false;
+  bool point_sums = false;
   std::string name() const {
     return std::string(to_string(formulation)) + " n_d " + std::to_string(lifting_depth) + " " +
            to_string(scheme) +
            (standard      ? " standard"
             : point_pairs ? " point-pair cross"
+            : point_sums  ? " point-sum cross"
                           : " cross");
   }
 };
@@ -60,6 +62,7 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
   const ButcherTableau tab = collocation_tableau(c.scheme, 2);
   fesd::ElementShape l(dcs, 2, 2, tab, 1, true);
   if (c.point_pairs) l.cross = CrossComplementarity::kPointPairs;
+  if (c.point_sums) l.cross = CrossComplementarity::kPointSums;
   const int n = l.local;
   std::mt19937 gen(11);
   std::uniform_real_distribution<double> uniform(0.1, 0.9);
@@ -124,7 +127,10 @@ INSTANTIATE_TEST_SUITE_P(
         Config{DcsFormulation::kStewart, 0, CollocationScheme::kGaussLegendre, true},
         Config{DcsFormulation::kStep, 2, CollocationScheme::kRadauIIA, false, true},
         Config{DcsFormulation::kStewart, 0, CollocationScheme::kRadauIIA, false, true},
-        Config{DcsFormulation::kStewart, 0, CollocationScheme::kGaussLegendre, false, true}));
+        Config{DcsFormulation::kStewart, 0, CollocationScheme::kGaussLegendre, false, true},
+        Config{DcsFormulation::kStep, 0, CollocationScheme::kRadauIIA, false, false, true},
+        Config{DcsFormulation::kStep, 2, CollocationScheme::kGaussLegendre, false, false, true},
+        Config{DcsFormulation::kStewart, 0, CollocationScheme::kRadauIIA, false, false, true}));
 
 // The point-pair cross complementarity (kPointPairs) against the aggregated rows: pair k's
 // P (P + 1) products sum to its aggregated product (sum_r u_r)(v_0 + sum_m v_m) exactly by
@@ -190,6 +196,68 @@ TEST(PointPairComplementarity, RowsSumToTheAggregatedProductsAndThePatternHoldsT
       }
     }
     EXPECT_EQ(listed, 2 * pairs.comp_rows());
+  }
+}
+
+// The point-sum cross complementarity (kPointSums, nosnoc's Python default): pair k's row r is
+// u_r (v_0 + sum_m v_m), read from the local vector; the P rows sum to the aggregated product
+// (sum_r u_r)(v_0 + sum_m v_m); the Jacobian pattern (u_r and the P + 1 v's) holds every nonzero
+// of the rows' dense Jacobian.
+TEST(PointSumComplementarity, RowsSumToTheAggregatedProductsAndThePatternHoldsTheJacobian) {
+  const auto model = adapt_step(Coupled{});
+  for (const DcsFormulation formulation : {DcsFormulation::kStep, DcsFormulation::kStewart}) {
+    const fesd::PointDcs dcs(model, formulation, 0);
+    const ButcherTableau tab = collocation_tableau(CollocationScheme::kGaussLegendre, 2);
+    fesd::ElementShape sums(dcs, 2, 2, tab, 1, true);
+    fesd::ElementShape points = sums;
+    points.cross = CrossComplementarity::kPointSums;
+    const int P = points.points;
+    ASSERT_EQ(P, 3);
+    ASSERT_EQ(points.comp_rows(), sums.npairs * P);
+    std::mt19937 gen(7);
+    std::uniform_real_distribution<double> uniform(0.1, 0.9);
+    std::vector<double> local(static_cast<std::size_t>(sums.local));
+    for (double& v : local) v = uniform(gen);
+    std::vector<double> aggregated(static_cast<std::size_t>(sums.rows_per_element()));
+    std::vector<double> rows(static_cast<std::size_t>(points.rows_per_element()));
+    fesd::element_residual(tab, sums, false, local.data(), aggregated.data());
+    fesd::element_residual(tab, points, false, local.data(), rows.data());
+    const double* z = local.data() + points.own() + points.off_z;
+    for (int k = 0; k < points.npairs; ++k) {
+      const fesd::Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+      double v = local[static_cast<std::size_t>(points.d + k)];
+      for (int m = 0; m < P; ++m) v += z[m * points.nz + pair.v];
+      double sum = 0.0;
+      for (int r = 0; r < P; ++r) {
+        const double u = pair.flipped ? 1.0 - z[r * points.nz + pair.u] : z[r * points.nz + pair.u];
+        const double row = rows[static_cast<std::size_t>(points.equalities + k * P + r)];
+        EXPECT_NEAR(row, u * v, 1e-15 * std::abs(u * v)) << to_string(formulation) << " " << k;
+        sum += row;
+      }
+      const double whole = aggregated[static_cast<std::size_t>(sums.equalities + k)];
+      EXPECT_NEAR(sum, whole, 1e-15 * std::abs(whole) * P) << to_string(formulation);
+    }
+    for (int r = 0; r < sums.equalities; ++r) {
+      EXPECT_EQ(rows[static_cast<std::size_t>(r)], aggregated[static_cast<std::size_t>(r)]);
+    }
+    Eigen::MatrixXd jac;
+    fesd::dense_jacobian(local, points.rows_per_element(), jac,
+                         [&](const JetChunk* in, JetChunk* out) {
+                           fesd::element_residual(tab, points, false, in, out);
+                         });
+    const std::vector<std::vector<int>> pattern = fesd::element_jacobian_pattern(points);
+    for (int r = points.equalities; r < points.rows_per_element(); ++r) {
+      const std::vector<int>& row = pattern[static_cast<std::size_t>(r)];
+      EXPECT_EQ(row.size(), static_cast<std::size_t>(P + 2));
+      for (int c = 0; c < points.local; ++c) {
+        const bool in_pattern = std::find(row.begin(), row.end(), c) != row.end();
+        if (in_pattern) {
+          EXPECT_NE(jac(r, c), 0.0) << "row " << r << " column " << c;
+        } else {
+          EXPECT_EQ(jac(r, c), 0.0) << "row " << r << " column " << c;
+        }
+      }
+    }
   }
 }
 

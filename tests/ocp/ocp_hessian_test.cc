@@ -265,6 +265,9 @@ TEST(OcpHessian, StewartFormulation) {
   OcpOptions pairs = shape(1, 2, CollocationScheme::kRadauIIA, 2, DcsFormulation::kStewart);
   pairs.cross_complementarity = CrossComplementarity::kPointPairs;
   pass_and_control(model, p, pairs, "Stewart, point pairs, Radau IIA 2");
+  OcpOptions point_sums = pairs;
+  point_sums.cross_complementarity = CrossComplementarity::kPointSums;
+  pass_and_control(model, p, point_sums, "Stewart, point sums, Radau IIA 2");
 }
 
 // Each cost alone on the dynamics without costs, on one stage of two elements: the Lagrange

@@ -124,9 +124,12 @@ TEST(OcpTurboCar, StewartGaussAndLimitedMemoryAgree) {
   lbfgs.exact_hessian = false;
   OcpOptions point_pairs = stewart;
   point_pairs.cross_complementarity = CrossComplementarity::kPointPairs;
+  OcpOptions point_sums = stewart;
+  point_sums.cross_complementarity = CrossComplementarity::kPointSums;
   for (const auto& [name, options] :
        {std::make_pair("stewart", stewart), std::make_pair("gauss", gauss),
-        std::make_pair("limited-memory", lbfgs), std::make_pair("point pairs", point_pairs)}) {
+        std::make_pair("limited-memory", lbfgs), std::make_pair("point pairs", point_pairs),
+        std::make_pair("point sums", point_sums)}) {
     SCOPED_TRACE(name);
     const OcpResult r = solve_car(5, options);
     ASSERT_EQ(r.status, OcpStatus::kSolved) << r.message;

@@ -62,8 +62,9 @@ struct ElementShape {
     params = nu + (scaled ? 1 : 0);
     local = d + npairs + params + block;
   }
-  /** Complementarity rows per pair: 1, or P (P + 1) point pairs. */
+  /** Complementarity rows per pair: 1, P (P + 1) point pairs or P point sums. */
   int comp_per_pair() const {
+    if (cross == CrossComplementarity::kPointSums) return points;
     return cross == CrossComplementarity::kPointPairs ? points * (points + 1) : 1;
   }
   int comp_rows() const { return npairs * comp_per_pair(); }
@@ -75,6 +76,7 @@ struct ElementShape {
 // The complementarity rows of one element (l.comp_rows() values) from the v of every pair at
 // its start and the z of its points. kPointPairs: pair k's rows are u_r v_m, row
 // k P (P + 1) + m P + r for point r of u and m of v (m = 0 the start, m = 1..P the points).
+// kPointSums: pair k's row k P + r is u_r (v_start + sum_m v_m).
 template <typename T>
 void complementarity_rows(const ElementShape& l, bool standard, const T* v0, const T* z, T* comp) {
   const PointDcs& dcs = *l.dcs;
@@ -87,6 +89,12 @@ void complementarity_rows(const ElementShape& l, bool standard, const T* v0, con
         const T v = m == 0 ? v0[k] : z[(m - 1) * nz + pair.v];
         for (int r = 0; r < P; ++r) row[m * P + r] = PointDcs::member_u(pair, z + r * nz) * v;
       }
+      continue;
+    }
+    if (!standard && l.cross == CrossComplementarity::kPointSums) {
+      T sum_v = v0[k];
+      for (int m = 0; m < P; ++m) sum_v += z[m * nz + pair.v];
+      for (int r = 0; r < P; ++r) comp[k * P + r] = PointDcs::member_u(pair, z + r * nz) * sum_v;
       continue;
     }
     if (standard) {
@@ -204,6 +212,21 @@ inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape
           rows[static_cast<std::size_t>(l.equalities + k * P * (P + 1) + m * P + r)] = {
               std::min(v, z0 + r * l.nz + pair.u), std::max(v, z0 + r * l.nz + pair.u)};
         }
+      }
+    }
+    return rows;
+  }
+  if (l.cross == CrossComplementarity::kPointSums) {
+    // Row k P + r reads every v of pair k (the start and the points) and u at point r.
+    const int P = l.points, z0 = own + l.off_z;
+    for (int k = 0; k < l.npairs; ++k) {
+      const Pair& pair = l.dcs->pairs()[static_cast<std::size_t>(k)];
+      for (int r = 0; r < P; ++r) {
+        std::vector<int> row = {d + k, z0 + r * l.nz + pair.u};
+        for (int m = 0; m < P; ++m) row.push_back(z0 + m * l.nz + pair.v);
+        std::sort(row.begin(), row.end());
+        row.erase(std::unique(row.begin(), row.end()), row.end());
+        rows[static_cast<std::size_t>(l.equalities + k * P + r)] = std::move(row);
       }
     }
     return rows;

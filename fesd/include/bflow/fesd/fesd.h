@@ -69,13 +69,17 @@ namespace bflow {
       kElementSums  one row per pair, (sum_r u_r)(v_start + sum_m v_m), the sum of all the
                     pointwise products (npairs rows per element);
       kPointPairs   every product u_r v_m on a row of its own (nosnoc's STAGE_STAGE cross
-                    complementarity; npairs P (P + 1) rows per element, P points).
-    Both vanish on the same points. Relaxed (every row <= sigma), the sums are the tighter, the
+                    complementarity; npairs P (P + 1) rows per element, P points);
+      kPointSums    each point's u_r against the sum of the v's, u_r (v_start + sum_m v_m)
+                    (the default of nosnoc's Python package, SUM_LAMBDAS_COMPLEMENT_WITH_EVERY_
+                    THETA; npairs P rows per element).
+    All vanish on the same points. Relaxed (every row <= sigma), the sums are the tighter, the
     point pairs give IPOPT more rows with one product each. Standard time-stepping keeps one
     row per pair either way. */
-enum class CrossComplementarity { kElementSums, kPointPairs };
-/** "element-sums" or "point-pairs". */
+enum class CrossComplementarity { kElementSums, kPointPairs, kPointSums };
+/** "element-sums", "point-pairs" or "point-sums". */
 inline const char* to_string(CrossComplementarity cross) {
+  if (cross == CrossComplementarity::kPointSums) return "point-sums";
   return cross == CrossComplementarity::kPointPairs ? "point-pairs" : "element-sums";
 }
 
