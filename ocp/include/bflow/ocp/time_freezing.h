@@ -277,8 +277,7 @@ int count_hops(const System& system, const Eigen::Ref<const Eigen::MatrixXd>& st
   int count = 0;
   bool grounded = false, flying = false;
   for (Eigen::Index j = 0; j < states.cols(); ++j) {
-    const Eigen::VectorXd q = states.col(j).head(System::kDof);
-    const double gap = system.gap(q.data());
+    const double gap = system.gap(states.col(j).data());  // q leads each column
     if (gap <= contact) {
       grounded = true;
       flying = false;
