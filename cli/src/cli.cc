@@ -390,7 +390,8 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     flow->add_option("--window", flow_options.window,
                      "With --grouping window: crossings closer than T in time are one event")
         ->type_name("T");
-    flow->add_option("--integrator", flow_options.integrator, "dopri5, cvodes-bdf or cvodes-adams")
+    flow->add_option("--integrator", flow_options.integrator,
+                     "dopri5, dop853, cvodes-bdf or cvodes-adams")
         ->type_name("NAME")
         ->capture_default_str();
     flow->add_option("--max-steps", flow_options.max_steps,
@@ -670,7 +671,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->type_name("T");
     sweep
         ->add_option("--integrator", sweep_options.flow.integrator,
-                     "dopri5, cvodes-bdf or cvodes-adams")
+                     "dopri5, dop853, cvodes-bdf or cvodes-adams")
         ->type_name("NAME")
         ->capture_default_str();
     sweep

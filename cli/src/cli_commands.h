@@ -85,7 +85,7 @@ struct FlowCommandOptions {
   std::vector<std::string> dx;
   std::optional<std::string> rtol;
   std::optional<std::string> atol;
-  /** "dopri5", "cvodes-bdf" or "cvodes-adams" (bflow::parse_backend). */
+  /** "dopri5", "dop853", "cvodes-bdf" or "cvodes-adams" (bflow::parse_backend). */
   std::string integrator = "dopri5";
   /** "auto", "window" or "none" (bflow::parse_grouping); default auto. */
   std::optional<std::string> grouping;

@@ -320,7 +320,7 @@ SceneSetup parse_scene_setup(const FlowCommandOptions& options) {
     request.flow.backend = parse_backend(options.integrator);
   } catch (const InvalidArgument&) {
     fail("--integrator", "integrator " + quote(options.integrator) +
-                             " is unknown; choose dopri5, cvodes-bdf or cvodes-adams");
+                             " is unknown; choose dopri5, dop853, cvodes-bdf or cvodes-adams");
   }
   if (options.grouping) {
     try {

@@ -93,7 +93,309 @@ struct TangentNorm<ceres::Jet<double, N>> {
   }
 };
 
+// The Dormand-Prince 5(4) pair (Hairer, Norsett & Wanner, Solving ODEs I, II.5), first same as
+// last (stage 7 is F at the new point), with Hairer's dense output of order 4.
 template <typename T>
+class Dp54Stages {
+ public:
+  static constexpr const char* kName = "dopri5";
+  /** Step-size control: h *= 0.9 error^(-kExponent), 1 / (order of the error estimate + 1). */
+  static constexpr double kExponent = 0.2;
+  explicit Dp54Stages(int d) : d_(d), k1_(d), k2_(d), k3_(d), k4_(d), k5_(d), k6_(d), k7_(d) {}
+  /** F at the step's start (filled by the caller before the first step). */
+  std::vector<T>& first() { return k1_; }
+  /** F at the trial step's end. */
+  const std::vector<T>& last() const { return k7_; }
+
+  // One trial step from x into next; field(in, out, t) evaluates F_b.
+  template <typename Field>
+  void attempt(const std::vector<T>& x, double h, double t, std::vector<T>& stage,
+               std::vector<T>& next, Field&& field) {
+    for (int i = 0; i < d_; ++i) stage[i] = x[i] + h * (a21 * k1_[i]);
+    field(stage, k2_, t + c2 * h);
+    for (int i = 0; i < d_; ++i) stage[i] = x[i] + h * (a31 * k1_[i] + a32 * k2_[i]);
+    field(stage, k3_, t + c3 * h);
+    for (int i = 0; i < d_; ++i) {
+      stage[i] = x[i] + h * (a41 * k1_[i] + a42 * k2_[i] + a43 * k3_[i]);
+    }
+    field(stage, k4_, t + c4 * h);
+    for (int i = 0; i < d_; ++i) {
+      stage[i] = x[i] + h * (a51 * k1_[i] + a52 * k2_[i] + a53 * k3_[i] + a54 * k4_[i]);
+    }
+    field(stage, k5_, t + c5 * h);
+    for (int i = 0; i < d_; ++i) {
+      stage[i] =
+          x[i] + h * (a61 * k1_[i] + a62 * k2_[i] + a63 * k3_[i] + a64 * k4_[i] + a65 * k5_[i]);
+    }
+    field(stage, k6_, t + h);
+    for (int i = 0; i < d_; ++i) {
+      next[i] =
+          x[i] + h * (a71 * k1_[i] + a73 * k3_[i] + a74 * k4_[i] + a75 * k5_[i] + a76 * k6_[i]);
+    }
+    field(next, k7_, t + h);
+  }
+  /** The accepted step's end becomes the next step's start. */
+  void accept() { k1_.swap(k7_); }
+  template <typename Scale>
+  void prepare_error(double, const Scale&) {}
+  /** The local error estimate of component i. */
+  T error(int i, double h) const {
+    return h * (e1 * k1_[i] + e3 * k3_[i] + e4 * k4_[i] + e5 * k5_[i] + e6 * k6_[i] + e7 * k7_[i]);
+  }
+  template <typename Field>
+  void prepare_dense(const std::vector<T>&, double, double, std::vector<T>&, Field&&) {}
+  /** Component i at theta on the dense output of the step x -> next. */
+  T dense(int i, const T& x, const T& next, double h, double theta) const {
+    const double theta1 = 1.0 - theta;
+    const T r2 = next - x;
+    const T r3 = h * k1_[i] - r2;
+    const T r4 = r2 - h * k7_[i] - r3;
+    const T r5 =
+        h * (d1 * k1_[i] + d3 * k3_[i] + d4 * k4_[i] + d5 * k5_[i] + d6 * k6_[i] + d7 * k7_[i]);
+    return x + theta * (r2 + theta1 * (r3 + theta * (r4 + theta1 * r5)));
+  }
+  /** The same, values only. */
+  double dense_value(int i, double x, double next, double h, double theta) const {
+    const double theta1 = 1.0 - theta;
+    const double r2 = next - x;
+    const double r3 = h * value_of(k1_[i]) - r2;
+    const double r4 = r2 - h * value_of(k7_[i]) - r3;
+    const double r5 = h * (d1 * value_of(k1_[i]) + d3 * value_of(k3_[i]) + d4 * value_of(k4_[i]) +
+                           d5 * value_of(k5_[i]) + d6 * value_of(k6_[i]) + d7 * value_of(k7_[i]));
+    return x + theta * (r2 + theta1 * (r3 + theta * (r4 + theta1 * r5)));
+  }
+
+ private:
+  int d_;
+  std::vector<T> k1_, k2_, k3_, k4_, k5_, k6_, k7_;
+};
+
+// Dormand & Prince's 8(5,3) pair as in Hairer's DOP853 (Solving ODEs I, II.10): 12 stages and
+// F at the new point (stage 13, first same as last), the error estimate of order 5 damped by the
+// one of order 3, and a dense output of order 7 that takes three more stages, evaluated only
+// for a step whose dense output is used (a crossing located in it).
+namespace dp853 {
+// The coefficients of DOP853 (rows 13-15 of kA and kC: the dense output's extra stages).
+constexpr double kC[16] = {0.0,
+                           0.05260015195876773,
+                           0.0789002279381516,
+                           0.1183503419072274,
+                           0.2816496580927726,
+                           0.3333333333333333,
+                           0.25,
+                           0.3076923076923077,
+                           0.6512820512820513,
+                           0.6,
+                           0.8571428571428571,
+                           1.0,
+                           1.0,
+                           0.1,
+                           0.2,
+                           0.7777777777777778};
+constexpr double kB[12] = {0.054293734116568765,
+                           0.0,
+                           0.0,
+                           0.0,
+                           0.0,
+                           4.450312892752409,
+                           1.8915178993145003,
+                           -5.801203960010585,
+                           0.3111643669578199,
+                           -0.1521609496625161,
+                           0.20136540080403034,
+                           0.04471061572777259};
+constexpr double kE3[13] = {-0.18980075407240762,
+                            0.0,
+                            0.0,
+                            0.0,
+                            0.0,
+                            4.450312892752409,
+                            1.8915178993145003,
+                            -5.801203960010585,
+                            -0.4226823213237919,
+                            -0.1521609496625161,
+                            0.20136540080403034,
+                            0.02265179219836082,
+                            0.0};
+constexpr double kE5[13] = {0.01312004499419488,
+                            0.0,
+                            0.0,
+                            0.0,
+                            0.0,
+                            -1.2251564463762044,
+                            -0.4957589496572502,
+                            1.6643771824549864,
+                            -0.35032884874997366,
+                            0.3341791187130175,
+                            0.08192320648511571,
+                            -0.022355307863886294,
+                            0.0};
+constexpr double kA[16][16] = {
+    {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0},
+    {0.05260015195876773, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+     0.0},
+    {0.0197250569845379, 0.0591751709536137, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+     0.0, 0.0, 0.0},
+    {0.02958758547680685, 0.0, 0.08876275643042054, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+     0.0, 0.0, 0.0, 0.0},
+    {0.2413651341592667, 0.0, -0.8845494793282861, 0.924834003261792, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+     0.0, 0.0, 0.0, 0.0, 0.0, 0.0},
+    {0.037037037037037035, 0.0, 0.0, 0.17082860872947386, 0.12546768756682242, 0.0, 0.0, 0.0, 0.0,
+     0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0},
+    {0.037109375, 0.0, 0.0, 0.17025221101954405, 0.06021653898045596, -0.017578125, 0.0, 0.0, 0.0,
+     0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0},
+    {0.03709200011850479, 0.0, 0.0, 0.17038392571223998, 0.10726203044637328, -0.015319437748624402,
+     0.008273789163814023, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0},
+    {0.6241109587160757, 0.0, 0.0, -3.3608926294469414, -0.868219346841726, 27.59209969944671,
+     20.154067550477894, -43.48988418106996, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0},
+    {0.47766253643826434, 0.0, 0.0, -2.4881146199716677, -0.590290826836843, 21.230051448181193,
+     15.279233632882423, -33.28821096898486, -0.020331201708508627, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+     0.0},
+    {-0.9371424300859873, 0.0, 0.0, 5.186372428844064, 1.0914373489967295, -8.149787010746927,
+     -18.52006565999696, 22.739487099350505, 2.4936055526796523, -3.0467644718982196, 0.0, 0.0, 0.0,
+     0.0, 0.0, 0.0},
+    {2.273310147516538, 0.0, 0.0, -10.53449546673725, -2.0008720582248625, -17.9589318631188,
+     27.94888452941996, -2.8589982771350235, -8.87285693353063, 12.360567175794303,
+     0.6433927460157636, 0.0, 0.0, 0.0, 0.0, 0.0},
+    {0.054293734116568765, 0.0, 0.0, 0.0, 0.0, 4.450312892752409, 1.8915178993145003,
+     -5.801203960010585, 0.3111643669578199, -0.1521609496625161, 0.20136540080403034,
+     0.04471061572777259, 0.0, 0.0, 0.0, 0.0},
+    {0.056167502283047954, 0.0, 0.0, 0.0, 0.0, 0.0, 0.25350021021662483, -0.2462390374708025,
+     -0.12419142326381637, 0.15329179827876568, 0.00820105229563469, 0.007567897660545699,
+     -0.008298, 0.0, 0.0, 0.0},
+    {0.03183464816350214, 0.0, 0.0, 0.0, 0.0, 0.028300909672366776, 0.053541988307438566,
+     -0.05492374857139099, 0.0, 0.0, -0.00010834732869724932, 0.0003825710908356584,
+     -0.00034046500868740456, 0.1413124436746325, 0.0, 0.0},
+    {-0.42889630158379194, 0.0, 0.0, 0.0, 0.0, -4.697621415361164, 7.683421196062599,
+     4.06898981839711, 0.3567271874552811, 0.0, 0.0, 0.0, -0.0013990241651590145,
+     2.9475147891527724, -9.15095847217987, 0.0}};
+constexpr double kD[4][16] = {
+    {-8.428938276109013, 0.0, 0.0, 0.0, 0.0, 0.5667149535193777, -3.0689499459498917,
+     2.38466765651207, 2.117034582445028, -0.871391583777973, 2.2404374302607883,
+     0.6315787787694688, -0.08899033645133331, 18.148505520854727, -9.194632392478356,
+     -4.436036387594894},
+    {10.427508642579134, 0.0, 0.0, 0.0, 0.0, 242.28349177525817, 165.20045171727028,
+     -374.5467547226902, -22.113666853125306, 7.733432668472264, -30.674084731089398,
+     -9.332130526430229, 15.697238121770845, -31.139403219565178, -9.35292435884448,
+     35.81684148639408},
+    {19.985053242002433, 0.0, 0.0, 0.0, 0.0, -387.0373087493518, -189.17813819516758,
+     527.8081592054236, -11.57390253995963, 6.8812326946963, -1.0006050966910838,
+     0.7777137798053443, -2.778205752353508, -60.19669523126412, 84.32040550667716,
+     11.99229113618279},
+    {-25.69393346270375, 0.0, 0.0, 0.0, 0.0, -154.18974869023643, -231.5293791760455,
+     357.6391179106141, 93.40532418362432, -37.45832313645163, 104.0996495089623, 29.8402934266605,
+     -43.53345659001114, 96.32455395918828, -39.17726167561544, -149.72683625798564}};
+}  // namespace dp853
+
+template <typename T>
+class Dp853Stages {
+ public:
+  static constexpr const char* kName = "dop853";
+  static constexpr double kExponent = 0.125;
+  explicit Dp853Stages(int d) : d_(d), k_(16, std::vector<T>(static_cast<std::size_t>(d))) {}
+  std::vector<T>& first() { return k_[0]; }
+  const std::vector<T>& last() const { return k_[12]; }
+
+  template <typename Field>
+  void attempt(const std::vector<T>& x, double h, double t, std::vector<T>& stage,
+               std::vector<T>& next, Field&& field) {
+    for (int s = 1; s < 12; ++s) {
+      combine(x, h, dp853::kA[s], s, stage);
+      field(stage, k_[s], t + dp853::kC[s] * h);
+    }
+    combine(x, h, dp853::kB, 12, next);
+    field(next, k_[12], t + h);
+    dense_ready_ = false;
+  }
+  void accept() { k_[0].swap(k_[12]); }
+  // gamma = |e5| / sqrt(|e5|^2 + 0.01 |e3|^2) over the scaled components (values only), so that
+  // error(i) = h gamma e5_i and the RMS of error(i) / scale_i is DOP853's error norm.
+  template <typename Scale>
+  void prepare_error(double, const Scale& scale) {
+    double sum5 = 0.0, sum3 = 0.0;
+    for (int i = 0; i < d_; ++i) {
+      double high = 0.0, low = 0.0;
+      for (int r = 0; r < 13; ++r) {
+        const double k = value_of(k_[r][i]);
+        high += dp853::kE5[r] * k;
+        low += dp853::kE3[r] * k;
+      }
+      const double s = scale(i);
+      sum5 += (high / s) * (high / s);
+      sum3 += (low / s) * (low / s);
+    }
+    gamma_ = sum5 == 0.0 && sum3 == 0.0 ? 0.0 : std::sqrt(sum5 / (sum5 + 0.01 * sum3));
+  }
+  T error(int i, double h) const {
+    T sum = dp853::kE5[0] * k_[0][i];
+    for (int r = 1; r < 13; ++r) {
+      if (dp853::kE5[r] != 0.0) sum += dp853::kE5[r] * k_[r][i];
+    }
+    return (h * gamma_) * sum;
+  }
+  // The three extra stages of the dense output, once per step (before accept()).
+  template <typename Field>
+  void prepare_dense(const std::vector<T>& x, double h, double t, std::vector<T>& stage,
+                     Field&& field) {
+    if (dense_ready_) return;
+    for (int s = 13; s < 16; ++s) {
+      combine(x, h, dp853::kA[s], s, stage);
+      field(stage, k_[s], t + dp853::kC[s] * h);
+    }
+    dense_ready_ = true;
+  }
+  T dense(int i, const T& x, const T& next, double h, double theta) const {
+    return interpolate<T>(i, x, next, h, theta, [](const T& v) -> const T& { return v; });
+  }
+  double dense_value(int i, double x, double next, double h, double theta) const {
+    return interpolate<double>(i, x, next, h, theta, [](const T& v) { return value_of(v); });
+  }
+
+ private:
+  // out = x + h sum_{r < s} a[r] k_r
+  void combine(const std::vector<T>& x, double h, const double* a, int s,
+               std::vector<T>& out) const {
+    for (int i = 0; i < d_; ++i) {
+      T sum = a[0] * k_[0][i];
+      for (int r = 1; r < s; ++r) {
+        if (a[r] != 0.0) sum += a[r] * k_[r][i];
+      }
+      out[i] = x[i] + h * sum;
+    }
+  }
+  // Hairer's contd8: x + theta (F0 + (1 - theta) (F1 + theta (F2 + (1 - theta) (F3 + theta (F4
+  // + (1 - theta) (F5 + theta F6)))))), F0 = next - x, F1 = h f_old - F0,
+  // F2 = 2 F0 - h (f_new + f_old), F3..F6 = h sum_s D_{r,s} k_s.
+  template <typename S, typename Part>
+  S interpolate(int i, const S& x, const S& next, double h, double theta, Part part) const {
+    const double theta1 = 1.0 - theta;
+    const S f0 = next - x;
+    const S f1 = h * part(k_[0][i]) - f0;
+    const S f2 = 2.0 * f0 - h * (part(k_[12][i]) + part(k_[0][i]));
+    S f[4];
+    for (int r = 0; r < 4; ++r) {
+      S sum = dp853::kD[r][0] * part(k_[0][i]);
+      for (int s = 1; s < 16; ++s) {
+        if (dp853::kD[r][s] != 0.0) sum += dp853::kD[r][s] * part(k_[s][i]);
+      }
+      f[r] = h * sum;
+    }
+    return x +
+           theta *
+               (f0 +
+                theta1 *
+                    (f1 +
+                     theta *
+                         (f2 + theta1 * (f[0] + theta * (f[1] + theta1 * (f[2] + theta * f[3]))))));
+  }
+
+  int d_;
+  std::vector<std::vector<T>> k_;  // k_0 ... k_11, k_12 = F(next), k_13 ... k_15 dense output
+  double gamma_ = 1.0;
+  bool dense_ready_ = false;
+};
+
+template <typename T, template <typename> class Method>
 class Stepper {
  public:
   Stepper(const SegmentModel& model, Signs sides, const IntegratorOptions& options)
@@ -102,14 +404,9 @@ class Stepper {
         options_(options),
         d_(model.states()),
         n_(model.surfaces()),
-        k1_(d_),
-        k2_(d_),
-        k3_(d_),
-        k4_(d_),
-        k5_(d_),
-        k6_(d_),
-        k7_(d_),
+        method_(d_),
         stage_(d_),
+        scratch_(d_),
         next_(d_),
         values_(d_),
         h_values_(n_),
@@ -135,17 +432,18 @@ class Stepper {
       surface_g(x, g_);
       for (int j = 0; j < n_; ++j) armed_[j] = g_[j] > 0.0;
     }
-    if (!field(x, k1_, t, result)) return result;
+    if (!field(x, method_.first(), t, result)) return result;
     for (int i = 0; i < d_; ++i) {
       // Every later step starts from a field checked finite (error_norm()); the first one too.
-      if (!all_finite(k1_[i])) {
+      if (!all_finite(method_.first()[i])) {
         return fail(result, IntegrationStatus::kNonFinite, t, x,
-                    "dopri5: F_b(x) row " + std::to_string(i) + " is non-finite (" +
-                        format_number(value_of(k1_[i])) + ") at t = " + format_number(t) +
-                        ", x = " + format_vector(values(x)) + " (b = \"" + sides_.str() + "\")");
+                    label() + ": F_b(x) row " + std::to_string(i) + " is non-finite (" +
+                        format_number(value_of(method_.first()[i])) +
+                        ") at t = " + format_number(t) + ", x = " + format_vector(values(x)) +
+                        " (b = \"" + sides_.str() + "\")");
       }
     }
-    if (watch && n_ > 0) surface_g_and_rates(x, k1_, g_, rate_);
+    if (watch && n_ > 0) surface_g_and_rates(x, method_.first(), g_, rate_);
     // The estimate can be tiny when x0 is near zero; steps then grow by up to 5x each. One that
     // is not a positive number (a field of 1e300 makes its ratios 0/0) starts at the floor.
     const double first_floor = 10 * options_.min_step * std::max(1.0, std::abs(t0));
@@ -165,13 +463,13 @@ class Stepper {
       if (last) h = t_end - t;
       if (result.steps >= options_.max_steps) {
         return fail(result, IntegrationStatus::kTooManySteps, t, x,
-                    "dopri5: max_steps = " + std::to_string(options_.max_steps) +
+                    label() + ": max_steps = " + std::to_string(options_.max_steps) +
                         " steps taken, stopped at t = " + format_number(t) +
                         " before t_end = " + format_number(t_end));
       }
       if (result.rejected_steps >= options_.max_steps) {
         return fail(result, IntegrationStatus::kTooManySteps, t, x,
-                    "dopri5: max_steps = " + std::to_string(options_.max_steps) +
+                    label() + ": max_steps = " + std::to_string(options_.max_steps) +
                         " rejected steps (and " + std::to_string(result.steps) +
                         " accepted), stopped at t = " + format_number(t) +
                         " before t_end = " + format_number(t_end));
@@ -185,18 +483,19 @@ class Stepper {
         h *= 0.2;
         rejected_last = true;
         if (!(h > floor)) {
-          return fail(result, IntegrationStatus::kNonFinite, t, x,
-                      "dopri5: the state becomes non-finite just after t = " + format_number(t));
+          return fail(
+              result, IntegrationStatus::kNonFinite, t, x,
+              label() + ": the state becomes non-finite just after t = " + format_number(t));
         }
         continue;
       }
       if (error > 1.0) {  // +inf included: an error beyond the double range relative to atol
         ++result.rejected_steps;
-        h *= std::max(0.2, 0.9 * std::pow(error, -0.2));
+        h *= std::max(0.2, 0.9 * std::pow(error, -Stages::kExponent));
         rejected_last = true;
         if (!(h > floor)) {
           return fail(result, IntegrationStatus::kStepSizeUnderflow, t, x,
-                      "dopri5: step size " + format_number(h) + " underflows at t = " +
+                      label() + ": step size " + format_number(h) + " underflows at t = " +
                           format_number(t) + " (min_step " + format_number(options_.min_step) +
                           " relative to max(1, |t|)): the error estimate " + format_number(error) +
                           " does not fall as the step shrinks");
@@ -206,7 +505,7 @@ class Stepper {
       ++result.steps;
       if (!last && t + h == t) {
         return fail(result, IntegrationStatus::kStepSizeUnderflow, t, x,
-                    "dopri5: step size " + format_number(h) + " no longer advances t = " +
+                    label() + ": step size " + format_number(h) + " no longer advances t = " +
                         format_number(t) + " (the tolerances ask for more than double precision)");
       }
       if (watch && n_ > 0) {
@@ -227,14 +526,15 @@ class Stepper {
       }
       t = last ? t_end : t + h;
       x.swap(next_);
-      k1_.swap(k7_);  // first same as last
+      method_.accept();  // first same as last
       if (last) {
         result.t = t;
         result.status = IntegrationStatus::kReachedEnd;
         return result;
       }
       const double grow =
-          error == 0.0 ? 5.0 : std::min(5.0, std::max(0.2, 0.9 * std::pow(error, -0.2)));
+          error == 0.0 ? 5.0
+                       : std::min(5.0, std::max(0.2, 0.9 * std::pow(error, -Stages::kExponent)));
       h *= rejected_last ? std::min(1.0, grow) : grow;
       rejected_last = false;
     }
@@ -272,7 +572,7 @@ class Stepper {
     for (int i = 0; i < d_; ++i) {
       const double s = scale(value_of(x[i]), 0.0);
       size0 += std::pow(value_of(x[i]) / s, 2);
-      size1 += std::pow(value_of(k1_[i]) / s, 2);
+      size1 += std::pow(value_of(method_.first()[i]) / s, 2);
     }
     size0 = std::sqrt(size0 / d_);
     size1 = std::sqrt(size1 / d_);
@@ -281,43 +581,25 @@ class Stepper {
     // A field or state beyond the double range once scaled (ratios inf / inf, 0 / 0): no
     // estimate; the caller starts from its floor.
     if (!(h0 > 0.0) || !std::isfinite(h0)) return 0.0;
-    for (int i = 0; i < d_; ++i) stage_[i] = x[i] + h0 * k1_[i];
-    model_.field(stage_.data(), sides_, k2_.data());
+    for (int i = 0; i < d_; ++i) stage_[i] = x[i] + h0 * method_.first()[i];
+    model_.field(stage_.data(), sides_, scratch_.data());
     double size2 = 0;
     for (int i = 0; i < d_; ++i) {
-      size2 += std::pow(value_of(k2_[i] - k1_[i]) / scale(value_of(x[i]), 0.0), 2);
+      size2 += std::pow(value_of(scratch_[i] - method_.first()[i]) / scale(value_of(x[i]), 0.0), 2);
     }
     size2 = std::sqrt(size2 / d_) / h0;
     const double h1 = std::max(size1, size2) <= 1e-15
                           ? std::max(1e-6, h0 * 1e-3)
-                          : std::pow(0.01 / std::max(size1, size2), 0.2);
+                          : std::pow(0.01 / std::max(size1, size2), Stages::kExponent);
     return std::min(100 * h0, h1);
   }
 
-  // One trial step from x: fills k2..k7 and next_ (k7 = F(next_)).
+  // One trial step from x: fills the stages and next_ (method_.last() = F(next_)).
   bool attempt(const std::vector<T>& x, double h, double t, SegmentResult& result) {
-    for (int i = 0; i < d_; ++i) stage_[i] = x[i] + h * (a21 * k1_[i]);
-    field(stage_, k2_, t + c2 * h, result);
-    for (int i = 0; i < d_; ++i) stage_[i] = x[i] + h * (a31 * k1_[i] + a32 * k2_[i]);
-    field(stage_, k3_, t + c3 * h, result);
-    for (int i = 0; i < d_; ++i) {
-      stage_[i] = x[i] + h * (a41 * k1_[i] + a42 * k2_[i] + a43 * k3_[i]);
-    }
-    field(stage_, k4_, t + c4 * h, result);
-    for (int i = 0; i < d_; ++i) {
-      stage_[i] = x[i] + h * (a51 * k1_[i] + a52 * k2_[i] + a53 * k3_[i] + a54 * k4_[i]);
-    }
-    field(stage_, k5_, t + c5 * h, result);
-    for (int i = 0; i < d_; ++i) {
-      stage_[i] =
-          x[i] + h * (a61 * k1_[i] + a62 * k2_[i] + a63 * k3_[i] + a64 * k4_[i] + a65 * k5_[i]);
-    }
-    field(stage_, k6_, t + h, result);
-    for (int i = 0; i < d_; ++i) {
-      next_[i] =
-          x[i] + h * (a71 * k1_[i] + a73 * k3_[i] + a74 * k4_[i] + a75 * k5_[i] + a76 * k6_[i]);
-    }
-    field(next_, k7_, t + h, result);
+    method_.attempt(x, h, t, stage_, next_,
+                    [&](const std::vector<T>& in, std::vector<T>& out, double at) {
+                      field(in, out, at, result);
+                    });
     last_h_ = h;
     last_t_ = t;
     return true;
@@ -331,9 +613,12 @@ class Stepper {
     const bool tangents = options_.tangents_in_error_norm;
     if (tangents) tangent_norm_.clear();
     for (int i = 0; i < d_; ++i) {
-      if (!all_finite(next_[i]) || !all_finite(k7_[i])) return NAN;
-      const T err = last_h_ * (e1 * k1_[i] + e3 * k3_[i] + e4 * k4_[i] + e5 * k5_[i] + e6 * k6_[i] +
-                               e7 * k7_[i]);
+      if (!all_finite(next_[i]) || !all_finite(method_.last()[i])) return NAN;
+    }
+    method_.prepare_error(last_h_,
+                          [&](int i) { return scale(value_of(x[i]), value_of(next_[i])); });
+    for (int i = 0; i < d_; ++i) {
+      const T err = method_.error(i, last_h_);
       ratios_[i] = value_of(err) / scale(value_of(x[i]), value_of(next_[i]));
       sum += std::pow(ratios_[i], 2);
       if (tangents) tangent_norm_.add(err, x[i], next_[i]);
@@ -354,30 +639,26 @@ class Stepper {
   }
 
   // x(t + theta h) on the dense output of the last accepted step.
-  void dense(const std::vector<T>& x, double h, double theta, std::vector<T>& out) const {
-    const double theta1 = 1.0 - theta;
-    for (int i = 0; i < d_; ++i) {
-      const T r2 = next_[i] - x[i];
-      const T r3 = h * k1_[i] - r2;
-      const T r4 = r2 - h * k7_[i] - r3;
-      const T r5 =
-          h * (d1 * k1_[i] + d3 * k3_[i] + d4 * k4_[i] + d5 * k5_[i] + d6 * k6_[i] + d7 * k7_[i]);
-      out[i] = x[i] + theta * (r2 + theta1 * (r3 + theta * (r4 + theta1 * r5)));
-    }
+  void dense(const std::vector<T>& x, double h, double theta, std::vector<T>& out) {
+    prepare_dense(x, h);
+    for (int i = 0; i < d_; ++i) out[i] = method_.dense(i, x[i], next_[i], h, theta);
   }
 
   // x(t + theta h) on the dense output, values only, into values_.
   void dense_values(const std::vector<T>& x, double h, double theta) {
-    const double theta1 = 1.0 - theta;
+    prepare_dense(x, h);
     for (int i = 0; i < d_; ++i) {
-      const double x0 = value_of(x[i]);
-      const double r2 = value_of(next_[i]) - x0;
-      const double r3 = h * value_of(k1_[i]) - r2;
-      const double r4 = r2 - h * value_of(k7_[i]) - r3;
-      const double r5 = h * (d1 * value_of(k1_[i]) + d3 * value_of(k3_[i]) + d4 * value_of(k4_[i]) +
-                             d5 * value_of(k5_[i]) + d6 * value_of(k6_[i]) + d7 * value_of(k7_[i]));
-      values_[i] = x0 + theta * (r2 + theta1 * (r3 + theta * (r4 + theta1 * r5)));
+      values_[i] = method_.dense_value(i, value_of(x[i]), value_of(next_[i]), h, theta);
     }
+  }
+
+  // The method's extra stages for its dense output, if it has any (once per step).
+  void prepare_dense(const std::vector<T>& x, double h) {
+    method_.prepare_dense(x, h, last_t_, stage_,
+                          [&](const std::vector<T>& in, std::vector<T>& out, double) {
+                            model_.field(in.data(), sides_, out.data());
+                            ++result_->field_evaluations;
+                          });
   }
 
   // g at theta on the dense output, values only.
@@ -599,7 +880,7 @@ class Stepper {
   // (after it for the rise). A minimum that stays > 0 within the error band is a NearMiss.
   bool locate_crossing(const std::vector<T>& x, double h, double& theta_first,
                        std::vector<int>& crossed) {
-    surface_g_and_rates(next_, k7_, g_next_, rate_next_);
+    surface_g_and_rates(next_, method_.last(), g_next_, rate_next_);
     std::vector<double>& theta = theta_;
     std::fill(theta.begin(), theta.end(), 2.0);
     misses_.clear();
@@ -693,7 +974,11 @@ class Stepper {
   const IntegratorOptions& options_;
   const int d_;
   const int n_;
-  std::vector<T> k1_, k2_, k3_, k4_, k5_, k6_, k7_, stage_, next_;
+  using Stages = Method<T>;
+  static std::string label() { return Stages::kName; }
+
+  Stages method_;
+  std::vector<T> stage_, scratch_, next_;
   std::vector<double> values_, h_values_, g_, g_next_;
   TangentNorm<T> tangent_norm_;
   std::vector<double> theta_, g_trial_;  // scratch of locate_crossing(), no allocation per step
@@ -711,63 +996,73 @@ class Stepper {
 
 }  // namespace
 
+namespace {
+template <typename T, template <typename> class Method>
+SegmentResult rk_segment(const SegmentModel& model, Signs sides, double t0, double t_end,
+                         const std::vector<T>& x0, const IntegratorOptions& options,
+                         std::vector<T>* x_out, bool watch) {
+  std::vector<T> x = x0;
+  Stepper<T, Method> stepper(model, sides, options);
+  SegmentResult result = stepper.run(t0, t_end, x, watch);
+  *x_out = std::move(x);
+  return result;
+}
+}  // namespace
+
 namespace internal {
 template <typename T>
 SegmentResult dopri5_segment(const SegmentModel& model, Signs sides, double t0, double t_end,
                              const std::vector<T>& x0, const IntegratorOptions& options,
                              std::vector<T>* x_out, bool watch) {
-  std::vector<T> x = x0;
-  Stepper<T> stepper(model, sides, options);
-  SegmentResult result = stepper.run(t0, t_end, x, watch);
-  *x_out = std::move(x);
-  return result;
+  return rk_segment<T, Dp54Stages>(model, sides, t0, t_end, x0, options, x_out, watch);
 }
 }  // namespace internal
 
 namespace {
 
-void check_request(const SegmentModel& model, const SegmentRequest& request,
-                   const IntegratorOptions& options) {
+void check_request(const std::string& name, const SegmentModel& model,
+                   const SegmentRequest& request, const IntegratorOptions& options) {
   const int d = model.states();
   if (request.x0.size() != d || (request.v0.size() > 0 && request.v0.rows() != d)) {
-    throw InvalidArgument("dopri5: x0 has " + std::to_string(request.x0.size()) +
+    throw InvalidArgument(name + ": x0 has " + std::to_string(request.x0.size()) +
                           " numbers and the tangents " + std::to_string(request.v0.rows()) +
                           " rows; the model has d = " + std::to_string(d) + " states");
   }
   if (!request.x0.allFinite() || !request.v0.allFinite()) {
-    throw InvalidArgument("dopri5: x0 or the tangents are not finite: x0 = " +
-                          format_vector(request.x0));
+    throw InvalidArgument(name +
+                          ": x0 or the tangents are not finite: x0 = " + format_vector(request.x0));
   }
   if (request.sides.size() != model.surfaces()) {
-    throw InvalidArgument("dopri5: sides \"" + request.sides.str() + "\" name " +
+    throw InvalidArgument(name + ": sides \"" + request.sides.str() + "\" name " +
                           std::to_string(request.sides.size()) + " surfaces, the model has " +
                           std::to_string(model.surfaces()));
   }
   if (!(request.t_end >= request.t0) || !std::isfinite(request.t_end)) {
-    throw InvalidArgument("dopri5: need finite t_end >= t0, got t0 = " + format_number(request.t0) +
-                          ", t_end = " + format_number(request.t_end));
+    throw InvalidArgument(name + ": need finite t_end >= t0, got t0 = " +
+                          format_number(request.t0) + ", t_end = " + format_number(request.t_end));
   }
   if (!(options.rtol >= IntegratorOptions::kMinRtol) || !std::isfinite(options.rtol) ||
       !(options.absolute_tolerance() >= IntegratorOptions::kMinAtol) ||
       !std::isfinite(options.absolute_tolerance())) {
-    throw InvalidArgument(
-        "dopri5: need a finite rtol >= " + format_number(IntegratorOptions::kMinRtol) +
-        " and a finite atol >= " + format_number(IntegratorOptions::kMinAtol) + ", got rtol = " +
-        format_number(options.rtol) + ", atol = " + format_number(options.absolute_tolerance()));
+    throw InvalidArgument(name +
+                          ": need a finite rtol >= " + format_number(IntegratorOptions::kMinRtol) +
+                          " and a finite atol >= " + format_number(IntegratorOptions::kMinAtol) +
+                          ", got rtol = " + format_number(options.rtol) +
+                          ", atol = " + format_number(options.absolute_tolerance()));
   }
   if (!(options.initial_step >= 0.0) || !(options.min_step >= 0.0) || !(options.max_step > 0.0) ||
       !std::isfinite(options.initial_step) || !std::isfinite(options.min_step)) {
-    throw InvalidArgument("dopri5: need initial_step >= 0, min_step >= 0 and max_step > 0, got " +
+    throw InvalidArgument(name + ": need initial_step >= 0, min_step >= 0 and max_step > 0, got " +
                           format_number(options.initial_step) + ", " +
                           format_number(options.min_step) + ", " + format_number(options.max_step));
   }
   if (options.max_steps < 1) {
-    throw InvalidArgument("dopri5: max_steps must be positive, got " +
+    throw InvalidArgument(name + ": max_steps must be positive, got " +
                           std::to_string(options.max_steps));
   }
 }
 
-template <typename T>
+template <typename T, template <typename> class Method>
 SegmentResult run_chunk(const SegmentModel& model, const SegmentRequest& request,
                         const IntegratorOptions& options, double t_end, Eigen::Index first,
                         int width, bool watch, Eigen::MatrixXd* v) {
@@ -782,8 +1077,8 @@ SegmentResult run_chunk(const SegmentModel& model, const SegmentRequest& request
     }
   }
   std::vector<T> x_end;
-  SegmentResult result = internal::dopri5_segment<T>(model, request.sides, request.t0, t_end, x,
-                                                     options, &x_end, watch);
+  SegmentResult result =
+      rk_segment<T, Method>(model, request.sides, request.t0, t_end, x, options, &x_end, watch);
   result.x.resize(d);
   for (int i = 0; i < d; ++i) {
     if constexpr (std::is_same_v<T, double>) {
@@ -796,16 +1091,16 @@ SegmentResult run_chunk(const SegmentModel& model, const SegmentRequest& request
   return result;
 }
 
-}  // namespace
-
-SegmentResult Dopri5Integrator::integrate(const SegmentModel& model, const SegmentRequest& request,
-                                          const IntegratorOptions& options) {
-  check_request(model, request, options);
+// Both Dormand-Prince pairs: the state alone, or k tangents in chunks.
+template <template <typename> class Method>
+SegmentResult integrate_chunks(const SegmentModel& model, const SegmentRequest& request,
+                               const IntegratorOptions& options) {
+  check_request(Method<double>::kName, model, request, options);
   const Eigen::Index k = request.v0.cols();
   Eigen::MatrixXd v(model.states(), k);
   if (k == 0) {
     SegmentResult result =
-        run_chunk<double>(model, request, options, request.t_end, 0, 0, true, &v);
+        run_chunk<double, Method>(model, request, options, request.t_end, 0, 0, true, &v);
     result.v = v;
     return result;
   }
@@ -818,19 +1113,20 @@ SegmentResult Dopri5Integrator::integrate(const SegmentModel& model, const Segme
     SegmentResult chunk;
     switch (tangent_width(width)) {
       case 1:
-        chunk = run_chunk<Jet1>(model, request, options, t_end, first, width, watch, &v);
+        chunk = run_chunk<Jet1, Method>(model, request, options, t_end, first, width, watch, &v);
         break;
       case 2:
-        chunk = run_chunk<Jet2>(model, request, options, t_end, first, width, watch, &v);
+        chunk = run_chunk<Jet2, Method>(model, request, options, t_end, first, width, watch, &v);
         break;
       case 4:
-        chunk = run_chunk<Jet4>(model, request, options, t_end, first, width, watch, &v);
+        chunk = run_chunk<Jet4, Method>(model, request, options, t_end, first, width, watch, &v);
         break;
       case 6:
-        chunk = run_chunk<Jet6>(model, request, options, t_end, first, width, watch, &v);
+        chunk = run_chunk<Jet6, Method>(model, request, options, t_end, first, width, watch, &v);
         break;
       default:
-        chunk = run_chunk<JetChunk>(model, request, options, t_end, first, width, watch, &v);
+        chunk =
+            run_chunk<JetChunk, Method>(model, request, options, t_end, first, width, watch, &v);
         break;
     }
     if (watch) {
@@ -849,6 +1145,18 @@ SegmentResult Dopri5Integrator::integrate(const SegmentModel& model, const Segme
   }
   result.v = v;
   return result;
+}
+
+}  // namespace
+
+SegmentResult Dopri5Integrator::integrate(const SegmentModel& model, const SegmentRequest& request,
+                                          const IntegratorOptions& options) {
+  return integrate_chunks<Dp54Stages>(model, request, options);
+}
+
+SegmentResult Dop853Integrator::integrate(const SegmentModel& model, const SegmentRequest& request,
+                                          const IntegratorOptions& options) {
+  return integrate_chunks<Dp853Stages>(model, request, options);
 }
 
 #define BFLOW_DOPRI5_INSTANTIATE(T)                                                                \

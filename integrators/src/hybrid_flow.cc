@@ -14,10 +14,11 @@ namespace bflow {
 
 Backend parse_backend(const std::string& name) {
   if (name == "dopri5") return Backend::kDopri5;
+  if (name == "dop853") return Backend::kDop853;
   if (name == "cvodes-bdf") return Backend::kCvodesBdf;
   if (name == "cvodes-adams") return Backend::kCvodesAdams;
   throw InvalidArgument("integrator \"" + name +
-                        "\" is unknown; choose dopri5, cvodes-bdf or cvodes-adams");
+                        "\" is unknown; choose dopri5, dop853, cvodes-bdf or cvodes-adams");
 }
 
 Grouping parse_grouping(const std::string& name) {
@@ -43,6 +44,8 @@ const char* to_string(Backend backend) {
   switch (backend) {
     case Backend::kDopri5:
       return "dopri5";
+    case Backend::kDop853:
+      return "dop853";
     case Backend::kCvodesBdf:
       return "cvodes-bdf";
     case Backend::kCvodesAdams:
@@ -672,6 +675,8 @@ std::unique_ptr<SegmentIntegrator> make_integrator(Backend backend) {
   switch (backend) {
     case Backend::kDopri5:
       return std::make_unique<Dopri5Integrator>();
+    case Backend::kDop853:
+      return std::make_unique<Dop853Integrator>();
     case Backend::kCvodesBdf:
       return std::make_unique<CvodesIntegrator>(CvodesMethod::kBdf);
     case Backend::kCvodesAdams:

@@ -404,7 +404,8 @@ TEST(FlowCommandTest, MalformedOptionsExitTwoWithOneLine) {
        "--atol: must be >= 1e-20 (below that the field's rounding alone makes the steps tiny), got "
        "1e-300"},
       {{"--scene", "pwconst", "--integrator", "euler"},
-       "--integrator: integrator \"euler\" is unknown; choose dopri5, cvodes-bdf or cvodes-adams"},
+       "--integrator: integrator \"euler\" is unknown; choose dopri5, dop853, cvodes-bdf or "
+       "cvodes-adams"},
       {{"--scene", "pwconst", "--max-steps", "0"}, "--max-steps: must be >= 1, got 0"},
       {{"--scene", "pwconst", "--grouping", "often"},
        "--grouping: grouping \"often\" is unknown; choose auto, window or none"},
@@ -605,7 +606,7 @@ TEST(FlowCommandTest, OffendingTextIsQuotedShortAndPrintable) {
        "--t: \"x" + std::string(59, '7') + "...\" is not a number"},
       {{"--scene", "pwconst", "--integrator", huge},
        "--integrator: integrator \"" + cut +
-           "\" is unknown; choose dopri5, cvodes-bdf or cvodes-adams"},
+           "\" is unknown; choose dopri5, dop853, cvodes-bdf or cvodes-adams"},
       {{"--scene", "pwconst", "--grouping", huge},
        "--grouping: grouping \"" + cut + "\" is unknown; choose auto, window or none"},
       {{"--scene", "pwconst", "--max-steps", huge},

@@ -81,9 +81,9 @@
 
 namespace bflow {
 
-enum class Backend { kDopri5, kCvodesBdf, kCvodesAdams };
+enum class Backend { kDopri5, kCvodesBdf, kCvodesAdams, kDop853 };
 
-/** Parses "dopri5", "cvodes-bdf", "cvodes-adams". @throws InvalidArgument otherwise. */
+/** Parses "dopri5", "dop853", "cvodes-bdf", "cvodes-adams". @throws InvalidArgument otherwise. */
 Backend parse_backend(const std::string& name);
 const char* to_string(Backend backend);
 
