@@ -24,6 +24,7 @@ import peers_common as common
 # name -> module (bench/peers/<module>.py). A new comparison is a new module and a line here.
 COMPARISONS = {
     "nosnoc": "peer_nosnoc",
+    "flow": "peer_flow",
 }
 
 
