@@ -358,7 +358,7 @@ def run_diffrax(job):
     start = time.process_time()
     value = jax.jit(trace)
     jacobian = jax.jit(jax.jacfwd(flow))
-    value(x0, 1e-6, 1e-8).block_until_ready()
+    jax.block_until_ready(value(x0, 1e-6, 1e-8))
     jacobian(x0, 1e-6, 1e-8).block_until_ready()
     compile_s = time.process_time() - start
     out = []
