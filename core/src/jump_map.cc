@@ -498,12 +498,56 @@ void JumpMap::apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx,
                           " x " + std::to_string(dx.cols()) + " -> " + std::to_string(out.rows()) +
                           " x " + std::to_string(out.cols()));
   }
-  for (Eigen::Index k = 0; k < dx.cols(); ++k) {
+  Eigen::Index first = 0;
+  if (m.n == 1) first = apply_linear_block(dx, out);
+  for (Eigen::Index k = first; k < dx.cols(); ++k) {
     check_tangent("apply_block", dx.col(k), m.d);
     if (!walk(dx.col(k).data(), out.col(k).data(), nullptr, nullptr)) {
       walk_scaled("apply_block", dx.col(k).data(), out.col(k).data(), nullptr, nullptr);
     }
   }
+}
+
+Eigen::Index JumpMap::apply_linear_block(const Eigen::Ref<const Eigen::MatrixXd>& dx,
+                                         Eigen::Ref<Eigen::MatrixXd> out) const {
+  // One surface: B is linear (the saltation matrix), B x = x + tau (Gamma(-) - Gamma(+)) with
+  // tau = -(eta x) / (eta Gamma(-)), the walk of one crossing. A chunk of columns takes two
+  // passes over the block instead of a walk per column: eta X, then the two rank-one updates,
+  // in the walk's order of operations. A chunk with a tangent that is not finite, or a number
+  // the walk would send to its scaled path (not of full precision, an image near overflow), is
+  // left to the walks, from its first column on: the return value.
+  Impl& m = *impl_;
+  const Eigen::Index minus = m.fetch(0);
+  const Eigen::Index plus = m.fetch(1);
+  if (m.scaled[static_cast<std::size_t>(minus)] || m.scaled[static_cast<std::size_t>(plus)]) {
+    return 0;
+  }
+  const double g = m.eta_gamma(0, minus);
+  const double growth = m.gamma_max[minus] + m.gamma_max[plus];
+  constexpr Eigen::Index kChunk = 128;
+  double taus[kChunk];
+  Eigen::Index start = 0;
+  for (; start < dx.cols(); start += kChunk) {
+    const Eigen::Index width = std::min(kChunk, dx.cols() - start);
+    const auto x = dx.middleCols(start, width);
+    if (!x.allFinite()) return start;
+    Eigen::Map<Eigen::RowVectorXd> tau(taus, width);
+    tau.noalias() = m.eta.row(0) * x;
+    for (Eigen::Index k = 0; k < width; ++k) {
+      const double c = taus[k];
+      taus[k] = -c / g;
+      const double bound = x.col(k).cwiseAbs().maxCoeff() + std::abs(taus[k]) * growth;
+      if (!full_precision(c) || !full_precision(taus[k]) ||
+          !(bound < 0.25 * std::numeric_limits<double>::max())) {
+        return start;
+      }
+    }
+    auto image = out.middleCols(start, width);
+    image = x;
+    image.noalias() += m.gamma.col(minus) * tau;
+    image.noalias() -= m.gamma.col(plus) * tau;
+  }
+  return start;
 }
 
 Eigen::MatrixXd JumpMap::apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx) const {

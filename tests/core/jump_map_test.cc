@@ -203,6 +203,45 @@ TEST(JumpMapTest, OneSurfaceIsClassicSaltationMatrix) {
   }
 }
 
+// apply_block on one surface takes the block path (eta X and two rank-one updates, in chunks of
+// 128 columns) instead of a walk per column: the same images as apply() and as the classic
+// saltation matrix, in place too, across chunk boundaries; a column the walk would send to its
+// scaled path (a subnormal tangent) leaves its chunk to the walks, with the same answer; a
+// non-finite column is refused naming it, as apply() does.
+TEST(JumpMapTest, OneSurfaceBlockMatchesTheWalkAndTheSaltationMatrix) {
+  std::mt19937_64 rng(21);
+  for (int d : {1, 6, 40}) {
+    const Eigen::MatrixXd eta = testing::random_normals(rng, 1, d, false);
+    const Eigen::MatrixXd limits = testing::random_limits(rng, eta, {});
+    const JumpMap jump(eta, limits);
+    const Eigen::MatrixXd classic =
+        Eigen::MatrixXd::Identity(d, d) +
+        (limits.col(1) - limits.col(0)) * eta / eta.row(0).dot(limits.col(0));
+    Eigen::MatrixXd block(d, 300);
+    for (Eigen::Index k = 0; k < block.cols(); ++k) block.col(k) = gaussian_vector(rng, d);
+    block.col(200) *= 1e-309;  // subnormal: eta . x loses precision, the scaled path
+    const Eigen::MatrixXd images = jump.apply_block(block);
+    for (Eigen::Index k = 0; k < block.cols(); ++k) {
+      const Eigen::VectorXd walk = jump.apply(block.col(k));
+      // The walk and the block differ only in the summation order of eta . x.
+      EXPECT_LE((images.col(k) - walk).norm(), 1e-14 * classic.norm() * block.col(k).norm())
+          << "d=" << d << " column " << k;
+      EXPECT_LE((images.col(k) - classic * block.col(k)).norm(),
+                1e-13 * classic.norm() * block.col(k).norm())
+          << "d=" << d << " column " << k;
+    }
+    Eigen::MatrixXd in_place = block;
+    jump.apply_block(in_place, in_place);
+    EXPECT_LE((in_place - images).cwiseAbs().maxCoeff(), 0.0) << "d=" << d;
+    Eigen::MatrixXd bad = block.leftCols(10);
+    bad(0, 7) = std::numeric_limits<double>::quiet_NaN();
+    Eigen::MatrixXd out(d, 10);
+    EXPECT_THAT([&] { jump.apply_block(bad, out); },
+                ::testing::ThrowsMessage<InvalidArgument>(
+                    ::testing::HasSubstr("apply_block: tangent is not finite")));
+  }
+}
+
 // The properties of B on random transversal data, 1000 cases.
 //
 // apply() is checked against M_sigma dx evaluated factor by factor (apply_factors) and against
