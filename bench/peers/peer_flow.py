@@ -16,9 +16,9 @@ How each tool gets the derivative (each the way its documentation shows):
             I + (F+ - F-) Dh^T / (Dh . F-) written by hand (F and Dh compiled by heyoka's cfunc),
             in the order the events fire.
   diffrax   jax.jit(jax.jacfwd(flow)), flow a chain of diffeqsolve calls (ForwardMode adjoint),
-            each ending at the first surface its Event finds (root found by optimistix' Newton),
-            the sides a traced array, so the derivative carries the event time's derivative;
-            as many segments as the reference has events, plus one.
+            each ending where its Event, the smallest margin min_j s_j h_j, reaches zero (root
+            found by optimistix' Newton), the sides a traced array, so the derivative carries
+            the event time's derivative; as many segments as the reference has events, plus one.
   SciPy     solve_ivp (DOP853) with one terminal event per surface (direction -1 on s_j h_j),
             restarted with the new field; the derivative by one-sided finite differences, step
             sqrt(rtol) max(1, |x0_i|): the full Jacobian by d + 1 runs, or (at simultaneous
@@ -117,6 +117,19 @@ class Heyoka:
         if self.n:
             self.gradients = hy.cfunc([hy.diff(hj, xi) for hj in h for xi in xs], vars=xs,
                                       fp_type=fp_type)
+
+    def segment(self, x, t0, t1, sides):
+        """x(t1) and the transition matrix from x at t0, with the sides fixed (no events)."""
+        ta, d, T = self.ta, self.d, self.fp_type
+        ta.time = T(t0)
+        ta.state[:d] = np.asarray(x, dtype=T)
+        ta.state[d:] = np.eye(d, dtype=T).ravel()
+        if self.n:
+            ta.pars[:] = np.asarray(sides, dtype=T)
+        outcome = ta.propagate_until(T(t1))[0]
+        if outcome != self.hy.taylor_outcome.time_limit:
+            raise RuntimeError(f"heyoka stopped with {outcome} between {t0} and {t1}")
+        return np.array(ta.state[:d]), np.array(ta.state[d:]).reshape(d, d)
 
     def run(self, x0, t, sides, backward=False):
         """x(t) from x0 (and the Jacobian with saltations at the events, in firing order)."""
@@ -321,11 +334,15 @@ def run_diffrax(job):
         s, _ = args
         return jnp.stack(fp.field(name, [y[i] for i in range(p["d"])], s, M))
 
-    def condition(j):
-        def cond(t, y, args, **kwargs):
-            s, offset = args
-            return s[j] * fp.surfaces(name, [y[i] for i in range(p["d"])], M)[j] + offset[j]
-        return cond
+    def margins(y, s, offset):
+        return s * jnp.stack(fp.surfaces(name, [y[i] for i in range(p["d"])], M)) + offset
+
+    def cond(t, y, args, **kwargs):
+        # One condition, the smallest margin: diffrax takes, of several conditions that change
+        # sign in one step, the first in its list (not the earliest in time; a list of one
+        # condition per surface missed the biped's first touchdown at every tolerance).
+        s, offset = args
+        return jnp.min(margins(y, s, offset))
 
     def flow(x, rtol, atol):
         return trace(x, rtol, atol)[0]
@@ -340,7 +357,7 @@ def run_diffrax(job):
             if p["n"]:
                 h = jnp.stack(fp.surfaces(name, [x[i] for i in range(p["d"])], M))
                 offset = 2.0 * jnp.maximum(0.0, -s * h)
-                event = diffrax.Event(cond_fn=[condition(j) for j in range(p["n"])],
+                event = diffrax.Event(cond_fn=cond,
                                       root_finder=optx.Newton(rtol=1e-14, atol=1e-14))
             sol = diffrax.diffeqsolve(
                 diffrax.ODETerm(vector_field), solver, t0=t, t1=p["t"], dt0=None, y0=x,
@@ -349,7 +366,9 @@ def run_diffrax(job):
                 max_steps=1_000_000)
             t, x = sol.ts[-1], sol.ys[-1]
             if p["n"]:
-                mask = jnp.stack(sol.event_mask)
+                # The surface whose margin reached zero: the smallest at the event.
+                hit = jnp.argmin(margins(x, s, offset))
+                mask = (jnp.arange(p["n"]) == hit) & sol.event_mask
                 s = jnp.where(mask, -s, s)
                 ends.append(t)
                 masks.append(mask)
@@ -409,8 +428,99 @@ def run_bflow(job):
     return out
 
 
+def run_hybrid_tools(job):
+    """hybrid-tools 0.1.0 at simultaneous events: its simulator's loop (HybridSimulator.
+    simulate_timestep: solve_ivp with the guards as events, the first guard in its order that
+    fired taken, then the next mode from there) with the table's tolerances, and its saltation
+    matrices (compute_saltation_matrix, identity resets) composed in the order its guards fire.
+    hybrid-tools has no variational flow (its filter linearises by the user's discrete A), so
+    the transition matrices between its events come from the long double reference along its
+    mode sequence and event times: what differs from the reference is the jump alone."""
+    import heyoka as hy
+    import hybrid_tools as ht
+    from hybrid_tools import hybrid_helper_functions as hh
+    from scipy.integrate import solve_ivp
+
+    name, p = job["problem"], fp.PROBLEMS[job["problem"]]
+    d, n, T = p["d"], p["n"], p["t"]
+    rtol = job["tolerances"][0]
+    x0 = np.array(job["x0"])
+    xs = list(hy.make_vars(*[f"x{i}" for i in range(d)]))
+
+    class M:
+        sin, cos, exp = hy.sin, hy.cos, hy.exp
+    grad = hy.cfunc([hy.diff(hj, xi) for hj in fp.surfaces(name, xs, M) for xi in xs], vars=xs)
+
+    def word(s):
+        return "".join("+" if v > 0 else "-" for v in s)
+
+    def signs(w):
+        return [1.0 if c == "+" else -1.0 for c in w]
+
+    words = ["".join("+" if (b >> j) & 1 else "-" for j in range(n)) for b in range(2 ** n)]
+    offsets = {}  # (word, j) -> the restart's residual (see the module's docstring)
+    dynamics, guards, resets, noises = {}, {}, {}, {}
+    unused = lambda *args: None  # noqa: E731  (the filter's matrices)
+    for w in words:
+        s = signs(w)
+        dynamics[w] = ht.ModeDynamics(
+            f_cont=lambda x, u, dt, par, s=s: np.array(fp.field(name, list(x), s, _Numpy)),
+            A_disc=unused, B_disc=unused, y=unused, C=unused)
+        guards[w], resets[w] = {}, {}
+        for j in range(n):
+            target = list(w)
+            target[j] = "+" if w[j] == "-" else "-"
+            target = "".join(target)
+            guards[w][target] = ht.ModeGuard(
+                g=lambda x, u, dt, par, s=s, j=j, w=w: np.array(
+                    [s[j] * fp.surfaces(name, list(x), _Numpy)[j] + offsets.get((w, j), 0.0)]),
+                G=lambda x, u, dt, par, s=s, j=j: s[j] * grad(np.asarray(x, dtype=float))[
+                    j * d:(j + 1) * d])
+            resets[w][target] = ht.ModeReset(r=lambda x, u, dt, par: np.array(x),
+                                             R=lambda x, u, dt, par: np.eye(d))
+        noises[w] = ht.ModeNoise(W=np.zeros((1, 1)), V=np.zeros((1, 1)))
+    system = ht.HybridDynamicalSystem(dynamics=dynamics, resets=resets, guards=guards,
+                                      noises=noises)
+    inputs, params = np.zeros(1), np.zeros(0)
+
+    def set_offsets(w, x):
+        h = fp.surfaces(name, list(x), _Numpy)
+        for j, sj in enumerate(signs(w)):
+            offsets[(w, j)] = 2.0 * max(0.0, -sj * h[j])
+
+    mode, state, t = word(initial_sides(name, x0)), x0.copy(), 0.0
+    fired = []  # (time, state, mode before, mode after, saltation)
+    for _ in range(100):
+        set_offsets(mode, state)
+        f = hh.solve_ivp_dynamics_func(system.dynamics, mode, inputs, T, params)
+        g, targets = hh.solve_ivp_guard_funcs(system.guards, mode, inputs, T, params)
+        sol = solve_ivp(f, [t, T], state, events=g, rtol=rtol, atol=ATOL_PER_RTOL * rtol)
+        event_state, event_time, new_mode = hh.solve_ivp_extract_hybrid_events(sol, targets)
+        if new_mode is None:
+            state = sol.y[:, -1]
+            break
+        salt = hh.compute_saltation_matrix(event_state, inputs, T, params, mode, new_mode,
+                                           system)
+        fired.append((float(event_time), event_state, mode, new_mode, salt))
+        mode, state, t = new_mode, np.array(event_state), float(event_time)
+    # The derivative: reference transition matrices between its events, its saltations.
+    L = np.longdouble
+    ref = Heyoka(name, L, None, variational=True, events=False)
+    sides = initial_sides(name, x0)
+    x, t0, jac = np.array(x0, dtype=L), 0.0, np.eye(d)
+    for event_time, _, before, after, salt in fired:
+        x, phi = ref.segment(x, t0, event_time, signs(before))
+        jac = salt @ (phi.astype(float) @ jac)
+        t0 = event_time
+    x, phi = ref.segment(x, t0, T, signs(mode) if fired else sides)
+    jac = phi.astype(float) @ jac
+    events = [[t_, [j for j in range(n) if a[j] != b[j]][0]] for t_, _, a, b, _ in fired]
+    return [{"tol": rtol, "status": "solved", "cpu_s": None, "x": state.tolist(),
+             "jacobian": jac.tolist(), "events": events}]
+
+
 WORKERS = {"reference": reference, "heyoka": run_heyoka, "scipy": run_scipy,
-           "diffrax": run_diffrax, "bflow": run_bflow}
+           "diffrax": run_diffrax, "bflow": run_bflow, "hybrid-tools": run_hybrid_tools}
 
 
 def worker(job):
@@ -425,7 +535,7 @@ def _versions(python):
     code = ("import json, importlib.metadata as m\n"
             "print(json.dumps({k: m.version(k) for k in "
             "['heyoka', 'diffrax', 'jax', 'jaxlib', 'equinox', 'optimistix', 'scipy', "
-            "'numpy']}))")
+            "'numpy', 'hybrid-tools']}))")
     done = subprocess.run([python, "-c", code], capture_output=True, text=True, check=False)
     try:
         return json.loads(done.stdout)
@@ -469,6 +579,7 @@ def _tools(simultaneous):
              ("scipy", "SciPy DOP853 + FD", {})]
     if simultaneous:
         tools.append(("scipy", "SciPy DOP853 + FD along v", {"along_directions": True}))
+        tools.append(("hybrid-tools", "hybrid-tools", {}))
     return tools
 
 
@@ -498,6 +609,8 @@ def run(ctx):
         for tool, label, extra in _tools(simultaneous):
             job = {"tool": tool, "problem": name, "x0": x0, "tolerances": tolerances,
                    "repeat": ctx.repeat, "directions": directions, **extra}
+            if tool == "hybrid-tools":
+                job["tolerances"] = [TABLE_RTOL]
             if tool == "bflow":
                 job.update(program=ctx.flow_program, timeout=ctx.timeout)
                 version = ctx.bflow_version
@@ -506,6 +619,8 @@ def run(ctx):
                 version = f"diffrax {versions.get('diffrax')}, jax {versions.get('jax')}"
             elif tool == "heyoka":
                 version = f"heyoka {versions.get('heyoka')}"
+            elif tool == "hybrid-tools":
+                version = f"hybrid-tools {versions.get('hybrid-tools')}"
             else:
                 version = f"scipy {versions.get('scipy')}"
             log(f"flow: {name}: {label}")
@@ -543,6 +658,10 @@ def _settings(tool, extra, tol):
         return f"{extra['backend']}, rtol {tol:g}, atol {ATOL_PER_RTOL * tol:g}, defaults"
     if tool == "heyoka":
         return f"double, tol {tol:g}, variational equations, saltation by hand"
+    if tool == "hybrid-tools":
+        return (f"its simulator's loop with solve_ivp (RK45) rtol {tol:g} atol "
+                f"{ATOL_PER_RTOL * tol:g}, its saltation matrices in its firing order, the "
+                "reference's transition matrices between them")
     if tool == "diffrax":
         return (f"{extra['solver']}, PIDController rtol {tol:g} atol {ATOL_PER_RTOL * tol:g}, "
                 "jit(jacfwd), ForwardMode, Event + optimistix Newton 1e-14")
@@ -681,6 +800,7 @@ def _piece_table(name, ref, flow_rows):
 
 
 STYLE = {"bflow dopri5": ("C0", "o-"), "bflow dop853": ("C4", "P-"),
+         "hybrid-tools": ("C5", "X"),
          "bflow CVODES Adams": ("C0", "s--"),
          "heyoka": ("C1", "^-"), "diffrax Tsit5": ("C2", "v-"),
          "SciPy DOP853 + FD": ("C3", "D-"), "SciPy DOP853 + FD along v": ("C3", "d:")}
