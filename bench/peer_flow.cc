@@ -19,8 +19,6 @@
 // seconds of process CPU time have passed, the mean per run reported. The JSON: the problem and
 // settings, status, x(T), the images of the directions (d x k, "images" as k rows), the events
 // (time, surfaces, group size), steps, field evaluations, cpu_s per run and runs.
-#include <time.h>
-
 #include <cstdio>
 #include <exception>
 #include <iostream>
@@ -39,16 +37,13 @@
 #include "bflow/examples/three_surfaces.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
+#include "peer_common.h"
 
 namespace {
 
+using bflow_bench::process_cpu_seconds;
+using bflow_bench::vector_json;
 using nlohmann::ordered_json;
-
-double process_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
 
 // Six pendulums coupled by springs (free ends): a smooth, nonlinear flow without surfaces.
 struct PendulumChain {
@@ -87,12 +82,6 @@ struct DampedBall {
     h[0] = -x[0];
   }
 };
-
-ordered_json vector_json(const Eigen::Ref<const Eigen::VectorXd>& v) {
-  ordered_json j = ordered_json::array();
-  for (Eigen::Index i = 0; i < v.size(); ++i) j.push_back(v[i]);
-  return j;
-}
 
 // "a,b,c" -> numbers; "a,b;c,d" -> rows.
 std::vector<std::vector<double>> parse_rows(const std::string& text, const char* flag) {

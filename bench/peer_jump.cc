@@ -21,8 +21,6 @@
 //
 // Bad input (an unreadable file, missing or mis-sized arrays, normals or limits the JumpMap
 // refuses) is a message naming the value on stderr and exit code 2.
-#include <time.h>
-
 #include <algorithm>
 #include <cstdio>
 #include <fstream>
@@ -37,9 +35,11 @@
 
 #include "bflow/core/errors.h"
 #include "bflow/core/jump_map.h"
+#include "peer_common.h"
 
 namespace {
 
+using bflow_bench::process_cpu_seconds;
 using nlohmann::json;
 using nlohmann::ordered_json;
 
@@ -47,12 +47,6 @@ using nlohmann::ordered_json;
 constexpr double kMinRunSeconds = 0.2;
 // Images of this many tangents go into the JSON.
 constexpr Eigen::Index kImagesReported = 100;
-
-double process_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
 
 // Bad input: reported with exit code 2.
 struct CaseError : std::runtime_error {

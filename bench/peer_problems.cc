@@ -27,8 +27,6 @@
 // NLP solves alone; the split of IPOPT's time from its timing statistics (bench/ipopt_flags.h):
 // function and derivative evaluations, KKT factorisations and the rest; x at every stage boundary
 // (every integration step's end for a simulation), u per stage, and the switch times.
-#include <time.h>
-
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -47,16 +45,13 @@
 #include "bflow/fesd/fesd.h"
 #include "bflow/ocp/ocp.h"
 #include "ipopt_flags.h"
+#include "peer_common.h"
 
 namespace {
 
+using bflow_bench::process_cpu_seconds;
+using bflow_bench::vector_json;
 using nlohmann::ordered_json;
-
-double process_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
 
 // A step inclusion x' in f(x, a) as an OCP model with one control that does not enter: the
 // integration step of a simulation as ocp_solve's problem (the control is fixed by its bounds).
@@ -158,12 +153,6 @@ void add_ipopt_options(Options& o, const bflow_bench::IpoptLog& log,
                                  flags.numbers.end());
   o.ipopt_integer_options.insert(o.ipopt_integer_options.end(), flags.integers.begin(),
                                  flags.integers.end());
-}
-
-ordered_json vector_json(const Eigen::Ref<const Eigen::VectorXd>& v) {
-  ordered_json out = ordered_json::array();
-  for (Eigen::Index i = 0; i < v.size(); ++i) out.push_back(v[i]);
-  return out;
 }
 
 // Sums of IPOPT's logs over the solves of a run (a simulation's steps each have their own log);

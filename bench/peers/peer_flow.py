@@ -356,7 +356,8 @@ def run_diffrax(job):
             offset = jnp.zeros(p["n"])
             if p["n"]:
                 h = jnp.stack(fp.surfaces(name, [x[i] for i in range(p["d"])], M))
-                offset = 2.0 * jnp.maximum(0.0, -s * h)
+                # A constant of the segment: no derivative may flow through it.
+                offset = jax.lax.stop_gradient(2.0 * jnp.maximum(0.0, -s * h))
                 event = diffrax.Event(cond_fn=cond,
                                       root_finder=optx.Newton(rtol=1e-14, atol=1e-14))
             sol = diffrax.diffeqsolve(
@@ -366,8 +367,11 @@ def run_diffrax(job):
                 max_steps=1_000_000)
             t, x = sol.ts[-1], sol.ys[-1]
             if p["n"]:
-                # The surface whose margin reached zero: the smallest at the event.
-                hit = jnp.argmin(margins(x, s, offset))
+                # The surface that reached zero: the smallest margin among those falling there
+                # (at a simultaneous crossing the margins tie, and the one just flipped rises).
+                rates = jax.jvp(lambda y: margins(y, s, offset), (x,),
+                                (vector_field(t, x, (s, offset)),))[1]
+                hit = jnp.argmin(jnp.where(rates < 0.0, margins(x, s, offset), jnp.inf))
                 mask = (jnp.arange(p["n"]) == hit) & sol.event_mask
                 s = jnp.where(mask, -s, s)
                 ends.append(t)

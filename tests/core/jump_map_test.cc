@@ -184,15 +184,20 @@ TEST(JumpMapTest, ClosedFormOfPiecewiseConstantField) {
 }
 
 // n = 1: B is the classic saltation matrix (2.5), I + (F+ - F-) eta^T / (eta . F-).
+// The saltation matrix of one surface, I + (F+ - F-) eta / (eta . F-), limits = (F-, F+).
+Eigen::MatrixXd classic_saltation(const Eigen::MatrixXd& eta, const Eigen::MatrixXd& limits) {
+  const Eigen::Index d = eta.cols();
+  return Eigen::MatrixXd::Identity(d, d) +
+         (limits.col(1) - limits.col(0)) * eta / eta.row(0).dot(limits.col(0));
+}
+
 TEST(JumpMapTest, OneSurfaceIsClassicSaltationMatrix) {
   std::mt19937_64 rng(2);
   for (int d = 1; d <= 6; ++d) {
     const Eigen::MatrixXd eta = testing::random_normals(rng, 1, d, false);
     const Eigen::MatrixXd limits = testing::random_limits(rng, eta, {});
     const JumpMap jump(eta, limits);
-    const Eigen::MatrixXd classic =
-        Eigen::MatrixXd::Identity(d, d) +
-        (limits.col(1) - limits.col(0)) * eta / eta.row(0).dot(limits.col(0));
+    const Eigen::MatrixXd classic = classic_saltation(eta, limits);
     EXPECT_LE((jump.saltation({0}) - classic).norm(), 1e-13 * classic.norm());
     for (int trial = 0; trial < 10; ++trial) {
       const Eigen::VectorXd dx = gaussian_vector(rng, d);
@@ -214,9 +219,7 @@ TEST(JumpMapTest, OneSurfaceBlockMatchesTheWalkAndTheSaltationMatrix) {
     const Eigen::MatrixXd eta = testing::random_normals(rng, 1, d, false);
     const Eigen::MatrixXd limits = testing::random_limits(rng, eta, {});
     const JumpMap jump(eta, limits);
-    const Eigen::MatrixXd classic =
-        Eigen::MatrixXd::Identity(d, d) +
-        (limits.col(1) - limits.col(0)) * eta / eta.row(0).dot(limits.col(0));
+    const Eigen::MatrixXd classic = classic_saltation(eta, limits);
     Eigen::MatrixXd block(d, 300);
     for (Eigen::Index k = 0; k < block.cols(); ++k) block.col(k) = gaussian_vector(rng, d);
     block.col(200) *= 1e-309;  // subnormal: eta . x loses precision, the scaled path

@@ -35,10 +35,11 @@ struct Linear {
   }
 };
 
-// A pendulum with one surface, theta = 0.4, crossed from below.
+// A pendulum with one surface, theta = level (0.4 unless set), crossed from below.
 struct Pendulum {
   static constexpr int kStates = 2;
   static constexpr int kSurfaces = 1;
+  double level = 0.4;
   template <typename T>
   void field(const T* x, Signs, T* xdot) const {
     using std::sin;
@@ -47,7 +48,7 @@ struct Pendulum {
   }
   template <typename T>
   void surfaces(const T* x, T* h) const {
-    h[0] = x[0] - 0.4;
+    h[0] = x[0] - level;
   }
 };
 
@@ -163,23 +164,6 @@ TEST(Dop853Test, EighthOrderConvergenceAtFixedSteps) {
   }
 }
 
-// The pendulum of Pendulum with its surface at theta = level.
-struct LevelPendulum {
-  static constexpr int kStates = 2;
-  static constexpr int kSurfaces = 1;
-  double level = 0.4;
-  template <typename T>
-  void field(const T* x, Signs, T* xdot) const {
-    using std::sin;
-    xdot[0] = x[1];
-    xdot[1] = -sin(x[0]);
-  }
-  template <typename T>
-  void surfaces(const T* x, T* h) const {
-    h[0] = x[0] - level;
-  }
-};
-
 // Crossings are located on DOP853's dense output (order 7, its three extra stages). With fixed
 // steps h the error of the crossing time depends on where in its step the crossing falls, so the
 // worst over 21 surface levels theta = 0.1 ... 0.9 is compared: it falls by 249 and 338 from
@@ -201,7 +185,7 @@ TEST(Dop853Test, CrossingsOnTheDenseOutputConvergeAtTheMethodsOrder) {
     o.initial_step = o.max_step = h;
     double worst = 0;
     for (int k = 0; k <= 20; ++k) {
-      LevelPendulum pendulum;
+      Pendulum pendulum;
       pendulum.level = 0.1 + 0.04 * k;
       const auto model = adapt(pendulum);
       const SegmentResult reference = integrator.integrate(model, request, tight);
