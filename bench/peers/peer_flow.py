@@ -825,7 +825,8 @@ def _plots(flow_rows, problems):
             for tool, (color, style) in STYLE.items():
                 pts = sorted((r["error"], r["cpu_s"]) for r in flow_rows
                              if r["problem"] == name and r["tool"] == tool
-                             and r.get("status") == "solved" and r.get("error"))
+                             and r.get("status") == "solved" and r.get("error")
+                             and r.get("cpu_s"))
                 if pts:
                     ax.loglog([e for e, _ in pts], [c for _, c in pts], style, color=color,
                               label=tool, ms=4)
