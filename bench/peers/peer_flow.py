@@ -49,7 +49,7 @@ NAME = "flow"
 HERE = os.path.dirname(os.path.abspath(__file__))
 SINGLE_THREAD_XLA = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 
-TOLERANCES = [1e-4, 1e-6, 1e-8, 1e-10, 1e-12]
+TOLERANCES = [1e-4, 1e-6, 1e-8, 1e-10, 1e-12, 1e-13]
 QUICK_TOLERANCES = [1e-6, 1e-10]
 # atol = ATOL_PER_RTOL rtol for every tool that takes both (bflow's default); heyoka has one tol.
 ATOL_PER_RTOL = 1e-2
