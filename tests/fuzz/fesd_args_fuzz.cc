@@ -30,13 +30,20 @@ namespace {
 constexpr double kWorkBudget = 1000.0;
 constexpr double kWorkRefused = 1e8;
 
-/** `word` as CLI11 reads an int option (strtoll in base 0, the whole word, in int range). */
+/** `word` as the command reads an int option (cli/src/scene_setup.cc, parse_integer): blanks
+    and tabs around it trimmed, an optional sign, then decimal digits only, leading zeros
+    included ("0912" is 912, not an octal error), in int range. */
 bool read_int(const std::string& word, long long& value) {
-  if (word.empty()) return false;
-  char* end = nullptr;
+  const std::size_t first = word.find_first_not_of(" \t");
+  if (first == std::string::npos) return false;
+  const std::string text = word.substr(first, word.find_last_not_of(" \t") - first + 1);
+  const std::size_t digits = text.find_first_not_of("+-") == 1 ? 1 : 0;
+  if (text.size() <= digits || text.find_first_not_of("0123456789", digits) != std::string::npos) {
+    return false;
+  }
   errno = 0;
-  value = std::strtoll(word.c_str(), &end, 0);
-  return errno == 0 && end == word.c_str() + word.size() && value >= INT_MIN && value <= INT_MAX;
+  value = std::strtoll(text.c_str(), nullptr, 10);
+  return errno == 0 && value >= INT_MIN && value <= INT_MAX;
 }
 
 /** The largest value given to `name` ("--name V" or "--name=V"), or `fallback`. */
@@ -58,6 +65,21 @@ long long option_value(const std::vector<std::string>& words, const std::string&
     }
   }
   return result;
+}
+
+/** Whether some value given to `name` ("--name V" or "--name=V") is not an integer read_int()
+    takes: such a command line is not costed, only parsed (what the command reads there is not
+    known here). */
+bool unreadable(const std::vector<std::string>& words, const std::string& name) {
+  for (std::size_t i = 0; i < words.size(); ++i) {
+    long long value = 0;
+    if (words[i] == name && i + 1 < words.size() && !read_int(words[i + 1], value)) return true;
+    if (words[i].compare(0, name.size() + 1, name + "=") == 0 &&
+        !read_int(words[i].substr(name.size() + 1), value)) {
+      return true;
+    }
+  }
+  return false;
 }
 
 /** Whether `words` hold `flag` (also as "--flag=VALUE"). */
@@ -95,6 +117,9 @@ double work_of(const std::vector<std::string>& words) {
 
 /** Whether the simulation `words` ask for may take seconds under the sanitizers. */
 bool expensive(const std::vector<std::string>& words) {
+  for (const char* name : {"--nsim", "--nfe", "--stages", "--lifting"}) {
+    if (unreadable(words, name)) return true;
+  }
   return has_value(words, "--example", "irma") || has_value(words, "--scheme", "gauss") ||
          has_flag(words, "--standard") || option_value(words, "--nsim", 0) == 1 ||
          option_value(words, "--nfe", 3) == 1 || work_of(words) > kWorkBudget;
