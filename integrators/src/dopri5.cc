@@ -292,7 +292,10 @@ class Dp853Stages {
  public:
   static constexpr const char* kName = "dop853";
   static constexpr double kExponent = 0.125;
-  explicit Dp853Stages(int d) : d_(d), k_(16, std::vector<T>(static_cast<std::size_t>(d))) {}
+  explicit Dp853Stages(int d)
+      : d_(d),
+        k_(16, std::vector<T>(static_cast<std::size_t>(d))),
+        dense_(4, std::vector<T>(static_cast<std::size_t>(d))) {}
   std::vector<T>& first() { return k_[0]; }
   const std::vector<T>& last() const { return k_[12]; }
 
@@ -342,6 +345,16 @@ class Dp853Stages {
       combine(x, h, dp853::kA[s], s, stage);
       field(stage, k_[s], t + dp853::kC[s] * h);
     }
+    // F3 ... F6 of the interpolant (below), once per step: the root searches evaluate it often.
+    for (int r = 0; r < 4; ++r) {
+      for (int i = 0; i < d_; ++i) {
+        T sum = dp853::kD[r][0] * k_[0][i];
+        for (int s = 1; s < 16; ++s) {
+          if (dp853::kD[r][s] != 0.0) sum += dp853::kD[r][s] * k_[s][i];
+        }
+        dense_[static_cast<std::size_t>(r)][static_cast<std::size_t>(i)] = h * sum;
+      }
+    }
     dense_ready_ = true;
   }
   T dense(int i, const T& x, const T& next, double h, double theta) const {
@@ -373,13 +386,7 @@ class Dp853Stages {
     const S f1 = h * part(k_[0][i]) - f0;
     const S f2 = 2.0 * f0 - h * (part(k_[12][i]) + part(k_[0][i]));
     S f[4];
-    for (int r = 0; r < 4; ++r) {
-      S sum = dp853::kD[r][0] * part(k_[0][i]);
-      for (int s = 1; s < 16; ++s) {
-        if (dp853::kD[r][s] != 0.0) sum += dp853::kD[r][s] * part(k_[s][i]);
-      }
-      f[r] = h * sum;
-    }
+    for (int r = 0; r < 4; ++r) f[r] = part(dense_[static_cast<std::size_t>(r)][i]);
     return x +
            theta *
                (f0 +
@@ -390,7 +397,8 @@ class Dp853Stages {
   }
 
   int d_;
-  std::vector<std::vector<T>> k_;  // k_0 ... k_11, k_12 = F(next), k_13 ... k_15 dense output
+  std::vector<std::vector<T>> k_;      // k_0 ... k_11, k_12 = F(next), k_13 ... k_15 dense output
+  std::vector<std::vector<T>> dense_;  // F3 ... F6 of the dense output, set by prepare_dense()
   double gamma_ = 1.0;
   bool dense_ready_ = false;
 };
