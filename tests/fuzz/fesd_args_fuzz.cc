@@ -15,35 +15,29 @@
 // kWorkRefused (e.g. --nfe 1073741824) run as given: no one needs such sizes from the
 // command, which must refuse them promptly; a timeout or an out-of-memory report there is a
 // finding.
-#include <cerrno>
 #include <climits>
 #include <cstddef>
 #include <cstdint>
-#include <cstdlib>
 #include <string>
 #include <vector>
 
 #include "fuzz/fuzz_args.h"
+#include "scene_setup.h"
 
 namespace {
 
 constexpr double kWorkBudget = 1000.0;
 constexpr double kWorkRefused = 1e8;
 
-/** `word` as the command reads an int option (cli/src/scene_setup.cc, parse_integer): blanks
-    and tabs around it trimmed, an optional sign, then decimal digits only, leading zeros
-    included ("0912" is 912, not an octal error), in int range. */
+/** `word` as the command reads an int option (bflow::cli::parse_integer, in int range); false
+    where the command refuses it. */
 bool read_int(const std::string& word, long long& value) {
-  const std::size_t first = word.find_first_not_of(" \t");
-  if (first == std::string::npos) return false;
-  const std::string text = word.substr(first, word.find_last_not_of(" \t") - first + 1);
-  const std::size_t digits = text.find_first_not_of("+-") == 1 ? 1 : 0;
-  if (text.size() <= digits || text.find_first_not_of("0123456789", digits) != std::string::npos) {
+  try {
+    value = bflow::cli::parse_integer(word, "--fuzz", INT_MIN, INT_MAX);
+    return true;
+  } catch (const bflow::cli::InputError&) {
     return false;
   }
-  errno = 0;
-  value = std::strtoll(text.c_str(), nullptr, 10);
-  return errno == 0 && value >= INT_MIN && value <= INT_MAX;
 }
 
 /** The largest value given to `name` ("--name V" or "--name=V"), or `fallback`. */
