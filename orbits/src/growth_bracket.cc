@@ -59,8 +59,7 @@ double product_error(int factors, int m, double factor_norms) {
 //    added so that it is never underestimated).
 // The root is what a defective A costs: a perturbation eps moves an m-fold eigenvalue by about
 // eps^(1/m), so for a Jordan block the margin is about (u |A|)^(1/m), not u |A|.
-double eigenvalue_margin(const MatrixXd& a, const Eigen::EigenSolver<MatrixXd>& eig,
-                         double error) {
+double eigenvalue_margin(const MatrixXd& a, const Eigen::EigenSolver<MatrixXd>& eig, double error) {
   const int m = static_cast<int>(a.rows());
   const double total = a.squaredNorm();
   const double departure =
@@ -76,8 +75,8 @@ double eigenvalue_margin(const MatrixXd& a, const Eigen::EigenSolver<MatrixXd>& 
   const double henrici = std::max(theta, std::pow(theta, 1.0 / static_cast<double>(m)));
   const Eigen::JacobiSVD<MatrixXcd> svd(eig.eigenvectors());
   const Eigen::VectorXd& sigma = svd.singularValues();
-  const double kappa = sigma[m - 1] > 0.0 ? sigma[0] / sigma[m - 1]
-                                          : std::numeric_limits<double>::infinity();
+  const double kappa =
+      sigma[m - 1] > 0.0 ? sigma[0] / sigma[m - 1] : std::numeric_limits<double>::infinity();
   return std::min(henrici, 2.0 * kappa * error);
 }
 
@@ -316,8 +315,8 @@ Bound frame_bound(const std::vector<std::vector<Product>>& levels, const Frame& 
     FrameNorm worst;
     for (const Product& product : levels[k]) {
       const int m = static_cast<int>(product.matrix.rows());
-      const FrameNorm n = frame_norm(frame, product.matrix,
-                                     product_error(length, m, product.factors), worst.bound);
+      const FrameNorm n =
+          frame_norm(frame, product.matrix, product_error(length, m, product.factors), worst.bound);
       worst.value = std::max(worst.value, n.value);
       worst.bound = std::max(worst.bound, n.bound);
     }
@@ -729,8 +728,7 @@ GrowthBracket growth_rate_bracket(const FlowDerivative& map, const MatrixXd& bas
     cone_rows += std::max(static_cast<int>(surfaces.size()) - 1, 0);
   }
   internal::check_growth_options(options, m, cone_rows);
-  const double off =
-      (basis.transpose() * basis - MatrixXd::Identity(m, m)).cwiseAbs().maxCoeff();
+  const double off = (basis.transpose() * basis - MatrixXd::Identity(m, m)).cwiseAbs().maxCoeff();
   if (!(off <= 1e-8)) {
     throw InvalidArgument(
         "growth_rate_bracket: the basis's columns are not orthonormal "
@@ -845,8 +843,7 @@ GrowthBracket growth_rate_bracket(const FlowDerivative& map, const MatrixXd& bas
       const Frame frame{q, t};
       FrameNorm worst;
       for (const MatrixXd& b : distinct) {
-        const FrameNorm n =
-            frame_norm(frame, b, 0.0, worst.bound);
+        const FrameNorm n = frame_norm(frame, b, 0.0, worst.bound);
         worst.value = std::max(worst.value, n.value);
         worst.bound = std::max(worst.bound, n.bound);
       }

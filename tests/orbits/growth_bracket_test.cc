@@ -200,8 +200,8 @@ IteratedGrowth iterate_map(const HandMap& hand) {
     if (rate > out.rate) {
       out.rate = rate;
       best_end = z;
-      const double halves = std::abs(first_half / (kHalf - kSkip) -
-                                     (log_growth - first_half) / (kSteps - kHalf));
+      const double halves =
+          std::abs(first_half / (kHalf - kSkip) - (log_growth - first_half) / (kSteps - kHalf));
       out.window_error = halves + 1e-12;
     }
   }
@@ -382,8 +382,7 @@ TEST_P(GrowthBracketRealisableProducts, StableAlthoughArbitraryProductsGrow) {
   EXPECT_LE(reference.rate, b.upper * (1.0 + reference.window_error));
   // Pruning may drop only products no direction realises: every sequence of pieces the map
   // follows is in the tree, and the upper end is at least what those products give.
-  const Realised realised =
-      realised_products(hand, static_cast<int>(b.realisable_products.size()));
+  const Realised realised = realised_products(hand, static_cast<int>(b.realisable_products.size()));
   std::string seen;
   for (long n : realised.sequences) seen += " " + std::to_string(n);
   std::printf("  sequences the map follows by length:%s; their products give at least %.6f\n",
@@ -447,8 +446,8 @@ JumpMap near_commuting_jump(double delta) {
   return JumpMap(MatrixXd::Identity(2, 2), limits);
 }
 
-HandMap with_jump(std::string name, const MatrixXd& phi0, const JumpMap& jump,
-                  const MatrixXd& phi1, const char* before) {
+HandMap with_jump(std::string name, const MatrixXd& phi0, const JumpMap& jump, const MatrixXd& phi1,
+                  const char* before) {
   HandMap hand{std::move(name), FlowDerivative(2), MatrixXd::Identity(2, 2), before};
   hand.map.append_transition(phi0);
   hand.map.append_jump(jump, 1.0);
@@ -513,8 +512,8 @@ TEST(GrowthBracketNearlyEqualPieces, JordanBlockSplitByARoundingSizedDifferenceI
   std::printf(
       "near Jordan: pieces %.1e apart, radii %.9f and %.9f (L u = %.9f u to %.1e)\n"
       "  bracket [%.9f, %.9f] (margins %.1e, %.1e), %d pieces: %s; before %s stable\n",
-      difference, spectral_radius(first), rate, rate, residual, b.lower, b.upper,
-      b.lower_margin, b.upper_margin, b.pieces, to_string(classify(b)), hand.before);
+      difference, spectral_radius(first), rate, rate, residual, b.lower, b.upper, b.lower_margin,
+      b.upper_margin, b.pieces, to_string(classify(b)), hand.before);
   EXPECT_EQ(b.pieces, 2);
   EXPECT_NE(classify(b), OrbitStability::kStable);
   EXPECT_EQ(classify(b), OrbitStability::kUnstable);
@@ -577,8 +576,8 @@ TEST(GrowthBracketNearlyEqualPieces, SingleProductsInTheCommonFlagCountEveryPiec
   EXPECT_NEAR(spectral_radius(pieces[1].matrix), rate, 1e-12);
   // e_1 or -e_1 is multiplied by the rate on the map.
   const VectorXd e1 = VectorXd::Unit(2, 0);
-  const double residual = std::min((apply_l(hand, e1) - rate * e1).norm(),
-                                   (apply_l(hand, -e1) + rate * e1).norm());
+  const double residual =
+      std::min((apply_l(hand, e1) - rate * e1).norm(), (apply_l(hand, -e1) + rate * e1).norm());
   EXPECT_LT(residual, 1e-14);
   const GrowthBracket b = growth_rate_bracket(hand.map, hand.basis);
   std::printf("common eigenvector: first piece %.6f, rate %.6f; bracket [%.12f, %.12f] (%d)\n",
