@@ -317,9 +317,10 @@ struct PeriodicOrbit {
       Newton equation with no solution or several (and the step taken); every Newton step it
       shortened (or gave up) because the return map could not be evaluated at a longer one, with
       the reason (e.g. an event whose surfaces' normals are dependent); and a bracket not
-      computed because the return map has too many pieces to enumerate (then [0, inf] and
-      kUndecided). Empty when every step was taken as solved or shortened only for lack of
-      decrease. */
+      computed because growth_rate_bracket refused it (the return map has too many pieces to
+      enumerate, its products would take more than OrbitOptions::kMaxGrowthBytes, or a model of
+      one state leaves the section no direction), then [0, inf] and kUndecided. Empty when every
+      step was taken as solved or shortened only for lack of decrease. */
   std::vector<std::string> decisions;
 };
 
