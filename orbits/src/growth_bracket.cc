@@ -36,32 +36,64 @@ using Eigen::VectorXd;
 constexpr double kConeTolerance = 1e-9;
 // L^p z = c z must hold on the map to this relative error for a cycle to count.
 constexpr double kCycleCheck = 1e-8;
-// The ends computed in floating point are moved outwards by this relative margin (products,
-// norms and eigenvalues carry rounding errors of a few 1e-16 times the condition of the frames);
-// a bracket that still has upper < lower is an error of bflow's, not rounding.
-constexpr double kRoundingMargin = 1e-11;
+// The unit roundoff.
+constexpr double kUnit = std::numeric_limits<double>::epsilon() / 2.0;
 
-void check_growth_options(const OrbitOptions& o) {
-  if (o.growth_directions < 0 || o.growth_iterations < 1 || o.max_product_length < 1 ||
-      o.max_products < 1) {
-    throw InvalidArgument(
-        "OrbitOptions: growth_directions >= 0, growth_iterations >= 1, max_product_length >= 1 "
-        "and max_products >= 1 are required, got " +
-        std::to_string(o.growth_directions) + ", " + std::to_string(o.growth_iterations) + ", " +
-        std::to_string(o.max_product_length) + ", " + std::to_string(o.max_products));
-  }
+// The rounding error of an m x m product of `factors` matrices formed left to right: each
+// product AB is off by at most gamma_m |A| |B| entrywise (gamma_m = m u / (1 - m u), Higham,
+// Accuracy and Stability, 3.5), so in the Frobenius norm by (factors - 1) gamma_m prod |M_i|_F
+// to first order; 1.01 covers the higher orders while (factors - 1) m u < 0.01.
+double product_error(int factors, int m, double factor_norms) {
+  return 1.01 * static_cast<double>(std::max(factors - 1, 0)) * m * kUnit * factor_norms;
 }
 
-// The distinct matrices among the pieces.
+// A bound on how far the eigenvalues of an m x m matrix A (the pieces' product as computed) lie
+// from the eigenvalues the eigensolver returns, given `error`, a bound on |E|_F for the backward
+// error E of the eigensolver plus any error of A itself. Two bounds, the smaller taken:
+//  - Bauer-Fike: the eigenvalues of A + E lie within kappa(X) |E|_2 of those of A, X the
+//    eigenvectors; kappa of the computed X, doubled for its own rounding. Infinite when X is
+//    numerically singular (a defective A).
+//  - Henrici (Golub and Van Loan, Matrix Computations, 7.2.3): within max(theta, theta^(1/m)),
+//    theta = |E|_2 sum_{j<m} |N|_2^j, N the strictly upper part of a Schur form of A
+//    (|N|_F^2 = |A|_F^2 - sum |lambda|^2, taken with the rounding of the difference and |E|
+//    added so that it is never underestimated).
+// The root is what a defective A costs: a perturbation eps moves an m-fold eigenvalue by about
+// eps^(1/m), so for a Jordan block the margin is about (u |A|)^(1/m), not u |A|.
+double eigenvalue_margin(const MatrixXd& a, const Eigen::EigenSolver<MatrixXd>& eig, double error) {
+  const int m = static_cast<int>(a.rows());
+  const double total = a.squaredNorm();
+  const double departure =
+      std::sqrt(std::max(0.0, total - eig.eigenvalues().squaredNorm()) + 4.0 * m * kUnit * total) +
+      error;
+  double theta = 0.0;
+  double power = 1.0;
+  for (int j = 0; j < m; ++j) {
+    theta += power;
+    power *= departure;
+  }
+  theta *= error;
+  const double henrici = std::max(theta, std::pow(theta, 1.0 / static_cast<double>(m)));
+  const Eigen::JacobiSVD<MatrixXcd> svd(eig.eigenvectors());
+  const Eigen::VectorXd& sigma = svd.singularValues();
+  const double kappa =
+      sigma[m - 1] > 0.0 ? sigma[0] / sigma[m - 1] : std::numeric_limits<double>::infinity();
+  return std::min(henrici, 2.0 * kappa * error);
+}
+
+// The eigensolver's backward error for an m x m matrix (the QR algorithm's, a modest multiple of
+// u |A|, Golub and Van Loan 7.5.6), taken as 4 m^2 u |A|_F.
+double eigensolver_error(const MatrixXd& a) {
+  return 4.0 * static_cast<double>(a.rows() * a.rows()) * kUnit * a.norm();
+}
+
+// The distinct matrices among the pieces: only equal matrices are merged. Pieces that differ by
+// less than rounding still differ in L (a Jordan block perturbed by 1e-10 has eigenvalues
+// 1e-5 apart), so none is dropped.
 std::vector<MatrixXd> distinct_matrices(const std::vector<internal::ConePiece>& pieces) {
   std::vector<MatrixXd> out;
   for (const internal::ConePiece& piece : pieces) {
     bool seen = false;
-    for (const MatrixXd& b : out) {
-      if ((piece.matrix - b).norm() <= FlowDerivative::kLinearTolerance * (1.0 + b.norm())) {
-        seen = true;
-      }
-    }
+    for (const MatrixXd& b : out) seen = seen || piece.matrix == b;
     if (!seen) out.push_back(piece.matrix);
   }
   return out;
@@ -150,9 +182,16 @@ MatrixXcd common_flag(const std::vector<MatrixXd>& pieces) {
 // doubt (a cone nonempty within the tolerance, an LP that does not finish) counts the product.
 
 struct Node {
-  MatrixXd product;  // P, m x m
-  MatrixXd cone;     // unit rows R: P is realised by z exactly when R z >= 0
-  VectorXd witness;  // a z in the cone (empty at the root)
+  MatrixXd product;      // P, m x m
+  MatrixXd cone;         // unit rows R: P is realised by z exactly when R z >= 0
+  VectorXd witness;      // a z in the cone (empty at the root)
+  double factors = 1.0;  // prod |M_i|_F over P's pieces, for P's rounding error
+};
+
+// A product counted for the upper end.
+struct Product {
+  MatrixXd matrix;
+  double factors = 1.0;  // prod |M_i|_F over its pieces
 };
 
 // The realisable products of length 1, 2, ... up to max_length. A length with more than
@@ -160,10 +199,10 @@ struct Node {
 // exceed kCandidatesPerProduct max_products, ends the list: its products would be incomplete.
 constexpr double kCandidatesPerProduct = 64.0;
 
-std::vector<std::vector<MatrixXd>> realisable_products(
+std::vector<std::vector<Product>> realisable_products(
     const std::vector<internal::ConePiece>& pieces, int m, int max_length, long max_products) {
-  std::vector<std::vector<MatrixXd>> levels;
-  std::vector<Node> level{Node{MatrixXd::Identity(m, m), MatrixXd(0, m), VectorXd()}};
+  std::vector<std::vector<Product>> levels;
+  std::vector<Node> level{Node{MatrixXd::Identity(m, m), MatrixXd(0, m), VectorXd(), 1.0}};
   for (int k = 1; k <= max_length; ++k) {
     if (static_cast<double>(level.size()) * static_cast<double>(pieces.size()) >
         kCandidatesPerProduct * static_cast<double>(max_products)) {
@@ -178,7 +217,8 @@ std::vector<std::vector<MatrixXd>> realisable_products(
         VectorXd scale(piece.cone.rows());
         for (Eigen::Index i = 0; i < piece.cone.rows(); ++i) scale[i] = product_scale;
         const MatrixXd rows = unit_rows(piece.cone * node.product, scale);
-        Node child{MatrixXd(), MatrixXd(node.cone.rows() + rows.rows(), m), VectorXd()};
+        Node child{MatrixXd(), MatrixXd(node.cone.rows() + rows.rows(), m), VectorXd(),
+                   node.factors * piece.matrix.norm()};
         child.cone << node.cone, rows;
         bool realised = false;
         if (node.witness.size() > 0 && in_cone(rows, node.witness)) {
@@ -203,42 +243,95 @@ std::vector<std::vector<MatrixXd>> realisable_products(
       throw std::logic_error("growth_rate_bracket: no product of " + std::to_string(k) +
                              " pieces is realisable, yet every direction realises one");
     }
-    std::vector<MatrixXd> products;
+    std::vector<Product> products;
     products.reserve(next.size());
-    for (const Node& node : next) products.push_back(node.product);
+    for (const Node& node : next) products.push_back(Product{node.product, node.factors});
     levels.push_back(std::move(products));
     level = std::move(next);
   }
   return levels;
 }
 
-// min over the lengths k of (max over the products of length k of |F^-1 P F|_2)^(1/k).
-std::pair<double, int> frame_bound(const std::vector<std::vector<MatrixXd>>& levels,
-                                   const MatrixXcd& frame, const MatrixXcd& inverse) {
-  double best = std::numeric_limits<double>::infinity();
-  int best_length = 0;
-  for (std::size_t k = 0; k < levels.size(); ++k) {
-    double worst = 0.0;
-    for (const MatrixXd& product : levels[k]) {
-      const MatrixXcd local = inverse * product.cast<std::complex<double>>() * frame;
-      // |A|_2 <= |A|_F: the SVD only where the Frobenius norm leaves the maximum in doubt.
-      if (local.norm() <= worst) continue;
-      worst = std::max(worst, operator_norm(local));
+// A frame F = Q D of C^m: Q unitary (as computed), D = diag(1, t, t^2, ...), 0 < t <= 1. The
+// bound uses F^-1 = D^-1 Q^H; Q^H is Q^-1 up to the rounding of Q's columns.
+struct Frame {
+  MatrixXcd q;
+  double t = 1.0;
+};
+
+// |F^-1 P F|_2 as computed, and an upper bound on its exact value for the product of the pieces
+// (P as computed is off by p_error in the Frobenius norm). The rounding of P, of Q^H P Q
+// (2 gamma_m |Q|_F^2 |P|_F = 2 m^2 u |P|_F) and Q's departure from unitarity (a few m u) are
+// amplified by the scaling, at most kappa(D) = t^-(m-1) (the entry (i, j) is multiplied by
+// t^(j-i)); together taken as kappa(D) (p_error + 8 m^2 u |P|_F). The SVD adds m u |.|
+// (backward stable), doubled.
+struct FrameNorm {
+  double value = 0.0;
+  double bound = 0.0;
+};
+
+FrameNorm frame_norm(const Frame& frame, const MatrixXd& p, double p_error, double floor) {
+  const int m = static_cast<int>(p.rows());
+  MatrixXcd local = frame.q.adjoint() * p.cast<std::complex<double>>() * frame.q;
+  double kappa = 1.0;
+  if (frame.t != 1.0) {
+    VectorXd scale(m);
+    double power = 1.0;
+    for (int j = 0; j < m; ++j) {
+      scale[j] = power;
+      power *= frame.t;
     }
-    const double bound = std::pow(worst, 1.0 / static_cast<double>(k + 1));
-    if (bound < best) {
-      best = bound;
-      best_length = static_cast<int>(k + 1);
+    for (int j = 0; j < m; ++j) {
+      for (int i = 0; i < m; ++i) local(i, j) *= scale[j] / scale[i];
     }
+    kappa = 1.0 / scale[m - 1];
   }
-  return {best, best_length};
+  const double error = kappa * (p_error + 8.0 * m * m * kUnit * p.norm());
+  // |A|_2 <= |A|_F: the SVD only where the Frobenius norm leaves the maximum in doubt.
+  const double frobenius = local.norm();
+  if (frobenius + error + 2.0 * m * kUnit * frobenius <= floor) return {0.0, 0.0};
+  const double value = operator_norm(local);
+  return {value, value + error + 2.0 * m * kUnit * value};
+}
+
+// The least over the lengths k of (max over the products P of length k of a bound on
+// |F^-1 P F|_2)^(1/k), the length, and the same with the computed norms (no rounding margin; a
+// product whose bound is below the maximum is not computed, so this may be low).
+struct Bound {
+  double value = std::numeric_limits<double>::infinity();  // with the rounding margin
+  double computed = std::numeric_limits<double>::infinity();
+  int length = 0;
+};
+
+// pow(x, 1/k) rounded up: std::pow is within a few ulps.
+double root_up(double x, int k) {
+  return std::pow(x, 1.0 / static_cast<double>(k)) * (1.0 + 8.0 * kUnit);
+}
+
+Bound frame_bound(const std::vector<std::vector<Product>>& levels, const Frame& frame) {
+  Bound best;
+  for (std::size_t k = 0; k < levels.size(); ++k) {
+    const int length = static_cast<int>(k + 1);
+    FrameNorm worst;
+    for (const Product& product : levels[k]) {
+      const int m = static_cast<int>(product.matrix.rows());
+      const FrameNorm n =
+          frame_norm(frame, product.matrix, product_error(length, m, product.factors), worst.bound);
+      worst.value = std::max(worst.value, n.value);
+      worst.bound = std::max(worst.bound, n.bound);
+    }
+    const double bound = root_up(worst.bound, length);
+    if (bound < best.value) best = Bound{bound, std::pow(worst.value, 1.0 / length), length};
+  }
+  return best;
 }
 
 // ---------------------------------------------------------------------------------------------
 // The lower end: direction cycles.
 
 struct Cycle {
-  double rate = 0.0;
+  double rate = 0.0;      // with the rounding margin
+  double computed = 0.0;  // without
   int period = 0;
   VectorXd direction;
 };
@@ -285,14 +378,20 @@ class CycleFinder {
     return best;
   }
 
-  // The exact rate of the cycle through the pieces `sequence` near z (see find()).
+  // The rate of the cycle through the pieces `sequence` near z (see find()): c^(1/p) for the
+  // eigenvalue c of their product, lowered by the eigenvalue's rounding margin.
   Cycle certify(const VectorXd& z, const std::vector<int>& sequence) const {
     Cycle best;
     const int m = static_cast<int>(z.size());
     const int p = static_cast<int>(sequence.size());
     MatrixXd product = MatrixXd::Identity(m, m);
-    for (int i : sequence) product = pieces_[static_cast<std::size_t>(i)].matrix * product;
+    double factors = 1.0;
+    for (int i : sequence) {
+      product = pieces_[static_cast<std::size_t>(i)].matrix * product;
+      factors *= pieces_[static_cast<std::size_t>(i)].matrix.norm();
+    }
     const Eigen::EigenSolver<MatrixXd> eig(product);
+    double margin = -1.0;  // computed once it is needed
     for (Eigen::Index e = 0; e < eig.eigenvalues().size(); ++e) {
       const std::complex<double> lambda = eig.eigenvalues()[e];
       if (!(lambda.real() > 0.0) || std::abs(lambda.imag()) > 1e-12 * std::abs(lambda)) continue;
@@ -306,8 +405,12 @@ class CycleFinder {
         VectorXd w = u;
         for (int j = 0; j < p; ++j) w = apply(w);
         if (!((w - c * u).norm() <= kCycleCheck * c)) continue;
-        const double rate = std::pow(c, 1.0 / p);
-        if (rate > best.rate) best = Cycle{rate, p, u};
+        if (margin < 0.0) {
+          margin = eigenvalue_margin(product, eig,
+                                     product_error(p, m, factors) + eigensolver_error(product));
+        }
+        const double rate = std::pow(std::max(c - margin, 0.0), 1.0 / p) * (1.0 - 8.0 * kUnit);
+        if (rate > best.rate) best = Cycle{rate, std::pow(c, 1.0 / p), p, u};
         break;
       }
     }
@@ -463,7 +566,9 @@ std::vector<ConePiece> cone_pieces(const FlowDerivative& map, const MatrixXd& ba
   std::vector<ConePiece> out;
   out.reserve(flow_pieces.size());
   for (const FlowPiece& flow_piece : flow_pieces) {
-    ConePiece piece{flow_piece.orders, basis.transpose() * flow_piece.matrix * basis, MatrixXd()};
+    const MatrixXd image = flow_piece.matrix * basis;
+    ConePiece piece{flow_piece.orders, basis.transpose() * image, MatrixXd(), 0.0, image.norm()};
+    piece.outside = (image - basis * piece.matrix).norm();
     MatrixXd v = transitions[0] * basis;  // the tangent arriving at the event, as a map of z
     std::vector<MatrixXd> blocks;
     for (int e = 0; e < events; ++e) {
@@ -503,8 +608,6 @@ std::vector<ConePiece> cone_pieces(const FlowDerivative& map, const MatrixXd& ba
 }
 
 void finish_bracket(GrowthBracket& bracket) {
-  bracket.lower *= 1.0 - kRoundingMargin;
-  bracket.upper *= 1.0 + kRoundingMargin;
   // Both ends bound the same number: upper < lower means one of them is wrong, and lifting upper
   // to lower would hide which.
   if (!(bracket.upper >= bracket.lower)) {
@@ -513,6 +616,50 @@ void finish_bracket(GrowthBracket& bracket) {
                            " pieces) is below the lower end " + format_number(bracket.lower) +
                            " (a cycle of period " + std::to_string(bracket.lower_period) +
                            "): the bracket contradicts itself");
+  }
+}
+
+// The largest heap use of realisable_products(), per product allowed (max_products): every
+// length's products are kept (Product: an m x m matrix, its header and the allocator's
+// overhead), and while a length is built the previous length's nodes and the new ones live
+// together (Node: P, the cone's rows, at most k R at length k for R rows per piece, and a
+// witness: three allocations; std::vector's doubling counted as a second header), plus a copy
+// of the new products.
+double growth_bytes_per_product(int m, int max_length, int cone_rows) {
+  constexpr double kAllocation = 32.0;  // malloc's header and rounding, per block
+  const double md = m;
+  const double matrix = 8.0 * md * md + kAllocation;
+  const double product = static_cast<double>(sizeof(Product)) + matrix;
+  const double node = 2.0 * static_cast<double>(sizeof(Node)) + matrix +
+                      (8.0 * static_cast<double>(max_length) * cone_rows * md + kAllocation) +
+                      (8.0 * md + kAllocation);
+  return static_cast<double>(max_length) * product + 2.0 * node + product;
+}
+
+void check_growth_options(const OrbitOptions& o, int dimension, int cone_rows) {
+  auto bad = [](const std::string& what) { throw InvalidArgument("OrbitOptions: " + what); };
+  if (o.growth_directions < 0 || o.growth_directions > OrbitOptions::kMaxGrowthDirections)
+    bad("growth_directions must be in [0, " + std::to_string(OrbitOptions::kMaxGrowthDirections) +
+        "], got " + std::to_string(o.growth_directions));
+  if (o.growth_iterations < 1 || o.growth_iterations > OrbitOptions::kMaxGrowthIterations)
+    bad("growth_iterations must be in [1, " + std::to_string(OrbitOptions::kMaxGrowthIterations) +
+        "], got " + std::to_string(o.growth_iterations));
+  if (o.max_product_length < 1 || o.max_product_length > OrbitOptions::kMaxProductLength)
+    bad("max_product_length must be in [1, " + std::to_string(OrbitOptions::kMaxProductLength) +
+        "], got " + std::to_string(o.max_product_length));
+  if (o.max_products < 1) bad("max_products must be >= 1, got " + std::to_string(o.max_products));
+  const double per_product =
+      growth_bytes_per_product(std::max(dimension, 1), o.max_product_length, cone_rows);
+  const double bytes = per_product * static_cast<double>(o.max_products);
+  if (!(bytes <= static_cast<double>(OrbitOptions::kMaxGrowthBytes))) {
+    const double cap = std::floor(static_cast<double>(OrbitOptions::kMaxGrowthBytes) / per_product);
+    bad("max_products = " + std::to_string(o.max_products) + " may need " +
+        format_number(bytes / 1048576.0) + " MiB (" + format_number(per_product) +
+        " bytes per product for " + std::to_string(std::max(dimension, 1)) +
+        " directions, products of up to " + std::to_string(o.max_product_length) + " pieces, " +
+        std::to_string(cone_rows) + " cone rows per piece), more than the " +
+        std::to_string(OrbitOptions::kMaxGrowthBytes >> 20) + " MiB allowed; at most " +
+        format_number(cap) + " fit");
   }
 }
 
@@ -564,52 +711,84 @@ OrbitStability classify(const GrowthBracket& bracket) {
 
 GrowthBracket growth_rate_bracket(const FlowDerivative& map, const MatrixXd& basis,
                                   const OrbitOptions& options) {
-  check_growth_options(options);
   if (basis.rows() != map.dim() || basis.cols() > basis.rows() || !basis.allFinite()) {
     throw InvalidArgument("growth_rate_bracket: the basis is " + std::to_string(basis.rows()) +
                           " x " + std::to_string(basis.cols()) + " for a map of dimension " +
                           std::to_string(map.dim()) +
                           " (expected d x m with m <= d, finite, orthonormal columns)");
   }
-  if (basis.cols() > 0) {
-    const double off =
-        (basis.transpose() * basis - Eigen::MatrixXd::Identity(basis.cols(), basis.cols()))
-            .cwiseAbs()
-            .maxCoeff();
-    if (!(off <= 1e-8)) {
+  const int m = static_cast<int>(basis.cols());
+  if (m == 0) {
+    throw InvalidArgument("growth_rate_bracket: the basis has 0 columns (a map of dimension " +
+                          std::to_string(map.dim()) +
+                          "): there is no direction whose growth could be bracketed");
+  }
+  int cone_rows = 0;
+  for (const std::vector<int>& surfaces : map.event_surfaces()) {
+    cone_rows += std::max(static_cast<int>(surfaces.size()) - 1, 0);
+  }
+  internal::check_growth_options(options, m, cone_rows);
+  const double off = (basis.transpose() * basis - MatrixXd::Identity(m, m)).cwiseAbs().maxCoeff();
+  if (!(off <= 1e-8)) {
+    throw InvalidArgument(
+        "growth_rate_bracket: the basis's columns are not orthonormal "
+        "(|B^T B - I|_max = " +
+        format_number(off) + ")");
+  }
+  const std::vector<internal::ConePiece> pieces = internal::cone_pieces(map, basis);
+  // L z = B^T DP(B z) is the map's restriction to span(B) only where DP's images stay in it.
+  {
+    double worst = 0.0;
+    std::size_t worst_piece = 0;
+    for (std::size_t i = 0; i < pieces.size(); ++i) {
+      const double r = pieces[i].outside / std::max(pieces[i].image_norm, 1e-300);
+      if (pieces[i].image_norm > 0.0 && !(r <= worst)) {
+        worst = std::isfinite(r) ? r : std::numeric_limits<double>::infinity();
+        worst_piece = i;
+      }
+    }
+    if (!(worst <= internal::kSpanTolerance)) {
       throw InvalidArgument(
-          "growth_rate_bracket: the basis's columns are not orthonormal "
-          "(|B^T B - I|_max = " +
-          format_number(off) + ")");
+          "growth_rate_bracket: the basis does not span the map's images: piece " +
+          std::to_string(worst_piece) + " of " + std::to_string(pieces.size()) +
+          " maps span(B) out of it by |(I - B B^T) M B|_F / |M B|_F = " + format_number(worst) +
+          " (at most " + format_number(internal::kSpanTolerance) + ")");
     }
   }
   GrowthBracket bracket;
-  const int m = static_cast<int>(basis.cols());
-  if (m == 0) return bracket;
-  const std::vector<internal::ConePiece> pieces = internal::cone_pieces(map, basis);
   const std::vector<MatrixXd> distinct = distinct_matrices(pieces);
   bracket.pieces = static_cast<int>(distinct.size());
   if (distinct.size() == 1) {
-    Eigen::EigenSolver<MatrixXd> eig(distinct.front());
+    // L is linear: its rate is the spectral radius, within the eigenvalues' rounding margin.
+    const MatrixXd& a = distinct.front();
+    const Eigen::EigenSolver<MatrixXd> eig(a);
     for (Eigen::Index i = 0; i < eig.eigenvalues().size(); ++i) {
       bracket.multipliers.push_back(eig.eigenvalues()[i]);
     }
     std::sort(bracket.multipliers.begin(), bracket.multipliers.end(),
-              [](const std::complex<double>& a, const std::complex<double>& b) {
-                return std::abs(a) > std::abs(b);
+              [](const std::complex<double>& x, const std::complex<double>& y) {
+                return std::abs(x) > std::abs(y);
               });
-    bracket.lower = bracket.upper = std::abs(bracket.multipliers.front());
+    const double radius = std::abs(bracket.multipliers.front());
+    const double margin = eigenvalue_margin(a, eig, eigensolver_error(a));
+    bracket.lower = std::max(radius - margin, 0.0) * (1.0 - 4.0 * kUnit);
+    bracket.upper = (radius + margin) * (1.0 + 4.0 * kUnit);
+    bracket.lower_margin = radius - bracket.lower;
+    bracket.upper_margin = bracket.upper - radius;
     bracket.lower_period = bracket.upper_length = 1;
+    internal::finish_bracket(bracket);
     return bracket;
   }
 
   // Lower: direction cycles, from the eigenvectors of every piece and from the ends of a
   // normalised power iteration of L from many directions.
   const CycleFinder cycles(map, basis, pieces);
+  double lower_computed = 0.0;
   auto consider = [&](const VectorXd& z) {
     const Cycle c = cycles.find(z, options.max_product_length);
     if (c.period > 0 && c.rate > bracket.lower) {
       bracket.lower = c.rate;
+      lower_computed = c.computed;
       bracket.lower_period = c.period;
       bracket.lower_direction = c.direction;
     }
@@ -641,61 +820,44 @@ GrowthBracket growth_rate_bracket(const FlowDerivative& map, const MatrixXd& bas
     }
     consider(z);
   }
+  bracket.lower_margin = lower_computed - bracket.lower;
 
   // Upper: the realisable products, in several norms.
-  const std::vector<std::vector<MatrixXd>> levels =
+  const std::vector<std::vector<Product>> levels =
       realisable_products(pieces, m, options.max_product_length, options.max_products);
-  for (const std::vector<MatrixXd>& level : levels) {
+  for (const std::vector<Product>& level : levels) {
     bracket.realisable_products.push_back(static_cast<long>(level.size()));
   }
-  bracket.upper = std::numeric_limits<double>::infinity();
-  std::vector<MatrixXcd> frames{MatrixXcd::Identity(m, m)};
+  Bound upper;
+  std::vector<Frame> frames{Frame{MatrixXcd::Identity(m, m), 1.0}};
   for (const MatrixXd& a : distinct) {
-    Eigen::ComplexSchur<MatrixXcd> schur(a.cast<std::complex<double>>());
-    for (double t : {1.0, 1e-2, 1e-4}) {
-      MatrixXcd frame = schur.matrixU();
-      double scale = 1.0;
-      for (int j = 0; j < m; ++j) {
-        frame.col(j) *= scale;
-        scale *= t;
-      }
-      frames.push_back(frame);
-    }
+    const Eigen::ComplexSchur<MatrixXcd> schur(a.cast<std::complex<double>>());
+    for (double t : {1.0, 1e-2, 1e-4}) frames.push_back(Frame{schur.matrixU(), t});
   }
   // A common flag of the pieces, when they have one (a common triangular form): in it, scaled,
   // every piece's norm tends to its diagonal's largest entry, so single pieces (k = 1: every
-  // piece, realisable or not) bound rho(L) tightly.
+  // distinct piece, realisable or not) bound rho(L) tightly.
   {
     const MatrixXcd q = common_flag(distinct);
     for (double t : {1e-2, 1e-4, 1e-6, 1e-8}) {
-      MatrixXcd frame = q;
-      double scale = 1.0;
-      for (int j = 0; j < m; ++j) {
-        frame.col(j) *= scale;
-        scale *= t;
-      }
-      const Eigen::FullPivLU<MatrixXcd> lu(frame);
-      if (!lu.isInvertible()) continue;
-      const MatrixXcd inverse = lu.inverse();
-      double worst = 0.0;
+      const Frame frame{q, t};
+      FrameNorm worst;
       for (const MatrixXd& b : distinct) {
-        worst = std::max(worst, operator_norm(inverse * b.cast<std::complex<double>>() * frame));
+        const FrameNorm n = frame_norm(frame, b, 0.0, worst.bound);
+        worst.value = std::max(worst.value, n.value);
+        worst.bound = std::max(worst.bound, n.bound);
       }
-      if (worst < bracket.upper) {
-        bracket.upper = worst;
-        bracket.upper_length = 1;
-      }
+      const double bound = root_up(worst.bound, 1);
+      if (bound < upper.value) upper = Bound{bound, worst.value, 1};
     }
   }
-  for (const MatrixXcd& frame : frames) {
-    const Eigen::FullPivLU<MatrixXcd> lu(frame);
-    if (!lu.isInvertible()) continue;
-    const auto [bound, length] = frame_bound(levels, frame, lu.inverse());
-    if (bound < bracket.upper) {
-      bracket.upper = bound;
-      bracket.upper_length = length;
-    }
+  for (const Frame& frame : frames) {
+    const Bound b = frame_bound(levels, frame);
+    if (b.value < upper.value) upper = b;
   }
+  bracket.upper = upper.value;
+  bracket.upper_length = upper.length;
+  bracket.upper_margin = upper.value - upper.computed;
   internal::finish_bracket(bracket);
   return bracket;
 }

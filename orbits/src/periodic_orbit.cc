@@ -15,6 +15,7 @@
 #include <Eigen/Dense>
 
 #include "bflow/core/errors.h"
+#include "bflow/orbits/internal/growth_cones.h"
 
 namespace bflow {
 namespace {
@@ -101,12 +102,7 @@ void check_options(const OrbitOptions& o) {
         std::to_string(o.max_backtracks));
   if (!(o.min_return_time >= 0.0 && o.min_return_time < o.max_return_time))
     bad("min_return_time must be in [0, max_return_time), got " + format_number(o.min_return_time));
-  if (o.growth_directions < 0 || o.growth_iterations < 1 || o.max_product_length < 1 ||
-      o.max_products < 1)
-    bad("growth_directions >= 0, growth_iterations >= 1, max_product_length >= 1 and "
-        "max_products >= 1 are required, got " +
-        std::to_string(o.growth_directions) + ", " + std::to_string(o.growth_iterations) + ", " +
-        std::to_string(o.max_product_length) + ", " + std::to_string(o.max_products));
+  internal::check_growth_options(o);
 }
 
 // The section checked against the model once: its own check, then its value and gradient at x

@@ -57,11 +57,22 @@
 //     products) and over the norms of the pieces' Schur bases and of a flag the pieces share (a
 //     common triangular form, where they have one), scaled to shrink their off-diagonal parts;
 //     in that flag every single piece, realised or not, is counted (k = 1).
-//   Both ends are moved outwards by a relative 1e-11 for rounding. The ends bound one number, so
-//   an upper end below the lower one is an error of bflow: it throws std::logic_error, never
-//   lifted to the lower end.
+//   Rounding. The bracket is about L as formed from the pieces B^T M B in floating point. Each
+//   end is moved outwards by a bound on its own rounding (lower_margin, upper_margin): for the
+//   upper end the rounding of the products (their factors' norms times the product length and
+//   u) and of the norm in the frame, amplified by the frame's scaling (its condition number
+//   t^-(m-1)); for the lower end and for a linear L the eigenvalue's error, by Bauer-Fike with
+//   the computed eigenvectors' condition or by Henrici's theorem, max(theta, theta^(1/m)) with
+//   theta the backward error times the powers of the Schur form's departure from normality: for
+//   a defective (Jordan) product about (u |P|)^(1/m), not u. Pieces are merged only when
+//   equal: pieces that differ by 1e-10 can differ in rate by 1e-5. The cones are judged with a
+//   slack of 1e-9 (products realised only within it count, which only raises the upper end), and
+//   a cycle counts only when L^p z = c z holds on the map to 1e-8 relative and z lies in its
+//   cones to 1e-9. The ends bound one number, so an upper end below the lower one is an error
+//   of bflow: it throws std::logic_error, never lifted to the lower end.
 // With one piece (every event crosses one surface) both ends are the spectral radius of the
-// Jacobian: the classic Floquet multipliers (multipliers lists them). Stable when upper < 1,
+// Jacobian within its rounding margin: the classic Floquet multipliers (multipliers lists
+// them). Stable when upper < 1,
 // unstable when lower > 1, undecided otherwise. The verdict is about L; where the return map is
 // computed to the integrator's tolerance, a bracket within that tolerance of 1 decides nothing.
 #ifndef BFLOW_ORBITS_PERIODIC_ORBIT_H_
@@ -201,11 +212,18 @@ struct OrbitOptions {
   /** The stability bracket: directions for the power iteration and its steps (the lower end);
       the longest products of pieces, which is also the longest direction cycle looked for, and
       at most max_products realisable products per length (the upper end; a length with more, or
-      with more than 64 max_products candidate products to test, is not used). */
+      with more than 64 max_products candidate products to test, is not used). Each is bounded
+      (the k... constants below); max_products also by the memory its products may take, an
+      estimate from m (the basis's columns), max_product_length and the cones' rows that must
+      stay within kMaxGrowthBytes (the message gives the estimate and the most that fit). */
   int growth_directions = 64;
   int growth_iterations = 400;
   int max_product_length = 12;
   long max_products = 4000;
+  static constexpr int kMaxGrowthDirections = 100000;
+  static constexpr int kMaxGrowthIterations = 1000000;
+  static constexpr int kMaxProductLength = 64;
+  static constexpr long kMaxGrowthBytes = long{1} << 30;  ///< 1 GiB
   /** Compute the bracket and verdict (the fixed point only when false). */
   bool stability = true;
   /** Called after every Newton step's residual is known. */
@@ -269,6 +287,11 @@ struct GrowthBracket {
   std::vector<long> realisable_products;
   /** When L is linear: its eigenvalues (the nontrivial Floquet multipliers), by modulus. */
   std::vector<std::complex<double>> multipliers;
+  /** How far each end was moved outwards for rounding (absolute): lower is the computed rate of
+      its cycle (or the computed spectral radius) less lower_margin, upper the computed bound
+      plus upper_margin (at most: products below the largest are not all computed exactly). */
+  double lower_margin = 0.0;
+  double upper_margin = 0.0;
 };
 
 struct PeriodicOrbit {
@@ -294,9 +317,10 @@ struct PeriodicOrbit {
       Newton equation with no solution or several (and the step taken); every Newton step it
       shortened (or gave up) because the return map could not be evaluated at a longer one, with
       the reason (e.g. an event whose surfaces' normals are dependent); and a bracket not
-      computed because the return map has too many pieces to enumerate (then [0, inf] and
-      kUndecided). Empty when every step was taken as solved or shortened only for lack of
-      decrease. */
+      computed because growth_rate_bracket refused it (the return map has too many pieces to
+      enumerate, its products would take more than OrbitOptions::kMaxGrowthBytes, or a model of
+      one state leaves the section no direction), then [0, inf] and kUndecided. Empty when every
+      step was taken as solved or shortened only for lack of decrease. */
   std::vector<std::string> decisions;
 };
 
@@ -343,10 +367,13 @@ NewtonEquationSolution solve_newton_equation(const FlowDerivative& map,
                                              const Eigen::Ref<const Eigen::VectorXd>& rhs,
                                              long max_pieces = 4096);
 
-/** The bracket of the growth rate of L = map restricted to span(basis) (d x m, orthonormal
-    columns; the map's images must lie in that span): see "The verdict" above.
-    @throws InvalidArgument for options out of range, a basis of the wrong size or not
-    orthonormal, or a map with too many pieces to enumerate (FlowDerivative::pieces()).
+/** The bracket of the growth rate of L = map restricted to span(basis) (d x m, 1 <= m <= d,
+    orthonormal columns; the map's images must lie in that span): see "The verdict" above.
+    @throws InvalidArgument for options out of range (internal::check_growth_options, with the
+    memory estimate for max_products), a basis of the wrong size, with no columns (nothing to
+    bracket) or not orthonormal (|B^T B - I|_max > 1e-8), a basis that does not span the map's
+    images (some piece M with |(I - B B^T) M B|_F > 1e-6 |M B|_F, quoting it), or a map with
+    too many pieces to enumerate (FlowDerivative::pieces()).
     @throws std::logic_error when the ends cross (upper < lower): an error of bflow's. */
 GrowthBracket growth_rate_bracket(const FlowDerivative& map, const Eigen::MatrixXd& basis,
                                   const OrbitOptions& options = {});
