@@ -53,15 +53,12 @@ bool print_checks(std::ostream& out, const std::vector<Check>& checks) {
   return all_passed;
 }
 
-void prepare_output_directory(const fs::path& dir, const std::string& command) {
-  std::error_code ec;
-  fs::create_directories(dir, ec);
-  if (ec || !fs::is_directory(dir)) {
-    throw DemoError(command + ": cannot create directory " + quote(dir.string(), 200) + ": " +
-                    (ec ? ec.message() : std::string("a file of that name exists")));
-  }
-  // A directory can exist and still refuse files (permissions, a read-only or virtual file
-  // system such as /proc); creating one is the only test that holds for every cause.
+namespace {
+
+// A directory can exist and still refuse files (permissions, a read-only or virtual file system
+// such as /proc); creating one is the only test that holds for every cause. The probe is removed
+// at once. @throws DemoError naming the directory and errno's text.
+void probe_directory(const fs::path& dir, const std::string& command) {
   const fs::path probe = dir / (".bflow-" + command + "-probe-" + std::to_string(::getpid()));
   const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
   if (fd < 0) {
@@ -70,6 +67,50 @@ void prepare_output_directory(const fs::path& dir, const std::string& command) {
   }
   ::close(fd);
   ::unlink(probe.c_str());
+}
+
+}  // namespace
+
+void prepare_output_directory(const fs::path& dir, const std::string& command) {
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec || !fs::is_directory(dir)) {
+    throw DemoError(command + ": cannot create directory " + quote(dir.string(), 200) + ": " +
+                    (ec ? ec.message() : std::string("a file of that name exists")));
+  }
+  probe_directory(dir, command);
+}
+
+void check_writable_file(const fs::path& path, const std::string& command) {
+  check_replaceable_file(path, command);
+  const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
+  std::error_code ec;
+  const fs::file_status status = fs::status(dir, ec);
+  if (!fs::is_directory(status)) {
+    throw DemoError(command + ": cannot write " + quote(path.string(), 200) + ": " +
+                    (fs::exists(status)
+                         ? "its directory " + quote(dir.string(), 200) + " is not a directory"
+                         : "its directory " + quote(dir.string(), 200) + " does not exist"));
+  }
+  probe_directory(dir, command);
+}
+
+fs::path resolved(const fs::path& path) {
+  std::error_code code;
+  fs::path p = fs::absolute(path, code);
+  for (int links = 0; links < 40 && fs::is_symlink(fs::symlink_status(p, code)); ++links) {
+    const fs::path target = fs::read_symlink(p, code);
+    if (code) break;
+    p = target.is_absolute() ? target : p.parent_path() / target;
+  }
+  const fs::path canonical = fs::weakly_canonical(p, code);
+  return code ? p.lexically_normal() : canonical;
+}
+
+bool same_file(const fs::path& a, const fs::path& b) {
+  if (resolved(a) == resolved(b)) return true;
+  std::error_code code;
+  return fs::exists(a, code) && fs::exists(b, code) && fs::equivalent(a, b, code) && !code;
 }
 
 namespace {

@@ -1,5 +1,5 @@
-// Helpers shared by the scenes of `bflow demo` (and the plots of `bflow ocp`): formatted text,
-// files, checks and gnuplot.
+// Helpers shared by the scenes of `bflow demo` (and the plots and files of `bflow ocp`, `orbit`
+// and `sweep`): formatted text, files and paths, checks and gnuplot.
 #ifndef BFLOW_CLI_DEMO_UTIL_H_
 #define BFLOW_CLI_DEMO_UTIL_H_
 
@@ -58,6 +58,20 @@ void prepare_output_directory(const std::filesystem::path& dir,
 /** @throws DemoError "<command>: ..." when `path` exists and is not a regular file (a
     directory, a device): the commands never replace one. */
 void check_replaceable_file(const std::filesystem::path& path, const std::string& command = "demo");
+
+/** Checks, before anything is computed, that write_file(path) can succeed: `path` does not
+    exist or is a regular file, and its directory exists and accepts a new file (a probe file,
+    removed at once). Creates nothing. @throws DemoError "<command>: ..." naming the file, the
+    directory and the reason. */
+void check_writable_file(const std::filesystem::path& path, const std::string& command = "demo");
+
+/** `path` made absolute, its links followed (also one whose target does not exist yet, which a
+    write would create), and normalised. */
+std::filesystem::path resolved(const std::filesystem::path& path);
+
+/** Whether a and b name one file: the same path once resolved, or one file by two names (a hard
+    link). */
+bool same_file(const std::filesystem::path& a, const std::filesystem::path& b);
 
 /** Writes `contents` to `path`: to a temporary file beside it, renamed onto `path` once whole,
     so that a failure leaves any earlier `path` as it was. @throws DemoError "<command>: ..."

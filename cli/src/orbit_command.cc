@@ -540,28 +540,6 @@ void plot_family(const fs::path& dir, const Plan& plan, const VaryAxis& axis,
 // ---------------------------------------------------------------------------------------------
 // The command.
 
-// `path` made absolute, its links followed (also one whose target does not exist yet, which a
-// write would create), and normalised.
-fs::path resolved(const fs::path& path) {
-  std::error_code code;
-  fs::path p = fs::absolute(path, code);
-  for (int links = 0; links < 40 && fs::is_symlink(fs::symlink_status(p, code)); ++links) {
-    const fs::path target = fs::read_symlink(p, code);
-    if (code) break;
-    p = target.is_absolute() ? target : p.parent_path() / target;
-  }
-  const fs::path canonical = fs::weakly_canonical(p, code);
-  return code ? p.lexically_normal() : canonical;
-}
-
-// Whether a and b name one file: the same path once resolved, or one file by two names (a hard
-// link).
-bool same_file(const fs::path& a, const fs::path& b) {
-  if (resolved(a) == resolved(b)) return true;
-  std::error_code code;
-  return fs::exists(a, code) && fs::exists(b, code) && fs::equivalent(a, b, code) && !code;
-}
-
 // Refuses an --output that --plot also needs: the plot's directory, a directory above it, or
 // one of the files drawn there. Before anything is created or computed. @throws InputError.
 void refuse_clashing_paths(const std::string& output, const std::string& plot,
@@ -604,7 +582,9 @@ int orbit_command(const OrbitCommandOptions& options, std::ostream& out, std::os
   if (options.output) refuse_empty(*options.output, "--output");
   if (options.plot) refuse_empty(*options.plot, "--plot");
   if (options.output && options.plot) refuse_clashing_paths(*options.output, *options.plot, files);
-  if (options.output) check_replaceable_file(*options.output, "orbit");
+  // A directory that is missing or refuses files is found now, not after the orbits are
+  // computed.
+  if (options.output) check_writable_file(*options.output, "orbit");
   if (options.plot) {
     prepare_output_directory(*options.plot, "orbit");
     for (const std::string& file : files) {

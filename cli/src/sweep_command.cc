@@ -109,28 +109,6 @@ class WriteError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-// `path` made absolute, its links followed (also one whose target does not exist yet, which a
-// write would create), and normalised.
-fs::path resolved(const fs::path& path) {
-  std::error_code code;
-  fs::path p = fs::absolute(path, code);
-  for (int links = 0; links < 40 && fs::is_symlink(fs::symlink_status(p, code)); ++links) {
-    const fs::path target = fs::read_symlink(p, code);
-    if (code) break;
-    p = target.is_absolute() ? target : p.parent_path() / target;
-  }
-  const fs::path canonical = fs::weakly_canonical(p, code);
-  return code ? p.lexically_normal() : canonical;
-}
-
-// Whether a and b name one file: the same path once resolved, or the same file by another name
-// (a hard link).
-bool same_file(const fs::path& a, const fs::path& b) {
-  if (resolved(a) == resolved(b)) return true;
-  std::error_code code;
-  return fs::exists(a, code) && fs::exists(b, code) && fs::equivalent(a, b, code) && !code;
-}
-
 // What an earlier run left in `path` to keep (--resume); refused (exit 2, the file untouched)
 // unless it is a regular file holding an output of this very sweep.
 SweepResumePoint resume_point(const std::string& path, const SweepWriter& writer) {

@@ -22,6 +22,23 @@ PeriodicOrbit attempt(const OrbitSolver& solve, double value, const Eigen::Vecto
   }
 }
 
+// Why a point the solver calls converged cannot start the next member (empty when it can): it
+// must have the guess's size and be finite, or the predictions would read past its end or carry
+// NaN on.
+std::string unusable_point(const Eigen::VectorXd& x, Eigen::Index size) {
+  if (x.size() != size) {
+    return "the solver returned a converged point with " + std::to_string(x.size()) +
+           " entries for a guess of " + std::to_string(size);
+  }
+  for (Eigen::Index i = 0; i < x.size(); ++i) {
+    if (!std::isfinite(x[i])) {
+      return "the solver returned a converged point whose entry " + std::to_string(i) + " is " +
+             format_number(x[i]);
+    }
+  }
+  return {};
+}
+
 }  // namespace
 
 std::vector<OrbitFamilyMember> continue_orbits(const std::vector<double>& values,
@@ -66,6 +83,14 @@ std::vector<OrbitFamilyMember> continue_orbits(const std::vector<double>& values
       member.predictor = "previous";
       member.orbit = attempt(solve, member.value, member.guess);
       member.runs = 2;
+    }
+    if (member.orbit.converged) {
+      const std::string why = unusable_point(member.orbit.x, guess.size());
+      if (!why.empty()) {
+        member.orbit.converged = false;
+        member.orbit.message = why + ": the member is not found and predicts no other";
+        member.decisions.push_back(member.orbit.message);
+      }
     }
     if (member.orbit.converged) {
       found.emplace_back(member.value, member.orbit.x);

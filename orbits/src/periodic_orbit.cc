@@ -152,6 +152,58 @@ void check_point(const char* who, const SegmentModel& model, const Eigen::Ref<co
   }
 }
 
+// OrbitOptions::flow, checked up front as the simulations would check it: a value they refuse
+// would otherwise surface only as a return map that fails, and Newton's run would end with
+// converged = false instead of the InvalidArgument the options deserve.
+void check_flow_options(const char* who, const SegmentModel& model, const FlowOptions& flow) {
+  const auto bad = [&](const std::string& what) {
+    throw InvalidArgument(std::string(who) + ": OrbitOptions::flow: " + what);
+  };
+  const IntegratorOptions& i = flow.integrator;
+  if (!(i.rtol >= IntegratorOptions::kMinRtol && std::isfinite(i.rtol))) {
+    bad("integrator.rtol must be finite and >= " + format_number(IntegratorOptions::kMinRtol) +
+        ", got " + format_number(i.rtol));
+  }
+  if (!(i.absolute_tolerance() >= IntegratorOptions::kMinAtol &&
+        std::isfinite(i.absolute_tolerance()))) {
+    bad("integrator.atol must be finite and >= " + format_number(IntegratorOptions::kMinAtol) +
+        ", got " + format_number(i.absolute_tolerance()));
+  }
+  if (!(i.initial_step >= 0.0 && std::isfinite(i.initial_step)) ||
+      !(i.min_step >= 0.0 && std::isfinite(i.min_step)) || !(i.max_step > 0.0)) {
+    bad("integrator.initial_step and min_step must be finite and >= 0 and max_step > 0, got " +
+        format_number(i.initial_step) + ", " + format_number(i.min_step) + ", " +
+        format_number(i.max_step));
+  }
+  if (i.max_steps < 1) bad("integrator.max_steps must be >= 1, got " + std::to_string(i.max_steps));
+  if (flow.backend != Backend::kDopri5 && flow.backend != Backend::kDop853 &&
+      flow.backend != Backend::kCvodesBdf && flow.backend != Backend::kCvodesAdams) {
+    bad("backend " + std::to_string(static_cast<int>(flow.backend)) + " is not a Backend");
+  }
+  if (flow.grouping != Grouping::kAutomatic && flow.grouping != Grouping::kFixedWindow &&
+      flow.grouping != Grouping::kNone) {
+    bad("grouping " + std::to_string(static_cast<int>(flow.grouping)) + " is not a Grouping");
+  }
+  if (!(flow.grouping_safety > 0.0 && std::isfinite(flow.grouping_safety)) ||
+      !(flow.simultaneity_window >= 0.0 && std::isfinite(flow.simultaneity_window)) ||
+      !(flow.near_simultaneity_band >= 1.0 && std::isfinite(flow.near_simultaneity_band))) {
+    bad("need a finite grouping_safety > 0, simultaneity_window >= 0 and near_simultaneity_band "
+        ">= 1, got " +
+        format_number(flow.grouping_safety) + ", " + format_number(flow.simultaneity_window) +
+        ", " + format_number(flow.near_simultaneity_band));
+  }
+  if (!(flow.grazing_threshold >= 0.0 && flow.grazing_threshold < 1.0)) {
+    bad("grazing_threshold must be in [0, 1), got " + format_number(flow.grazing_threshold));
+  }
+  // The section's crossing is an event of the search: with no event allowed there is no return.
+  if (flow.max_events < 1) bad("max_events must be >= 1, got " + std::to_string(flow.max_events));
+  if (flow.initial_sides && flow.initial_sides->size() != model.surfaces()) {
+    bad("initial_sides \"" + shortened(flow.initial_sides->str()) + "\" names " +
+        std::to_string(flow.initial_sides->size()) + " surfaces, the model has " +
+        std::to_string(model.surfaces()));
+  }
+}
+
 // The sides of the model's surfaces at x: the given ones or the signs of h(x).
 Signs sides_at(const SegmentModel& model, const VectorXd& x, const FlowOptions& flow) {
   const int n = model.surfaces();
@@ -215,7 +267,23 @@ double piece_count(const FlowDerivative& map) {
 // |B^T DP(B c) - c - rhs|_2.
 double equation_residual(const FlowDerivative& map, const MatrixXd& basis, const VectorXd& c,
                          const VectorXd& rhs) {
-  return (basis.transpose() * map.apply(basis * c) - c - rhs).norm();
+  return (basis.transpose() * map.apply(basis * c) - c - rhs).stableNorm();
+}
+
+// d^2/dt^2 s(phi_t(x)) at t = 0, the derivative of Ds . F along F by a central difference:
+// where the flow is tangent to the section, its sign says to which side the flow leaves it.
+double section_acceleration(const SegmentModel& model, const PoincareSection& section,
+                            const VectorXd& x, Signs sides, const VectorXd& f) {
+  const double speed = inf_norm(f);
+  if (!(speed > 0.0)) return 0.0;
+  const double h = 1e-6 * (1.0 + inf_norm(x)) / speed;
+  const auto rate = [&](const VectorXd& y) {
+    VectorXd fy(y.size());
+    model.field(y.data(), sides, fy.data());
+    return section.gradient(y).dot(fy);
+  };
+  const double acceleration = (rate(x + h * f) - rate(x - h * f)) / (2.0 * h);
+  return std::isfinite(acceleration) ? acceleration : 0.0;
 }
 
 }  // namespace
@@ -335,12 +403,24 @@ NewtonEquationSolution solve_newton_equation(const FlowDerivative& map,
   if (!basis.allFinite() || !rhs.allFinite()) {
     throw InvalidArgument("solve_newton_equation: the basis or the right-hand side is not finite");
   }
+  if (!(max_pieces >= 1 && static_cast<unsigned long>(max_pieces) <= FlowDerivative::kMaxPieces)) {
+    throw InvalidArgument("solve_newton_equation: max_pieces must be in [1, " +
+                          std::to_string(FlowDerivative::kMaxPieces) +
+                          "] (FlowDerivative::kMaxPieces), got " + std::to_string(max_pieces));
+  }
   NewtonEquationSolution out;
   const MatrixXd identity = MatrixXd::Identity(m, m);
-  const double scale = 1.0 + rhs.norm();
-  // A solution of the equation on the map itself, to round-off of the pieces' size.
+  // stableNorm: |rhs| and |c| overflow only beyond the double range, not when their squares do.
+  const double scale = 1.0 + rhs.stableNorm();
+  if (!std::isfinite(scale)) {
+    throw InvalidArgument("solve_newton_equation: |rhs| overflows (its largest entry is " +
+                          format_number(rhs.cwiseAbs().maxCoeff()) + ")");
+  }
+  // A solution of the equation on the map itself, to round-off of the pieces' size; a residual
+  // or a c whose size overflows proves nothing.
   auto solves = [&](const VectorXd& c, double residual) {
-    return residual <= 1e-9 * (scale + c.norm());
+    const double bound = 1e-9 * (scale + c.stableNorm());
+    return std::isfinite(residual) && std::isfinite(bound) && residual <= bound;
   };
   const MatrixXd at_rhs = basis.transpose() * map.active_jacobian(basis * rhs) * basis;
   auto same_piece = [](const MatrixXd& a, const MatrixXd& b) {
@@ -417,6 +497,7 @@ ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
                      const Eigen::Ref<const VectorXd>& x_in, const OrbitOptions& options) {
   check_options(options);
   check_point("return_map", model, x_in);
+  check_flow_options("return_map", model, options.flow);
   const VectorXd x = x_in;
   const int n = model.surfaces();
   const int d = model.states();
@@ -447,15 +528,25 @@ ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
   }
   const double earliest = std::max(options.min_return_time, floor / speed);
   // Locate the return on the model with the section as an extra surface, window by window. The
-  // section's side at x: its sign, and on the section the side the flow heads to (the side -
-  // when it does not move across it to first order: a crossing that follows at once is earlier
-  // than `earliest` and does not count).
+  // section's side at x: its sign, and on the section (to the projection's round-off) the side
+  // the flow heads to, to first order or, where the flow is tangent to the section (a body at
+  // rest on a section through its height), to second. The driver takes a surface found on the
+  // other side of its side bit for one being crossed: a wrong side at a tangent start would
+  // lump the section into the first event of the model (a touchdown whose normals the
+  // section's then makes dependent) instead of being crossed where the flow meets it.
   const SectionModel augmented(model, section);
   FlowOptions search = options.flow;
   const double s0 = section.value(x);
-  const double rate0 = section.gradient(x).dot(f0);
+  const VectorXd g0 = section.gradient(x);
+  const double rate0 = g0.dot(f0);
+  bool above = s0 > 0.0;
+  if (std::abs(s0) <= 1e-14 * (1.0 + inf_norm(x)) * g0.norm()) {
+    above = std::abs(rate0) > 1e-12 * g0.norm() * f0.norm()
+                ? rate0 > 0.0
+                : section_acceleration(model, section, x, sides, f0) > 0.0;
+  }
   std::uint64_t bits = sides.bits();
-  if (s0 > 0.0 || (s0 == 0.0 && rate0 > 0.0)) bits |= std::uint64_t{1} << n;
+  if (above) bits |= std::uint64_t{1} << n;
   Signs aug_sides(n + 1, bits);
   VectorXd y = x;
   double elapsed = 0.0;
@@ -540,6 +631,11 @@ ReturnMap return_map(const SegmentModel& model, const PoincareSection& section,
 
 namespace {
 
+// A converged point whose trajectory moves by at most kRestMotionPerTolerance x min(tolerance,
+// kRestCheckTolerance) x (1 + |x|_inf) over the period is an equilibrium (find_periodic_orbit).
+constexpr double kRestMotionPerTolerance = 1000.0;
+constexpr double kRestCheckTolerance = 1e-8;
+
 // The largest distance |phi_t(x) - x|_inf over one period: at the events and at 32 equal times.
 double excursion(const SegmentModel& model, const VectorXd& x, const ReturnMap& map,
                  const FlowOptions& flow) {
@@ -569,6 +665,7 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
                                   const OrbitOptions& options) {
   check_options(options);
   check_point("find_periodic_orbit", model, x_guess);
+  check_flow_options("find_periodic_orbit", model, options.flow);
   check_section("find_periodic_orbit", section, model.states(), x_guess);
   PeriodicOrbit orbit;
   VectorXd x = projected(section, x_guess, "find_periodic_orbit: the guess");
@@ -606,6 +703,10 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
   }
   for (const std::string& d : current.decisions) orbit.decisions.push_back(d);
   double step_length = 0.0;
+  // Newton's tolerance: the caller's, tightened to kRestCheckTolerance where the equilibrium
+  // check needs it (`refining`).
+  double tolerance = options.tolerance;
+  bool refining = false;
   NewtonEquationSolution last_solve;
   bool solved_once = false;
   for (int iteration = 0;; ++iteration) {
@@ -628,15 +729,33 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
     orbit.steps.push_back(step);
     if (options.progress) options.progress(step);
     orbit.newton_iterations = iteration;
-    if (residual <= options.tolerance * (1.0 + inf_norm(x))) {
+    const double scale = 1.0 + inf_norm(x);
+    if (residual <= tolerance * scale && tolerance > kRestCheckTolerance) {
+      // At a loose tolerance a point near a rest point the iterates slide to meets it as well as
+      // a point of a genuine orbit: where the trajectory stays within 1000 tolerances of x,
+      // Newton goes on to kRestCheckTolerance, where the two part (the first stops moving, the
+      // second keeps its motion).
+      const double reach = excursion(model, x, current, options.flow);
+      if (!(reach > kRestMotionPerTolerance * tolerance * scale)) {
+        orbit.decisions.push_back(
+            "iteration " + std::to_string(iteration) + ": the trajectory stays within " +
+            format_number(reach) + " of x, not more than 1000 times Newton's tolerance: " +
+            "Newton went on to |P(x) - x| <= 1e-8 (1 + |x|) to tell an orbit from a rest point");
+        tolerance = kRestCheckTolerance;
+        refining = true;
+      } else {
+        orbit.converged = true;
+        break;
+      }
+    }
+    if (residual <= tolerance * scale) {
       orbit.converged = true;
       break;
     }
     if (iteration >= options.max_newton_iterations) {
       orbit.message = "Newton's method did not converge in " + std::to_string(iteration) +
                       " iterations (OrbitOptions::max_newton_iterations): |P(x) - x| = " +
-                      format_number(residual) + " > " +
-                      format_number(options.tolerance * (1.0 + inf_norm(x)));
+                      format_number(residual) + " > " + format_number(tolerance * scale);
       break;
     }
     const MatrixXd basis = orthogonal_complement(section_gradient(section, x));
@@ -711,19 +830,30 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
   orbit.notices = current.notices;
   orbit.tangent_basis = orthogonal_complement(section_gradient(section, x));
   orbit.return_map = std::move(current.derivative);
+  if (refining && !orbit.converged) {
+    // The point met the caller's tolerance (the line search only ever lowers the residual);
+    // only the refinement for the equilibrium check did not finish.
+    orbit.decisions.push_back("refining for the equilibrium check stopped: " + orbit.message);
+    orbit.message.clear();
+    orbit.converged = true;
+  }
   if (orbit.converged) {
-    // A point whose trajectory stays, over the whole "period", within 1000 times Newton's
-    // tolerance of it is indistinguishable from an equilibrium (the iterates may slide to rest
-    // while P(x) - x shrinks): no periodic orbit.
+    // Near a rest point that the flow spirals into with multiplier mu per turn, P(x) - x is about
+    // (mu - 1)(x - x_rest): Newton's iterates may slide to rest while the residual shrinks, and
+    // stop where the trajectory stays within about 2 / |1 - mu| residuals of x. A trajectory that
+    // stays within 1000 times Newton's tolerance (at most kRestCheckTolerance, to which a looser
+    // run was refined above) of x is therefore an equilibrium.
     const double reach = excursion(model, x, current, options.flow);
-    const double resolution = 1000.0 * options.tolerance * (1.0 + inf_norm(x));
+    const double resolution = kRestMotionPerTolerance *
+                              std::min(options.tolerance, kRestCheckTolerance) *
+                              (1.0 + inf_norm(x));
     if (!(reach > resolution)) {
       orbit.converged = false;
       orbit.message =
-          "the iteration ended at an equilibrium, not a periodic orbit: over the return "
-          "time " +
+          "the iteration ended at an equilibrium, not a periodic orbit: over the return time " +
           format_number(current.time) + " the trajectory stays within " + format_number(reach) +
-          " of x, not more than 1000 times Newton's tolerance (" + format_number(resolution) + ")";
+          " of x, not more than 1000 x min(Newton's tolerance, 1e-8) x (1 + |x|) = " +
+          format_number(resolution);
     }
   }
   if (orbit.converged && options.stability) {

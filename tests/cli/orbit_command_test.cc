@@ -409,6 +409,43 @@ TEST(OrbitCommandTest, OutputThatThePlotNeedsIsRefusedFirst) {
   fs::remove_all(dir);
 }
 
+// An --output whose directory is missing, is a file or refuses files (/proc, even to root) is
+// refused before the first Newton step (no progress line) with one line naming it, and nothing
+// is created.
+TEST(OrbitCommandTest, OutputThatCannotBeWrittenIsRefusedBeforeAnyOrbit) {
+  const fs::path dir = fs::path(::testing::TempDir()) / "bflow_orbit_unwritable";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  std::ofstream(dir / "file") << "x";
+  const std::string missing = (dir / "missing" / "orbit.json").string();
+  const std::string under_file = (dir / "file" / "orbit.json").string();
+  struct Case {
+    std::string output;
+    std::string line;
+  };
+  const std::vector<Case> cases = {
+      {missing, "orbit: cannot write \"" + missing + "\": its directory \"" +
+                    (dir / "missing").string() + "\" does not exist"},
+      {under_file, "orbit: cannot write \"" + under_file + "\": its directory \"" +
+                       (dir / "file").string() + "\" is not a directory"},
+      {"/proc/bflow-orbit.json", "orbit: cannot write in directory \"/proc\": "},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.output);
+    const Outcome r = command_line({"orbit", "--scene", "biped", "--output", c.output});
+    EXPECT_EQ(r.code, kExitFailure);
+    EXPECT_EQ(r.out, "");
+    EXPECT_THAT(r.err, StartsWith("error: " + c.line));
+    EXPECT_EQ(lines_of(r.err).size(), 1u) << r.err;
+  }
+  EXPECT_FALSE(fs::exists(dir / "missing"));
+  EXPECT_FALSE(fs::exists("/proc/bflow-orbit.json"));
+  std::vector<fs::path> left;
+  for (const auto& entry : fs::directory_iterator(dir)) left.push_back(entry.path());
+  EXPECT_EQ(left, std::vector<fs::path>{dir / "file"});
+  fs::remove_all(dir);
+}
+
 TEST(OrbitCommandTest, PlotDrawsTheOrbitAndTheGrowthRate) {
   if (!gnuplot_on_path()) GTEST_SKIP() << "gnuplot is not installed";
   const fs::path dir = fs::path(::testing::TempDir()) / "bflow_orbit_plot";

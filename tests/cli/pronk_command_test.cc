@@ -129,6 +129,35 @@ TEST(PronkCommandTest, OrbitWithNoOptionIsTheStableHop) {
   EXPECT_EQ(count, j["newton_iterations"].get<int>() + 1);
 }
 
+// The section y = 0.9 crossed downwards, from the scene's guess at rest at height 1, and the
+// apex at a loose Newton tolerance: both find the stable hop (apex 0.977396, period 0.764871).
+// Through 0.9 the body falls at -sqrt(2 g (apex - 0.9)) = -1.231.
+TEST(PronkCommandTest, DownwardSectionAndLooseToleranceFindTheHop) {
+  OrbitCommandOptions down = pronk();
+  down.section = "-x1=0.9";
+  down.quiet = true;
+  const Outcome r = orbit(down);
+  ASSERT_EQ(r.code, kExitOk) << r.err;
+  const Json j = Json::parse(r.out);
+  ASSERT_TRUE(j["converged"].get<bool>()) << j["message"];
+  const Eigen::VectorXd x = vector_of(j["x"]);
+  EXPECT_NEAR(x[1], 0.9, 1e-14);
+  EXPECT_NEAR(x[4], -std::sqrt(2.0 * 9.8 * (0.977396 - 0.9)), 1e-5);
+  EXPECT_NEAR(j["period"].get<double>(), 0.764871, 1e-6);
+  EXPECT_EQ(j["stability"], "stable");
+
+  for (const char* tol : {"2e-3", "1e-2"}) {
+    OrbitCommandOptions loose = pronk();
+    loose.tol = tol;
+    loose.quiet = true;
+    const Outcome l = orbit(loose);
+    ASSERT_EQ(l.code, kExitOk) << tol << ": " << l.err;
+    const Json k = Json::parse(l.out);
+    ASSERT_TRUE(k["converged"].get<bool>()) << k["message"];
+    EXPECT_NEAR(vector_of(k["x"])[1], 0.977396, 10.0 * std::stod(tol));
+  }
+}
+
 TEST(PronkCommandTest, FamilyAlongJKeepsTheOrbitAndCrossesTheVerdict) {
   OrbitCommandOptions o = pronk();
   o.quiet = true;

@@ -205,13 +205,14 @@ TEST_F(BipedOrbit, SectionBelowTheApexIsFoundFromGuessesThatDoNotCrossItUpwards)
 
 // Without thrust the biped comes to rest standing: Newton's iterates slide to that equilibrium
 // while |P(x) - x| shrinks with the dying oscillation. That is no periodic orbit, at the default
-// tolerance or a tight one.
+// tolerance, a tight one, or loose ones (where Newton's criterion holds all around the rest
+// point, so the run goes on to 1e-8 before it is judged: docs/orbits.md).
 TEST_F(BipedOrbit, IteratesSlidingToRestAreAnEquilibriumNotAnOrbit) {
   BipedParams passive = hopper();
   passive.thrust = 0.0;
   const BipedModeDampingScene scene = make_biped_mode_damping(passive);
   const auto model = adapt(scene);
-  for (double tolerance : {1e-8, 1e-12}) {
+  for (double tolerance : {1e-8, 1e-12, 1e-6, 2e-3}) {
     OrbitOptions options;
     options.tolerance = tolerance;
     const PeriodicOrbit orbit = find_periodic_orbit(model, kApex, guess(), options);

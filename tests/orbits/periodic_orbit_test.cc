@@ -12,6 +12,7 @@
 #include <complex>
 #include <cstdint>
 #include <cstdio>
+#include <functional>
 #include <limits>
 #include <string>
 #include <utility>
@@ -670,6 +671,122 @@ TEST(NewtonEquation, TwoSolutionsOrNoneAreReported) {
       InvalidArgument);
 }
 
+// A limit cycle with no event: r' = k r (1 - r^2 / R^2), theta' = omega. The circle r = R is
+// the orbit, period 2 pi / omega, and a radial perturbation decays as e^{-2 k t} (the one
+// nontrivial multiplier). The section q = 0 crossed upwards meets it at (R, 0).
+struct SmallCycle {
+  static constexpr int kStates = 2;
+  static constexpr int kSurfaces = 0;
+  double radius = 1e-6, k = 0.5, omega = kTwoPi;
+  template <typename T>
+  void field(const T* x, Signs, T* xdot) const {
+    const T u = T(k) * (T(1.0) - (x[0] * x[0] + x[1] * x[1]) / T(radius * radius));
+    xdot[0] = u * x[0] - T(omega) * x[1];
+    xdot[1] = u * x[1] + T(omega) * x[0];
+  }
+  template <typename T>
+  void surfaces(const T*, T*) const {}
+};
+
+// A periodic orbit whose whole motion, 2e-6, is small against the state's size but far above
+// 1000 times Newton's tolerance: it is an orbit, not an equilibrium. It has no event, so only
+// the samples between events can see it move; a threshold of 1e6 times the tolerance, 1e-5,
+// would call it one.
+TEST(SmallCycleOrbit, AnOrbitWithoutEventsThatMovesLittleIsNoEquilibrium) {
+  const SmallCycle cycle;
+  OrbitOptions options;
+  options.tolerance = 1e-11;
+  options.flow.integrator.atol = 1e-20;  // states of order 1e-6
+  const PeriodicOrbit orbit =
+      find_periodic_orbit(adapt(cycle), CoordinateSection{1, 0.0, 1.0},
+                          Eigen::Vector2d(1.3 * cycle.radius, 0.0), options);
+  ASSERT_TRUE(orbit.converged) << orbit.message;
+  EXPECT_TRUE(orbit.events.empty());
+  // |P(x) - x| <= 1e-11 (1 + |x|) and the multiplier e^{-1} put x within 1.6e-11 of (R, 0).
+  // Achieved: |x - (R, 0)| 7e-14, period 1 + 9e-13, multiplier e^{-1} - 4.9e-8: x is 7e-8 of R
+  // off the circle, which moves the multiplier by about as much.
+  EXPECT_LT((orbit.x - Eigen::Vector2d(cycle.radius, 0.0)).lpNorm<Eigen::Infinity>(), 1.6e-11);
+  EXPECT_NEAR(orbit.period, 1.0, 1e-9);
+  ASSERT_EQ(orbit.bracket.multipliers.size(), 1u);
+  EXPECT_NEAR(orbit.bracket.multipliers[0].real(), std::exp(-2.0 * cycle.k), 2e-7);
+  EXPECT_EQ(orbit.stability, OrbitStability::kStable);
+  std::printf("small cycle: |x - x*| %.1e, period - 1 %.1e, multiplier - e^-1 %.1e\n",
+              (orbit.x - Eigen::Vector2d(cycle.radius, 0.0)).lpNorm<Eigen::Infinity>(),
+              orbit.period - 1.0, orbit.bracket.multipliers[0].real() - std::exp(-1.0));
+}
+
+// On the identity map, L(c) - c = rhs has no solution for rhs != 0: the least-norm step c = 0
+// leaves the residual |rhs|. For rhs = (1e300, 1e300) that residual's square overflows; it is
+// still no solution, and every number reported is finite. On 0.5 I the same rhs is solved
+// exactly (c = -2 rhs). max_pieces outside [1, kMaxPieces] is refused.
+TEST(NewtonEquation, AHugeResidualProvesNoSolution) {
+  FlowDerivative identity(2);
+  identity.append_transition(Eigen::Matrix2d::Identity());
+  const Eigen::MatrixXd basis = Eigen::Matrix2d::Identity();
+  const Eigen::Vector2d rhs(1e300, 1e300);
+  const NewtonEquationSolution none = solve_newton_equation(identity, basis, rhs);
+  EXPECT_TRUE(none.solutions.empty());
+  EXPECT_EQ(none.c, Eigen::Vector2d::Zero());
+  EXPECT_NEAR(none.residual, std::sqrt(2.0) * 1e300, 1e285);
+  FlowDerivative half(2);
+  half.append_transition(0.5 * Eigen::Matrix2d::Identity());
+  const NewtonEquationSolution solved = solve_newton_equation(half, basis, rhs);
+  ASSERT_EQ(solved.solutions.size(), 1u);
+  EXPECT_EQ(solved.c, -2.0 * rhs);
+  EXPECT_EQ(solved.residual, 0.0);
+  const FlowDerivative& map = half;
+  for (long max_pieces : {-1L, 0L, static_cast<long>(FlowDerivative::kMaxPieces) + 1}) {
+    EXPECT_THAT(testing::message_of([&] {
+                  solve_newton_equation(map, basis, Eigen::Vector2d(1.0, 3.0), max_pieces);
+                }),
+                HasSubstr("max_pieces must be in [1, 100000]"))
+        << max_pieces;
+  }
+  EXPECT_THAT(testing::message_of(
+                  [&] { solve_newton_equation(map, basis, Eigen::Vector2d(1.5e308, 1.5e308)); }),
+              HasSubstr("overflows"));
+}
+
+// Flow options that every simulation would refuse are refused before the first one, naming the
+// value, instead of ending Newton's run with converged = false.
+TEST(PeriodicOrbitInput, FlowOptionsOutOfRangeAreRefusedUpFront) {
+  const auto model = adapt(CornerOrbit::with_surfaces(2));
+  struct Case {
+    std::function<void(FlowOptions&)> set;
+    std::string quoted;
+  };
+  const std::vector<Case> cases = {
+      {[](FlowOptions& f) { f.integrator.rtol = 0.0; }, "rtol must be finite and >= 1e-15, got 0"},
+      {[](FlowOptions& f) { f.integrator.rtol = std::nan(""); }, "got nan"},
+      {[](FlowOptions& f) { f.integrator.atol = -1.0; }, "atol must be finite"},
+      {[](FlowOptions& f) { f.integrator.max_steps = 0; }, "max_steps must be >= 1, got 0"},
+      {[](FlowOptions& f) { f.integrator.initial_step = std::nan(""); }, "got nan, 1e-14, inf"},
+      {[](FlowOptions& f) { f.integrator.max_step = 0.0; }, "max_step > 0"},
+      {[](FlowOptions& f) { f.initial_sides = Signs::parse("+"); },
+       "names 1 surfaces, the model has 2"},
+      {[](FlowOptions& f) { f.max_events = 0; }, "max_events must be >= 1, got 0"},
+      {[](FlowOptions& f) { f.grouping_safety = 0.0; }, "grouping_safety > 0"},
+      {[](FlowOptions& f) { f.grazing_threshold = std::nan(""); }, "grazing_threshold"},
+      {[](FlowOptions& f) { f.backend = static_cast<Backend>(7); }, "backend 7"},
+  };
+  for (const Case& c : cases) {
+    OrbitOptions options;
+    c.set(options.flow);
+    for (int call = 0; call < 2; ++call) {
+      const std::string message = testing::message_of([&] {
+        if (call == 0) {
+          find_periodic_orbit(model, CornerOrbitSection{}, on_section(1.1, 0.0), options);
+        } else {
+          return_map(model, CornerOrbitSection{}, on_section(1.1, 0.0), options);
+        }
+      });
+      EXPECT_THAT(message, HasSubstr(c.quoted)) << message;
+      EXPECT_THAT(message, HasSubstr("OrbitOptions::flow")) << message;
+      EXPECT_LE(message.size(), 500u);
+    }
+  }
+}
+
 // From guesses below the orbit, the piece active at Newton's right-hand side -(P(x) - x) is not
 // the piece active at the step: the step sits where the active piece changes during the solve.
 // Each equation has exactly one solution and Newton converges to the closed-form orbit.
@@ -805,6 +922,74 @@ TEST(CornerOrbitFamily, SixPiecesAlongAFamilyThatLosesAMemberInTheMiddle) {
   EXPECT_THROW(continue_orbits({1.0, std::nan("")}, on_section(1.0, 0.0, 4),
                                [](double, const Eigen::VectorXd&) { return PeriodicOrbit{}; }),
                InvalidArgument);
+}
+
+// A solver whose points lie on the unit circle, x*(v) = (cos v, sin v), and that converges only
+// from a guess within 1.5 of x*(v): at v = pi the secant of the members at 0 and pi / 2 predicts
+// (-1, 2), 2 away, while the member at pi / 2, (0, 1), is sqrt 2 away. The member is found only
+// by solving again from the last member found.
+TEST(OrbitFamilyRetry, AFailedSecantStartIsSolvedAgainFromTheLastMemberFound) {
+  std::vector<Eigen::VectorXd> starts;
+  const OrbitSolver solve = [&](double v, const Eigen::VectorXd& guess) {
+    starts.push_back(guess);
+    PeriodicOrbit orbit;
+    orbit.x = Eigen::Vector2d(std::cos(v), std::sin(v));
+    orbit.converged = (guess - orbit.x).norm() < 1.5;
+    if (!orbit.converged) orbit.message = "too far";
+    return orbit;
+  };
+  const std::vector<OrbitFamilyMember> family =
+      continue_orbits({0.0, 0.5 * kPi, kPi}, Eigen::Vector2d(1.0, 0.0), solve);
+  ASSERT_EQ(family.size(), 3u);
+  ASSERT_TRUE(family[1].orbit.converged);
+  ASSERT_EQ(starts.size(), 4u);
+  EXPECT_LT((starts[2] - Eigen::Vector2d(-1.0, 2.0)).norm(), 1e-15);  // the secant's
+  EXPECT_EQ(starts[3], family[1].orbit.x);
+  EXPECT_TRUE(family[2].orbit.converged) << family[2].orbit.message;
+  EXPECT_EQ(family[2].runs, 2);
+  EXPECT_EQ(family[2].predictor, "previous");
+  EXPECT_EQ(family[2].guess, family[1].orbit.x);
+  ASSERT_EQ(family[2].decisions.size(), 1u);
+  EXPECT_THAT(family[2].decisions[0], HasSubstr("secant prediction did not converge (too far)"));
+}
+
+// A solver that calls points converged that cannot start another member: one of another size
+// (the secant would read past its end) and one with a NaN. Neither counts as found, both say
+// why, and every later run starts from a finite point of the guess's size.
+TEST(OrbitFamilyInput, ConvergedPointsOfAnotherSizeOrNotFiniteAreNotMembers) {
+  std::vector<Eigen::VectorXd> starts;
+  const OrbitSolver solve = [&](double v, const Eigen::VectorXd& guess) {
+    starts.push_back(guess);
+    PeriodicOrbit orbit;
+    orbit.converged = true;
+    orbit.x = Eigen::Vector2d(v, 2.0 * v);
+    if (v == 1.0) orbit.x = Eigen::Vector3d(1.0, 2.0, 3.0);
+    if (v == 3.0) orbit.x[1] = std::numeric_limits<double>::quiet_NaN();
+    return orbit;
+  };
+  const std::vector<OrbitFamilyMember> family =
+      continue_orbits({0.0, 1.0, 2.0, 3.0, 4.0, 5.0}, Eigen::Vector2d(0.5, 0.5), solve);
+  ASSERT_EQ(family.size(), 6u);
+  EXPECT_FALSE(family[1].orbit.converged);
+  EXPECT_THAT(family[1].orbit.message, HasSubstr("3 entries for a guess of 2"));
+  EXPECT_FALSE(family[3].orbit.converged);
+  EXPECT_THAT(family[3].orbit.message, HasSubstr("entry 1 is nan"));
+  ASSERT_EQ(family[3].decisions.size(), 1u);
+  for (std::size_t k : {0u, 2u, 4u, 5u}) {
+    EXPECT_TRUE(family[k].orbit.converged) << k << ": " << family[k].orbit.message;
+  }
+  for (const Eigen::VectorXd& start : starts) {
+    ASSERT_EQ(start.size(), 2);
+    EXPECT_TRUE(start.allFinite()) << start.transpose();
+  }
+  // Member 2 from member 0 (the only one found before it); 4 from the secant of 0 and 2; 5 from
+  // the secant of 2 and 4: the exact points on the line x = (v, 2 v).
+  EXPECT_EQ(family[2].predictor, "previous");
+  EXPECT_EQ(family[2].guess, Eigen::Vector2d(0.0, 0.0));
+  EXPECT_EQ(family[4].predictor, "secant");
+  EXPECT_LT((family[4].guess - Eigen::Vector2d(4.0, 8.0)).norm(), 1e-14);
+  EXPECT_EQ(family[5].predictor, "secant");
+  EXPECT_LT((family[5].guess - Eigen::Vector2d(5.0, 10.0)).norm(), 1e-14);
 }
 
 }  // namespace

@@ -17,6 +17,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -331,6 +332,53 @@ TEST_F(PronkOrbit, StateAloneInTheErrorNormLoosensTheBracket) {
   EXPECT_LT(worst, 1e-3);
   EXPECT_NEAR(plain.growth_rate_lower, o.growth_rate_lower, 1e-6);
   EXPECT_LT(plain.growth_rate_upper, 0.8);
+}
+
+// The section y = 0.9 crossed downwards, from the guess at rest at height 1: projected onto the
+// section the guess is at rest on it, where the flow is tangent to the section and falls away
+// from it (s = 0.9 - y grows as g t^2 / 2). Its return is the next downward crossing, after a
+// bounce, and Newton finds the same hop as through the apex, falling through 0.9 at
+// ydot = -sqrt(2 g (apex - 0.9)).
+TEST(PronkOrbitSections, ASectionCrossedDownwardsIsFoundFromTheGuessAtRest) {
+  const PronkParams p;
+  const PeriodicOrbit o = find_periodic_orbit(adapt(make_pronk(p)), CoordinateSection{1, 0.9, -1.0},
+                                              guess(), accurate());
+  ASSERT_TRUE(o.converged) << o.message;
+  const Hop hand = vertical_orbit(p, 0.9);
+  // Achieved: ydot 5e-10 and period 2e-9 from the hand hop's; bounds as for the apex.
+  EXPECT_NEAR(o.x[1], 0.9, 1e-14);
+  EXPECT_NEAR(o.x[4], -std::sqrt(2.0 * p.g * (hand.apex - 0.9)), 1e-7);
+  EXPECT_NEAR(o.period, hand.time, 2e-8);
+  for (int i : {0, 2, 3, 5}) EXPECT_NEAR(o.x[i], 0.0, 1e-9) << "state " << i;
+  EXPECT_EQ(o.stability, OrbitStability::kStable);
+  ASSERT_FALSE(o.decisions.empty());
+  EXPECT_NE(o.decisions.front().find("does not cross the section"), std::string::npos)
+      << o.decisions.front();
+  std::printf("section y = 0.9 downwards: ydot %.10f (hand %.10f), period %.10f (hand %.10f)\n",
+              o.x[4], -std::sqrt(2.0 * p.g * (hand.apex - 0.9)), o.period, hand.time);
+}
+
+// At a loose Newton tolerance the hop is still a hop. Its trajectory stays within 3.1 of x (the
+// vertical speed swings by that much), less than 1000 times the tolerance (1000 x 2e-3 x
+// (1 + |x|) = 4): where a rest point the iterates slide to would look the same, Newton goes on to
+// 1e-8, where the hop keeps its motion and is found as at the default tolerance.
+TEST(PronkOrbitSections, ALooseToleranceFindsTheHopNotAnEquilibrium) {
+  const PronkParams p;
+  const Hop hand = vertical_orbit(p, 0.9);
+  for (double tolerance : {2e-3, 1e-2, 0.5}) {
+    OrbitOptions options = accurate();
+    options.tolerance = tolerance;
+    options.stability = false;
+    const PeriodicOrbit o = find_periodic_orbit(adapt(make_pronk(p)), kApex, guess(), options);
+    ASSERT_TRUE(o.converged) << "tolerance " << tolerance << ": " << o.message;
+    // Achieved: as at the default tolerance (2e-9 from the hand hop).
+    EXPECT_NEAR(o.x[1], hand.apex, 2e-8) << tolerance;
+    EXPECT_NEAR(o.period, hand.time, 2e-8) << tolerance;
+    EXPECT_LE(o.residual, 1e-8 * (1.0 + o.x.lpNorm<Eigen::Infinity>()));
+    ASSERT_EQ(o.decisions.size(), 1u) << tolerance;
+    EXPECT_NE(o.decisions[0].find("to tell an orbit from a rest point"), std::string::npos)
+        << o.decisions[0];
+  }
 }
 
 TEST(PronkOrbitDesign, FootGradientMatchesCentralDifferences) {

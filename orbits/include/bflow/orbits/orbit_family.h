@@ -16,7 +16,10 @@
 // member is solved once more from the last point found, and member.decisions says so. A member
 // that is not found (a Newton run that does not converge, or a solver that throws
 // InvalidArgument: its message is the member's message) does not end the family: the next member
-// is predicted from the members found before it, as if the one not found were not there.
+// is predicted from the members found before it, as if the one not found were not there. A point
+// the solver calls converged but that is not finite or not of the guess's size is no member
+// found either (converged is set to false, the message and decisions say why): it never starts
+// another member's run.
 #ifndef BFLOW_ORBITS_ORBIT_FAMILY_H_
 #define BFLOW_ORBITS_ORBIT_FAMILY_H_
 
@@ -37,7 +40,8 @@ struct OrbitFamilyMember {
   Eigen::VectorXd guess;
   /** "secant", "previous" (the last member found) or "guess" (the caller's). */
   std::string predictor;
-  /** A secant prediction that failed and was replaced, with the reason. */
+  /** A secant prediction that failed and was replaced, with the reason; a converged point
+      refused (not finite, or not of the guess's size). */
   std::vector<std::string> decisions;
   /** Newton runs made for this member (1 or 2). */
   int runs = 0;

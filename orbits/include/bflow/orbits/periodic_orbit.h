@@ -29,9 +29,13 @@
 // backtracks until |P(x) - x| decreases. It converges to unstable orbits as well as stable ones;
 // the iterates stay on the section (projected back along Ds for a curved section). A guess that
 // does not cross the section upwards is replaced by its return P(guess); a run that ends where
-// the trajectory stays within 1000 times the tolerance of x over the return time is an
-// equilibrium, not an orbit (converged = false). Every loop is bounded by an option and names it
-// when it ends there (docs/orbits.md).
+// the trajectory stays within 1000 min(tolerance, 1e-8) (1 + |x|_inf) of x over the return time
+// (sampled at the events and at 32 equal times) is an equilibrium, not an orbit (converged =
+// false): the iterates can slide to rest while |P(x) - x| shrinks. At a tolerance above 1e-8, a
+// point that meets it while its trajectory stays within 1000 tolerances of x is refined by
+// further Newton steps to 1e-8 first (decisions says so): there a genuine orbit keeps its
+// motion and a rest point loses it. Every loop is bounded by an option and names it when it
+// ends there (docs/orbits.md).
 //
 // The verdict. L = DP(x*) restricted to the tangent space T of the section is piecewise linear and
 // positively homogeneous: one linear piece per combination of the events' crossing orders, each
@@ -193,7 +197,8 @@ struct OrbitNewtonStep {
 
 struct OrbitOptions {
   FlowOptions flow = default_orbit_flow_options();
-  /** Converged when |P(x) - x|_inf <= tolerance (1 + |x|_inf). */
+  /** Converged when |P(x) - x|_inf <= tolerance (1 + |x|_inf) (tightened to 1e-8 where the
+      equilibrium check needs it: see the header comment). */
   double tolerance = 1e-8;
   int max_newton_iterations = 40;
   /** Backtracking halvings per Newton step (<= kMaxBacktracks); a step that shrinks below the
@@ -341,7 +346,9 @@ ReturnMap return_map(const SegmentModel& model, const Section& section,
 /** The fixed point of P near x_guess (projected onto the section first), its return map and,
     unless options.stability is false, the growth-rate bracket and verdict. A Newton run that
     does not converge returns converged = false with a message (no throw).
-    @throws InvalidArgument for bad input (sizes, non-finite values, options out of range). */
+    @throws InvalidArgument for bad input (sizes, non-finite values, options out of range,
+    options.flow included: the values every simulation would refuse, initial_sides naming another
+    number of surfaces, max_events < 1), before any simulation. */
 PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSection& section,
                                   const Eigen::Ref<const Eigen::VectorXd>& x_guess,
                                   const OrbitOptions& options = {});
@@ -360,8 +367,10 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const Section& sect
     came from). Every solution lies in the closed cone of some piece, where DP(B c) = M B c, so
     when every piece's B^T M B - I is invertible the list is complete. Up to max_pieces distinct
     pieces are enumerated; beyond, the active piece is iterated on (at most 50 rounds) and
-    `exhaustive` is false. @throws InvalidArgument on sizes that do not match or non-finite
-    input. */
+    `exhaustive` is false. A c counts as a solution only when its residual is finite (a residual
+    that overflows proves nothing). @throws InvalidArgument on sizes that do not match,
+    non-finite input, |rhs| beyond the double range, or max_pieces outside
+    [1, FlowDerivative::kMaxPieces]. */
 NewtonEquationSolution solve_newton_equation(const FlowDerivative& map,
                                              const Eigen::Ref<const Eigen::MatrixXd>& basis,
                                              const Eigen::Ref<const Eigen::VectorXd>& rhs,
