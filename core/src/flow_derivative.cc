@@ -67,8 +67,7 @@ Eigen::VectorXd FlowDerivative::apply(const Eigen::Ref<const Eigen::VectorXd>& d
     throw InvalidArgument("FlowDerivative::apply: the tangent " +
                           (i < jumps_.size() ? "arriving at event " + std::to_string(i)
                                              : std::string("at the final time")) +
-                          " is beyond the double range (" + format_vector(v) +
-                          "); dx = " + format_vector(dx) + " is too large for this derivative");
+                          " is beyond the double range");
   };
   Eigen::VectorXd v = transitions_[0] * dx;
   for (std::size_t i = 0; i < jumps_.size(); ++i) {
