@@ -8,6 +8,8 @@
 //   BM_JumpEnumerate/<n>/<d>  The baseline Algorithm 2.1 replaces: build all n! saltation
 //                             matrices M_sigma (O(n d^2) each), find the cone holding the
 //                             tangent, apply its matrix. O(n! n d^2) per tangent.
+//   BM_JumpApplyBlock/<n>/<d> JumpMap::apply_block on 64 tangents at once: for n = 1 the
+//                             block path (two passes over the block), else a walk per column.
 //   BM_JumpPieces/<n>/<d>     JumpMap::pieces(): all n! pieces with shared prefixes.
 //
 // Run: scripts/bench (Release build; JSON in bench/results/jump_benchmark.json; prints the
@@ -263,6 +265,34 @@ BENCHMARK(BM_JumpEnumerate)
     ->Apply(enumerate_args)
     ->Unit(benchmark::kMicrosecond)
     ->Complexity(benchmark::oN);
+
+// ---------------------------------------------------------------------------------------------
+// BM_JumpApplyBlock
+
+// JumpMap::apply_block on the d x 64 tangent pool at once (table source): for n = 1 the block
+// path (eta X and two rank-one updates), otherwise a walk per column.
+void BM_JumpApplyBlock(benchmark::State& state) {
+  const int n = static_cast<int>(state.range(0));
+  const int d = static_cast<int>(state.range(1));
+  std::mt19937_64 rng = case_rng(n, d);
+  const JumpMap map = table_map(rng, n, d);
+  const Eigen::MatrixXd tangents = tangent_pool(rng, d);
+  Eigen::MatrixXd out(d, kTangentPool);
+  for (auto _ : state) {
+    map.apply_block(tangents, out);
+    benchmark::DoNotOptimize(out.data());
+    benchmark::ClobberMemory();
+  }
+  state.SetItemsProcessed(state.iterations() * kTangentPool);
+}
+
+void apply_block_args(benchmark::internal::Benchmark* b) {
+  for (int n : {1, 2, 4}) {
+    for (int d : {6, 64}) b->Args({n, d});
+  }
+}
+
+BENCHMARK(BM_JumpApplyBlock)->Apply(apply_block_args);
 
 // ---------------------------------------------------------------------------------------------
 // BM_JumpPieces

@@ -2,6 +2,7 @@
 #ifndef BFLOW_CLI_CLI_UTIL_H_
 #define BFLOW_CLI_CLI_UTIL_H_
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -9,88 +10,10 @@
 #include <streambuf>
 #include <string>
 
+#include "bflow/core/text.h"
 #include "cli_commands.h"
 
 namespace bflow::cli {
-
-/** The length (1 to 4) of the well-formed UTF-8 sequence that starts at text[i], with its code
-    point in `code_point`; 0 when the bytes there are not one: a stray continuation byte, an
-    overlong form, a surrogate, a code point above U+10FFFF or a sequence cut short. */
-inline std::size_t utf8_sequence(const std::string& text, std::size_t i, char32_t& code_point) {
-  const auto byte = [&](std::size_t k) { return static_cast<unsigned char>(text[k]); };
-  const unsigned char lead = byte(i);
-  if (lead < 0x80) {
-    code_point = lead;
-    return 1;
-  }
-  std::size_t length = 0;
-  unsigned char low = 0x80, high = 0xbf;  // the range of the second byte (Unicode Table 3-7)
-  if (lead >= 0xc2 && lead <= 0xdf) {
-    length = 2;
-  } else if (lead >= 0xe0 && lead <= 0xef) {
-    length = 3;
-    if (lead == 0xe0) low = 0xa0;   // no overlong forms
-    if (lead == 0xed) high = 0x9f;  // no surrogates
-  } else if (lead >= 0xf0 && lead <= 0xf4) {
-    length = 4;
-    if (lead == 0xf0) low = 0x90;   // no overlong forms
-    if (lead == 0xf4) high = 0x8f;  // nothing above U+10FFFF
-  } else {
-    return 0;
-  }
-  if (i + length > text.size()) return 0;
-  if (byte(i + 1) < low || byte(i + 1) > high) return 0;
-  char32_t value = lead & (0xff >> (length + 1));
-  for (std::size_t k = 1; k < length; ++k) {
-    if (k > 1 && (byte(i + k) & 0xc0) != 0x80) return 0;
-    value = (value << 6) | (byte(i + k) & 0x3f);
-  }
-  code_point = value;
-  return length;
-}
-
-/** Whether a code point is a control character (C0, DEL, C1) or a line or paragraph separator:
-    what must not reach a one-line diagnostic as is. */
-inline bool is_control(char32_t code_point) {
-  return code_point < 0x20 || (code_point >= 0x7f && code_point < 0xa0) || code_point == 0x2028 ||
-         code_point == 0x2029;
-}
-
-/** `text` made printable on one line: valid UTF-8 kept (multi-byte characters included),
-    control characters as \u00NN (\u2028, \u2029 for the separators), bytes that are not
-    UTF-8 as \xNN; with `quoted`, '"' and '\' escaped by a backslash. At most `max_chars`
-    characters (code points; an escaped byte counts as one) are kept, "..." marking a cut, which
-    never falls inside a character. */
-inline std::string escaped(const std::string& text, std::size_t max_chars, bool quoted) {
-  std::string out;
-  std::size_t shown = 0;
-  for (std::size_t i = 0; i < text.size();) {
-    if (shown++ == max_chars) {
-      out += "...";
-      break;
-    }
-    char32_t code_point = 0;
-    const std::size_t length = utf8_sequence(text, i, code_point);
-    char buffer[16];
-    if (length == 0) {
-      std::snprintf(buffer, sizeof buffer, "\\x%02x", static_cast<unsigned char>(text[i]));
-      out += buffer;
-      ++i;
-      continue;
-    }
-    if (is_control(code_point)) {
-      std::snprintf(buffer, sizeof buffer, "\\u%04x", static_cast<unsigned>(code_point));
-      out += buffer;
-    } else if (quoted && (code_point == '"' || code_point == '\\')) {
-      out += '\\';
-      out += static_cast<char>(code_point);
-    } else {
-      out.append(text, i, length);
-    }
-    i += length;
-  }
-  return out;
-}
 
 /** `text` with line breaks and other control characters replaced by spaces, and bytes that are
     not UTF-8 by \xNN, so that a diagnostic is always exactly one line of valid UTF-8. */
@@ -117,17 +40,21 @@ inline std::string one_line(const std::string& text) {
   return out;
 }
 
-/** Writes "error: <message>\n" to `err`: the only thing a failing command prints there. */
-inline void report_error(std::ostream& err, const std::string& message) {
-  err << "error: " << one_line(message) << '\n' << std::flush;
-}
+/** The longest diagnostic line, in characters (code points), "error: " included. */
+inline constexpr std::size_t kMaxErrorChars = 500;
 
-/** `text` in double quotes, '"' and '\' escaped, control characters as \u00NN and bytes that
-    are not UTF-8 as \xNN, cut after `max_chars` characters (code points, never inside one;
-    "..." marks the cut), so that user-supplied names and values are quoted unambiguously, on
-    one line and at a bounded length: "−+" is two characters, "\xff" one. */
-inline std::string quote(const std::string& text, std::size_t max_chars = 60) {
-  return "\"" + escaped(text, max_chars, true) + "\"";
+/** Writes "error: <message>\n" to `err`: the only thing a failing command prints there. The
+    line is cut to kMaxErrorChars characters ("..." marking the cut) whatever the message holds;
+    user text inside it is quoted with quote() at a much smaller bound. */
+inline void report_error(std::ostream& err, const std::string& message) {
+  const std::string line = one_line(message);
+  constexpr std::size_t kKept = kMaxErrorChars - 10;  // "error: " and "..."
+  std::size_t end = 0;
+  for (std::size_t chars = 0; end < line.size() && chars < kKept; ++chars) {
+    char32_t code_point = 0;
+    end += std::max<std::size_t>(1, utf8_sequence(line, end, code_point));
+  }
+  err << "error: " << line.substr(0, end) << (end < line.size() ? "..." : "") << '\n' << std::flush;
 }
 
 /** The character (code point) that starts at text[i], quoted, with its code point when it is not

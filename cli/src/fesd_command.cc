@@ -106,13 +106,10 @@ void check_ranges(const FesdCommandOptions& options, DcsFormulation formulation)
   if (options.t && !(*options.t > 0.0 && std::isfinite(*options.t))) {
     fail("--T", "the horizon must be finite and > 0, got " + format_number(*options.t));
   }
-  // From max(2, n_c) on every depth gives the same products (theta without beta).
-  const int deepest = std::max(2, switches_of(options.example));
-  if (options.lifting != 0 && (options.lifting < 2 || options.lifting > deepest)) {
-    const std::string depths = deepest == 2 ? "2" : "in [2, " + std::to_string(deepest) + "]";
-    fail("--lifting", "the lifting depth must be 0 (none) or " + depths + " for " +
-                          options.example + " (larger depths are the same as " +
-                          std::to_string(deepest) + "), got " + std::to_string(options.lifting));
+  if (const std::string why =
+          lifting_depth_error(options.lifting, switches_of(options.example), options.example);
+      !why.empty()) {
+    fail("--lifting", why);
   }
   if (formulation == DcsFormulation::kStewart && options.lifting != 0) {
     fail("--lifting", "a lifting depth (" + std::to_string(options.lifting) +

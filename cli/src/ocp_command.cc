@@ -611,12 +611,10 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
     if (options.tol) o.nlp_tolerance = *options.tol;
     if (options.max_iterations) o.max_total_iterations = *options.max_iterations;
     if (options.lifting) {
-      if (*options.lifting != 0 && (*options.lifting < 2 || formulation != DcsFormulation::kStep)) {
-        fail("--lifting",
-             "the lifting depth must be 0 (none) or at least 2, and only the step "
-             "formulation lifts; got " +
-                 std::to_string(*options.lifting) + " with the " + to_string(formulation) +
-                 " formulation");
+      if (*options.lifting != 0 && formulation != DcsFormulation::kStep) {
+        fail("--lifting", "a lifting depth (" + std::to_string(*options.lifting) +
+                              ") applies to the step formulation only, not " +
+                              to_string(formulation));
       }
       o.lifting_depth = *options.lifting;
     }
@@ -627,6 +625,12 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
     }
     with_example(options.example, monoped, o.formulation, o.stages,
                  [&](const OcpModel& model, const OcpProblem&) {
+                   // The bound of `bflow fesd`, from the model's n_c.
+                   if (const std::string why =
+                           lifting_depth_error(o.lifting_depth, model.switches(), options.example);
+                       !why.empty()) {
+                     fail("--lifting", why);
+                   }
                    check_size(model, options, o);
                    return 0;
                  });

@@ -4,6 +4,8 @@
 #include <cfloat>
 #include <cmath>
 #include <cstdlib>
+#include <string>
+#include <type_traits>
 
 #include "bflow/core/errors.h"
 #include "cli_util.h"
@@ -186,29 +188,27 @@ examples::PiecewiseConstantField make_pwconst(const PwconstParams& p) {
   return examples::PiecewiseConstantField::linear(p.d, p.delta.value_or(kDefaultDelta));
 }
 
-// Messages in the style of bflow::set_param, with the key and the value quoted (at a bounded
-// length); set_param itself sets the value and judges its range.
-BipedParams biped_params(const Params& params) {
-  const std::string known = kBipedParamKeys;
-  BipedParams p;
+namespace {
+
+// The loop of biped_params and pronk_params: every key known and every value a whole number
+// (biped's variant a name), with messages in the style of bflow::set_param that quote the key and
+// the value at a bounded length; set_param itself sets the value and judges its range.
+template <typename SceneParams>
+SceneParams scene_params(const Params& params, const char* scene, const std::string& known) {
+  SceneParams p;
   for (const auto& [key, raw] : params) {
-    if (key == "variant") {
-      try {
-        p.variant = parse_biped_variant(raw);
-      } catch (const InvalidArgument&) {
-        fail("--param", "biped variant " + quote(raw) +
-                            " is not one of conservative, dissipative, mode-damping");
-      }
-      continue;
+    const bool name_valued = std::is_same_v<SceneParams, BipedParams> && key == "variant";
+    if (!name_valued && (key.empty() || key.find_first_of(", ") != std::string::npos ||
+                         (", " + known + ",").find(", " + key + ",") == std::string::npos)) {
+      fail("--param", std::string("unknown ") + scene + " parameter " + quote(key) +
+                          " (known: " + known + ")");
     }
-    if (key.empty() || key.find_first_of(", ") != std::string::npos ||
-        (", " + known + ",").find(", " + key + ",") == std::string::npos) {
-      fail("--param", "unknown biped parameter " + quote(key) + " (known: " + known + ")");
-    }
-    const std::string value = trimmed(raw);
+    const std::string value = name_valued ? raw : trimmed(raw);
     double number = 0.0;
-    if (const std::string problem = number_problem(value, number); !problem.empty()) {
-      fail("--param", "biped parameter " + quote(key) + " = " + quote(raw) + " " + problem);
+    if (const std::string problem = number_problem(value, number);
+        !name_valued && !problem.empty()) {
+      fail("--param",
+           std::string(scene) + " parameter " + quote(key) + " = " + quote(raw) + " " + problem);
     }
     try {
       set_param(p, key, value);
@@ -222,30 +222,14 @@ BipedParams biped_params(const Params& params) {
   return p;
 }
 
-// As biped_params: set_param sets the value and judges its range.
+}  // namespace
+
+BipedParams biped_params(const Params& params) {
+  return scene_params<BipedParams>(params, "biped", kBipedParamKeys);
+}
+
 PronkParams pronk_params(const Params& params) {
-  const std::string known = kPronkParamKeys;
-  PronkParams p;
-  for (const auto& [key, raw] : params) {
-    if (key.empty() || key.find_first_of(", ") != std::string::npos ||
-        (", " + known + ",").find(", " + key + ",") == std::string::npos) {
-      fail("--param", "unknown pronk parameter " + quote(key) + " (known: " + known + ")");
-    }
-    const std::string value = trimmed(raw);
-    double number = 0.0;
-    if (const std::string problem = number_problem(value, number); !problem.empty()) {
-      fail("--param", "pronk parameter " + quote(key) + " = " + quote(raw) + " " + problem);
-    }
-    try {
-      set_param(p, key, value);
-    } catch (const InvalidArgument& e) {
-      std::string message = e.what();
-      const std::string prefix = "set_param: ";
-      if (message.rfind(prefix, 0) == 0) message.erase(0, prefix.size());
-      fail("--param", message);
-    }
-  }
-  return p;
+  return scene_params<PronkParams>(params, "pronk", kPronkParamKeys);
 }
 
 SceneSetup parse_scene_setup(const FlowCommandOptions& options) {

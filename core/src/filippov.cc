@@ -179,6 +179,15 @@ DcsSize dcs_size(const SignMatrix& s, DcsFormulation formulation, int lifting_de
   return size;
 }
 
+std::string lifting_depth_error(int depth, int switches, const std::string& model) {
+  const int deepest = deepest_lifting_depth(switches);
+  if (depth == 0 || (depth >= 2 && depth <= deepest)) return "";
+  const std::string depths = deepest == 2 ? "2" : "in [2, " + std::to_string(deepest) + "]";
+  return "the lifting depth must be 0 (none) or " + depths + " for " + model +
+         " (larger depths are the same as " + std::to_string(deepest) + "), got " +
+         std::to_string(depth);
+}
+
 DcsSize dcs_size_dense(int n_c, DcsFormulation formulation, int lifting_depth) {
   if (n_c < 1 || n_c > kMaxTable4Switches) {
     throw InvalidArgument("dcs_size_dense: need 1 <= n_c <= " + std::to_string(kMaxTable4Switches) +

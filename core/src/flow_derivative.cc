@@ -60,15 +60,38 @@ Eigen::VectorXd FlowDerivative::apply(const Eigen::Ref<const Eigen::VectorXd>& d
     throw InvalidArgument("FlowDerivative::apply: tangent must have " + std::to_string(dim_) +
                           " finite numbers, got " + format_vector(dx));
   }
+  // A transition can carry a finite tangent beyond the double range: said so, not passed on as
+  // inf or NaN.
+  const auto check_range = [&](const Eigen::VectorXd& v, std::size_t i) {
+    if (v.allFinite()) return;
+    throw InvalidArgument("FlowDerivative::apply: the tangent " +
+                          (i < jumps_.size() ? "arriving at event " + std::to_string(i)
+                                             : std::string("at the final time")) +
+                          " is beyond the double range");
+  };
   Eigen::VectorXd v = transitions_[0] * dx;
   for (std::size_t i = 0; i < jumps_.size(); ++i) {
+    check_range(v, i);
     jumps_[i].apply(v, v);
     v = transitions_[i + 1] * v;
   }
+  check_range(v, jumps_.size());
   return v;
 }
 
 Eigen::MatrixXd FlowDerivative::apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx) const {
+  if (dx.rows() != dim_) {
+    throw InvalidArgument("FlowDerivative::apply_block: tangents must have " +
+                          std::to_string(dim_) + " rows, got " + std::to_string(dx.rows()) + " x " +
+                          std::to_string(dx.cols()));
+  }
+  for (Eigen::Index k = 0; k < dx.cols(); ++k) {
+    if (!dx.col(k).allFinite()) {
+      throw InvalidArgument("FlowDerivative::apply_block: tangent is not finite in column " +
+                            std::to_string(k) + " of " + std::to_string(dx.cols()) + ": " +
+                            format_vector(dx.col(k)));
+    }
+  }
   Eigen::MatrixXd out(dim_, dx.cols());
   for (Eigen::Index k = 0; k < dx.cols(); ++k) out.col(k) = apply(dx.col(k));
   return out;

@@ -130,6 +130,10 @@ struct JumpMap::Impl {
   // Per column: eta_gamma left the double range or lost precision (huge or tiny limits), so
   // walks through it take the scaled path.
   std::vector<char> scaled;
+  // For a table: an upper bound on |B x|_inf / |x|_inf over every piece; +inf for a lazy source
+  // or a table with a word on the scaled path. Below it apply_block() cannot meet an image
+  // beyond the double range, so it needs no pass that only checks.
+  double growth_bound = std::numeric_limits<double>::infinity();
   // Lazy source and its cache (open addressing; cleared wholesale when full).
   FieldLimitFunction function;
   std::vector<std::uint64_t> keys;
@@ -246,6 +250,21 @@ JumpMap::JumpMap(const Eigen::Ref<const Eigen::MatrixXd>& normals,
   m.gamma = limits;
   m.resize_columns(count);
   for (Eigen::Index w = 0; w < count; ++w) m.prepare_column(w, static_cast<std::uint64_t>(w));
+  // Each factor I + v eta_j^T of (6.4) has infinity norm at most 1 + |v|_inf |eta_j|_1, and
+  // |v|_inf <= 2 max|Gamma| / min_b eta_j . Gamma(b) over the words b before surface j is
+  // crossed; every surface is crossed once, so the product over j bounds every piece.
+  if (std::none_of(m.scaled.begin(), m.scaled.end(), [](char c) { return c != 0; })) {
+    const double largest = m.gamma_max.maxCoeff();
+    double bound = 1.0;
+    for (int j = 0; j < m.n; ++j) {
+      double smallest = std::numeric_limits<double>::infinity();
+      for (Eigen::Index w = 0; w < count; ++w) {
+        if (!((w >> j) & 1)) smallest = std::min(smallest, m.eta_gamma(j, w));
+      }
+      bound *= 1.0 + 2.0 * largest * m.eta.row(j).lpNorm<1>() / smallest;
+    }
+    if (bound < std::numeric_limits<double>::infinity()) m.growth_bound = bound;
+  }
 }
 
 JumpMap::JumpMap(const Eigen::Ref<const Eigen::MatrixXd>& normals, FieldLimitFunction limits,
@@ -333,11 +352,6 @@ bool JumpMap::walk(const double* dx, double* out, int* order, double* times) con
     if (!full_precision(c[j])) return false;
   }
   const std::uint32_t generation = m.generation;
-  // With a separate output the image is formed during the walk (a fallback still finds dx
-  // intact); when out aliases dx it is formed afterwards, from the times and columns kept.
-  const bool inline_image = out != nullptr && out != dx;
-  Eigen::Map<Eigen::VectorXd> image(out, out == nullptr ? 0 : m.d);
-  if (inline_image) image = x;
   // Bound on every partial sum of the image: below it no sum can overflow.
   double bound = x.cwiseAbs().maxCoeff();
   std::uint64_t bits = 0;
@@ -362,7 +376,6 @@ bool JumpMap::walk(const double* dx, double* out, int* order, double* times) con
     if (!full_precision(tau)) return false;
     t += tau;
     bound += std::abs(tau) * m.gamma_max[column];
-    if (inline_image) image += tau * m.gamma.col(column);
     for (int j = 0; j < n; ++j) {
       if (!((bits >> j) & 1u)) c[j] += tau * g[j];
     }
@@ -378,23 +391,29 @@ bool JumpMap::walk(const double* dx, double* out, int* order, double* times) con
   bound += std::abs(t) * m.gamma_max[columns[n]];
   if (!std::isfinite(t) || !(bound < 0.25 * std::numeric_limits<double>::max())) return false;
   if (out == nullptr) return true;
-  if (!inline_image) {
-    // A full lazy cache may have been cleared during the walk: then the columns are looked up
-    // again (the limits are deterministic, so they refill identically).
-    const bool refetch = generation != m.generation;
-    bits = 0;
-    for (int k = 0; k < n; ++k) {
-      image += tau_k[k] * m.gamma.col(refetch ? m.fetch(bits) : columns[k]);
-      bits |= std::uint64_t{1} << order_k[k];
+  // The image is formed only once the walk has succeeded, so that a fallback finds `out` (and
+  // dx, which it may alias) untouched. A full lazy cache may have been cleared during the walk:
+  // then the columns are looked up again (the limits are deterministic, so they refill
+  // identically).
+  Eigen::Map<Eigen::VectorXd> image(out, m.d);
+  const bool refetch = generation != m.generation;
+  bits = 0;
+  for (int k = 0; k < n; ++k) {
+    const auto gamma_k = m.gamma.col(refetch ? m.fetch(bits) : columns[k]);
+    if (k == 0 && out != dx) {
+      image = x + tau_k[0] * gamma_k;  // the copy of dx fused with the first term
+    } else {
+      image += tau_k[k] * gamma_k;
     }
-    columns[n] = refetch ? m.fetch(bits) : columns[n];
+    bits |= std::uint64_t{1} << order_k[k];
   }
+  columns[n] = refetch ? m.fetch(bits) : columns[n];
   image -= t * m.gamma.col(columns[n]);
   return true;
 }
 
 void JumpMap::walk_scaled(const char* what, const double* dx, double* out, int* order,
-                          double* times) const {
+                          double* times, bool check_image) const {
   Impl& m = *impl_;
   const int n = m.n;
   ScaledNumber c[Signs::kMaxSurfaces];
@@ -437,7 +456,7 @@ void JumpMap::walk_scaled(const char* what, const double* dx, double* out, int* 
     }
   }
   words[n] = bits;
-  if (out == nullptr) return;
+  if (out == nullptr && !check_image) return;
   // Component i of the image is x_i + sum_k tau_k Gamma(b_k)_i - t Gamma(b_n)_i. All are checked
   // before any is written, so that dx (which out may alias) survives a refusal.
   const auto component = [&](Eigen::Index i) {
@@ -455,10 +474,43 @@ void JumpMap::walk_scaled(const char* what, const double* dx, double* out, int* 
                             ", beyond the double range (about 1.8e308)");
     }
   }
+  if (out == nullptr) return;
   for (Eigen::Index i = 0; i < m.d; ++i) out[i] = component(i).to_double();
 }
 
 namespace {
+
+// floor(a / b) for b > 0.
+std::int64_t floor_div(std::int64_t a, std::int64_t b) { return a / b - (a % b < 0 ? 1 : 0); }
+
+// Whether two column-major blocks of `rows` x `cols` doubles, at `a` and `b` with outer strides
+// `stride_a` and `stride_b` (in doubles), share a byte. O(1) when their address ranges are
+// disjoint, else O(cols): blocks of one matrix that interleave (its top and bottom rows) do not
+// overlap.
+bool blocks_overlap(const double* a, Eigen::Index stride_a, const double* b, Eigen::Index stride_b,
+                    Eigen::Index rows, Eigen::Index cols) {
+  if (rows == 0 || cols == 0) return false;
+  constexpr auto kSize = static_cast<std::int64_t>(sizeof(double));
+  const auto pa = static_cast<std::int64_t>(reinterpret_cast<std::uintptr_t>(a));
+  const auto pb = static_cast<std::int64_t>(reinterpret_cast<std::uintptr_t>(b));
+  const std::int64_t length = rows * kSize;
+  const std::int64_t step_a = stride_a * kSize;
+  const std::int64_t step_b = stride_b * kSize;
+  const std::int64_t end_a = pa + (cols - 1) * step_a + length;
+  const std::int64_t end_b = pb + (cols - 1) * step_b + length;
+  if (end_a <= pb || end_b <= pa) return false;
+  // Columns of a that overlap one another cover one range, which meets b.
+  if (step_a < length || cols == 1) return true;
+  for (Eigen::Index c = 0; c < cols; ++c) {
+    // Column j of a, [pa + j step_a, + length), meets [lo, lo + length) when
+    // lo - length < pa + j step_a < lo + length: the smallest such j is j0.
+    const std::int64_t lo = pb + c * step_b;
+    const std::int64_t j0 = std::max<std::int64_t>(0, floor_div(lo - length - pa, step_a) + 1);
+    if (j0 < cols && pa + j0 * step_a < lo + length) return true;
+  }
+  return false;
+}
+
 void check_tangent(const char* what, const Eigen::Ref<const Eigen::VectorXd>& dx, int d) {
   if (dx.size() != d) {
     throw InvalidArgument(std::string(what) + ": tangent has " + std::to_string(dx.size()) +
@@ -477,6 +529,13 @@ void JumpMap::apply(const Eigen::Ref<const Eigen::VectorXd>& dx,
   if (out.size() != m.d) {
     throw InvalidArgument("apply: output has " + std::to_string(out.size()) +
                           " numbers, expected d = " + std::to_string(m.d));
+  }
+  if (out.data() != dx.data() && blocks_overlap(dx.data(), m.d, out.data(), m.d, m.d, 1)) {
+    throw InvalidArgument(
+        "apply: the output overlaps the tangent without being the same vector (its first number "
+        "is number " +
+        std::to_string(out.data() - dx.data()) +
+        " of the tangent); pass one vector as both to map in place, or separate vectors");
   }
   if (!walk(dx.data(), out.data(), nullptr, nullptr)) {
     walk_scaled("apply", dx.data(), out.data(), nullptr, nullptr);
@@ -498,10 +557,48 @@ void JumpMap::apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx,
                           " x " + std::to_string(dx.cols()) + " -> " + std::to_string(out.rows()) +
                           " x " + std::to_string(out.cols()));
   }
+  if (out.cols() > 1 && out.outerStride() < out.rows()) {
+    throw InvalidArgument("apply_block: the output's columns overlap one another (outer stride " +
+                          std::to_string(out.outerStride()) + " < " + std::to_string(out.rows()) +
+                          " rows)");
+  }
+  const bool in_place = out.data() == dx.data() && out.outerStride() == dx.outerStride();
+  if (!in_place &&
+      blocks_overlap(dx.data(), dx.outerStride(), out.data(), out.outerStride(), m.d, dx.cols())) {
+    throw InvalidArgument(
+        "apply_block: the output overlaps the tangents without being the same block (outer "
+        "strides " +
+        std::to_string(out.outerStride()) + " and " + std::to_string(dx.outerStride()) +
+        ", first numbers " + std::to_string(out.data() - dx.data()) +
+        " apart); pass one block as both to map in place, or separate blocks");
+  }
+  // Everything that can refuse the block is checked before a column is written, so that a
+  // refusal leaves `out` (and dx, which it may alias) as it was: the numbers first, in one
+  // vectorised pass (a sum of magnitudes, NaN or inf when a number is not finite, or when finite
+  // numbers near the top of the range add up beyond it) ...
+  const double total = dx.cwiseAbs().sum();
+  if (!(total <= std::numeric_limits<double>::max())) {
+    for (Eigen::Index k = 0; k < dx.cols(); ++k) {
+      if (!dx.col(k).allFinite()) {
+        throw InvalidArgument("apply_block: tangent is not finite in column " + std::to_string(k) +
+                              " of " + std::to_string(dx.cols()) + ": " + format_vector(dx.col(k)));
+      }
+    }
+  }
+  // ... then images beyond the double range and, for a lazy source, words that break
+  // transversality: a walk per column that writes nothing, unless the growth bound of a table
+  // times the sum (at least the largest |dx|) rules both out (the common case, at no cost).
+  if (!(total * m.growth_bound < 0.125 * std::numeric_limits<double>::max())) {
+    for (Eigen::Index k = 0; k < dx.cols(); ++k) {
+      if (!walk(dx.col(k).data(), nullptr, nullptr, nullptr)) {
+        const std::string what = "apply_block: column " + std::to_string(k);
+        walk_scaled(what.c_str(), dx.col(k).data(), nullptr, nullptr, nullptr, true);
+      }
+    }
+  }
   Eigen::Index first = 0;
   if (m.n == 1) first = apply_linear_block(dx, out);
   for (Eigen::Index k = first; k < dx.cols(); ++k) {
-    check_tangent("apply_block", dx.col(k), m.d);
     if (!walk(dx.col(k).data(), out.col(k).data(), nullptr, nullptr)) {
       walk_scaled("apply_block", dx.col(k).data(), out.col(k).data(), nullptr, nullptr);
     }
@@ -513,9 +610,9 @@ Eigen::Index JumpMap::apply_linear_block(const Eigen::Ref<const Eigen::MatrixXd>
   // One surface: B is linear (the saltation matrix), B x = x + tau (Gamma(-) - Gamma(+)) with
   // tau = -(eta x) / (eta Gamma(-)), the walk of one crossing. A chunk of columns takes two
   // passes over the block instead of a walk per column: eta X, then the two rank-one updates,
-  // in the walk's order of operations. A chunk with a tangent that is not finite, or a number
-  // the walk would send to its scaled path (not of full precision, an image near overflow), is
-  // left to the walks, from its first column on: the return value.
+  // in the walk's order of operations (the tangents are finite: apply_block checked them). A
+  // chunk with a number the walk would send to its scaled path (not of full precision, an image
+  // near overflow) is left to the walks, from its first column on: the return value.
   Impl& m = *impl_;
   const Eigen::Index minus = m.fetch(0);
   const Eigen::Index plus = m.fetch(1);
@@ -530,7 +627,6 @@ Eigen::Index JumpMap::apply_linear_block(const Eigen::Ref<const Eigen::MatrixXd>
   for (; start < dx.cols(); start += kChunk) {
     const Eigen::Index width = std::min(kChunk, dx.cols() - start);
     const auto x = dx.middleCols(start, width);
-    if (!x.allFinite()) return start;
     Eigen::Map<Eigen::RowVectorXd> tau(taus, width);
     tau.noalias() = m.eta.row(0) * x;
     for (Eigen::Index k = 0; k < width; ++k) {

@@ -3,6 +3,7 @@
 #include <bitset>
 
 #include "bflow/core/errors.h"
+#include "bflow/core/text.h"
 
 namespace bflow {
 
@@ -40,8 +41,8 @@ Signs Signs::parse(std::string_view word) {
     if (word[j] == '+') {
       bits |= std::uint64_t{1} << j;
     } else if (word[j] != '-') {
-      throw InvalidArgument("sign word \"" + std::string(word) + "\" has '" +
-                            std::string(1, word[j]) + "' at position " + std::to_string(j) +
+      throw InvalidArgument("sign word " + quote(std::string(word)) + " has " +
+                            quote(std::string(1, word[j])) + " at position " + std::to_string(j) +
                             "; only '-' and '+' are allowed");
     }
   }

@@ -4,6 +4,8 @@
 
 #include <string>
 
+#include "bflow/core/text.h"
+
 namespace bflow {
 namespace {
 
@@ -30,13 +32,11 @@ static_assert(sizeof(kSolvers) / sizeof(kSolvers[0]) ==
                   sizeof(kLinearSolvers) / sizeof(kLinearSolvers[0]),
               "every name of kLinearSolvers needs its library and routine here");
 
-std::string quoted(const std::string& text) { return "\"" + text + "\""; }
-
 const SolverInfo& solver_info(const std::string& name, const std::string& who) {
   for (const SolverInfo& s : kSolvers) {
     if (name == s.name) return s;
   }
-  throw InvalidArgument(who + ": unknown linear solver " + quoted(name) + "; use " +
+  throw InvalidArgument(who + ": unknown linear solver " + quote(name) + "; use " +
                         linear_solver_list());
 }
 
@@ -82,7 +82,7 @@ void check_linear_solver(const std::string& name, const std::string& who) {
   if (why.empty()) return;
   const bool hsl = std::string(s.library) == "libhsl.so";
   throw LinearSolverUnavailable(
-      who + ": linear solver " + quoted(name) + " needs " + s.provider + " " + s.library +
+      who + ": linear solver " + quote(name) + " needs " + s.provider + " " + s.library +
       ", which cannot be loaded (" + why + "); " +
       (hsl ? "get Coin-HSL (https://licences.stfc.ac.uk/product/coin-hsl), build libhsl.so and "
            : "") +

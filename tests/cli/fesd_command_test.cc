@@ -327,5 +327,16 @@ TEST(FesdCommandTest, TheLinearSolverIsCheckedFirstAndRecorded) {
                 "\"Linear solvers: MUMPS and HSL\"), or use mumps\n");
 }
 
+// A linear solver's name is quoted at a bounded length, escaped (it used to come back whole).
+TEST(FesdCommandTest, ALongLinearSolverNameIsQuotedBounded) {
+  const std::string name = "ma\n" + std::string(5000, 'x');
+  const Outcome line = command_line({"fesd", "--example", "crossing", "--linear-solver", name});
+  EXPECT_EQ(line.code, kExitBadInput);
+  EXPECT_EQ(line.out, "");
+  EXPECT_EQ(line.err, "error: --linear-solver: unknown linear solver \"ma\\u000a" +
+                          std::string(57, 'x') +
+                          "...\"; use mumps, ma27, ma57, ma77, ma86, ma97 or pardiso\n");
+}
+
 }  // namespace
 }  // namespace bflow::cli

@@ -856,5 +856,22 @@ TEST(JumpCommandTest, OutputThatCannotBeWrittenIsOneLine) {
   }
 }
 
+// Every command's error line is cut at 500 characters whatever its message holds (two quoted
+// 200-character paths and a system reason, a library message): "..." marks the cut, which never
+// falls inside a character; a shorter message is printed whole.
+TEST(ReportErrorTest, TheLineIsCutAt500Characters) {
+  std::ostringstream err;
+  const std::string message = "x: " + std::string(300, 'a') + "\u2212" + std::string(600, 'b');
+  report_error(err, message);
+  const std::string line = err.str();
+  ASSERT_EQ(line.back(), '\n');
+  // "error: ", 490 characters of the message (3 + 300 + 1 + 186), "...": 500 in all.
+  EXPECT_EQ(line,
+            "error: x: " + std::string(300, 'a') + "\u2212" + std::string(186, 'b') + "...\n");
+  std::ostringstream whole;
+  report_error(whole, "x: " + std::string(400, 'a'));
+  EXPECT_EQ(whole.str(), "error: x: " + std::string(400, 'a') + "\n");
+}
+
 }  // namespace
 }  // namespace bflow::cli

@@ -321,8 +321,19 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
       {"N", [](OcpCommandOptions& o) { o.n = 0; },
        "error: --N: the number of control stages must be >= 1, got 0"},
       {"lifting", [](OcpCommandOptions& o) { o.lifting = 1; },
-       "error: --lifting: the lifting depth must be 0 (none) or at least 2, and only the step "
-       "formulation lifts; got 1 with the step formulation"},
+       "error: --lifting: the lifting depth must be 0 (none) or 2 for turbo-car (larger depths "
+       "are the same as 2), got 1"},
+      // The bound of `bflow fesd` (lifting_depth_error): a depth that deep used to be solved.
+      {"lifting deep", [](OcpCommandOptions& o) { o.lifting = 1000000; },
+       "error: --lifting: the lifting depth must be 0 (none) or 2 for turbo-car (larger depths "
+       "are the same as 2), got 1000000"},
+      {"lifting stewart",
+       [](OcpCommandOptions& o) {
+         o.formulation = "stewart";
+         o.lifting = 2;
+       },
+       "error: --lifting: a lifting depth (2) applies to the step formulation only, not "
+       "stewart"},
       {"hopper N",
        [](OcpCommandOptions& o) {
          o.example = "hopper";
@@ -744,6 +755,19 @@ TEST(OcpCommandTest, TheLinearSolverIsCheckedFirstAndRecorded) {
                 "); get Coin-HSL (https://licences.stfc.ac.uk/product/coin-hsl), build libhsl.so "
                 "and put the directory holding libhsl.so on LD_LIBRARY_PATH (docs/ocp.md, "
                 "\"Linear solvers: MUMPS and HSL\"), or use mumps\n");
+}
+
+// A linear solver's name is quoted at a bounded length, escaped: a 5000-character name with a
+// line break in it used to come back whole, in a line of 5100 characters.
+TEST(OcpCommandTest, ALongLinearSolverNameIsQuotedBounded) {
+  const std::string name = "ma\n" + std::string(5000, 'x');
+  const bflow::testing::Outcome line =
+      bflow::testing::command_line({"ocp", "--example", "braking-block", "--linear-solver", name});
+  EXPECT_EQ(line.code, kExitBadInput);
+  EXPECT_EQ(line.out, "");
+  EXPECT_EQ(line.err, "error: --linear-solver: unknown linear solver \"ma\\u000a" +
+                          std::string(57, 'x') +
+                          "...\"; use mumps, ma27, ma57, ma77, ma86, ma97 or pardiso\n");
 }
 
 }  // namespace

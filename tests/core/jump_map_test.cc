@@ -11,6 +11,7 @@
 #include <Eigen/SVD>
 
 #include "bflow/core/errors.h"
+#include "bflow/core/flow_derivative.h"
 #include "bflow/core/triangulation.h"
 #include "support/error_message.h"
 #include "support/random_jump.h"
@@ -243,6 +244,153 @@ TEST(JumpMapTest, OneSurfaceBlockMatchesTheWalkAndTheSaltationMatrix) {
                 ::testing::ThrowsMessage<InvalidArgument>(
                     ::testing::HasSubstr("apply_block: tangent is not finite")));
   }
+}
+
+// One surface in R^2 whose crossing shears: eta = e_0, Gamma(-) = (1, 0), Gamma(+) = (1, 1e10),
+// so B x = (x_0, x_1 + 1e10 x_0) (closed form), beyond the double range for x_0 = 1e300.
+JumpMap shearing_jump() {
+  Eigen::MatrixXd limits(2, 2);
+  limits << 1.0, 1.0, 0.0, 1e10;
+  return JumpMap(Eigen::RowVector2d(1.0, 0.0), limits);
+}
+
+// d x cols Gaussian tangents.
+Eigen::MatrixXd random_block(std::mt19937_64& rng, int d, Eigen::Index cols) {
+  Eigen::MatrixXd block(d, cols);
+  for (Eigen::Index k = 0; k < cols; ++k) block.col(k) = testing::gaussian_vector(rng, d);
+  return block;
+}
+
+// A column apply_block must refuse (not finite, or an image beyond the double range) is found
+// before any column is written: the block mapped in place keeps its numbers, a separate output
+// keeps what it held, for the one-surface block path and for the walks (n = 3), whichever column
+// is bad.
+TEST(JumpMapTest, ApplyBlockRefusesABadColumnBeforeWritingAny) {
+  std::mt19937_64 rng(42);
+  for (int n : {1, 3}) {
+    const int d = 5;
+    const Eigen::MatrixXd eta = testing::random_normals(rng, n, d, false);
+    const JumpMap jump(eta, testing::random_limits(rng, eta, {}));
+    for (Eigen::Index bad : {Eigen::Index{0}, Eigen::Index{150}, Eigen::Index{299}}) {
+      Eigen::MatrixXd block = random_block(rng, d, 300);
+      block(2, bad) = std::numeric_limits<double>::infinity();
+      const Eigen::MatrixXd before = block;
+      EXPECT_THAT([&] { jump.apply_block(block, block); },
+                  ::testing::ThrowsMessage<InvalidArgument>(HasSubstr(
+                      "apply_block: tangent is not finite in column " + std::to_string(bad))));
+      EXPECT_TRUE(block.cwiseEqual(before).all()) << "n=" << n << " bad column " << bad;
+      Eigen::MatrixXd out = Eigen::MatrixXd::Constant(d, 300, -7.0);
+      EXPECT_THROW(jump.apply_block(before, out), InvalidArgument);
+      EXPECT_TRUE((out.array() == -7.0).all()) << "n=" << n << " bad column " << bad;
+    }
+  }
+  const JumpMap shear = shearing_jump();
+  Eigen::MatrixXd block = random_block(rng, 2, 300);
+  block.col(250) << 1e300, 0.0;
+  const Eigen::MatrixXd before = block;
+  EXPECT_THAT([&] { shear.apply_block(block, block); },
+              ::testing::ThrowsMessage<InvalidArgument>(
+                  HasSubstr("apply_block: column 250: component 1 of B(dx) is about 2^")));
+  EXPECT_TRUE(block.cwiseEqual(before).all());
+  // Just inside the range the same column is mapped, in place, to the closed form.
+  block(0, 250) = 1e297;
+  const Eigen::MatrixXd inside = block;
+  shear.apply_block(block, block);
+  for (Eigen::Index k = 0; k < block.cols(); ++k) {
+    EXPECT_EQ(block(0, k), inside(0, k));
+    EXPECT_NEAR(block(1, k), inside(1, k) + 1e10 * inside(0, k),
+                4 * kEps * std::abs(1e10 * inside(0, k)) + 4 * kEps * std::abs(inside(1, k)))
+        << "column " << k;
+  }
+}
+
+// apply() with a separate output: an image beyond the double range leaves the output as it was
+// (the walk used to form the image in it before finding the overflow).
+TEST(JumpMapTest, ApplyRefusingAnImageLeavesTheOutputUnwritten) {
+  const JumpMap shear = shearing_jump();
+  Eigen::VectorXd out = Eigen::Vector2d(-7.0, -7.0);
+  EXPECT_THAT([&] { shear.apply(Eigen::Vector2d(1e300, 0.0), out); },
+              ::testing::ThrowsMessage<InvalidArgument>(HasSubstr("apply: component 1 of B(dx)")));
+  EXPECT_EQ(out, Eigen::Vector2d(-7.0, -7.0));
+}
+
+// A lazy source whose word "-+" is not transversal (eta_1 . Gamma(-+) = -1): only tangents that
+// cross surface 1 first meet it; the others are mapped, (1, 0.5) to (2, 0.5), not to themselves. A
+// block whose column 40 does is refused naming the word, and no column is written.
+TEST(JumpMapTest, ApplyBlockWithALazySourceRefusesAWordBeforeWritingAny) {
+  const JumpMap jump(Eigen::Matrix2d::Identity(), [](Signs b, Eigen::Ref<Eigen::VectorXd> out) {
+    out << (b.plus(0) ? 2.0 : 1.0), b.str() == "-+" ? -1.0 : 1.0;
+  });
+  Eigen::MatrixXd block(2, 60);
+  for (Eigen::Index k = 0; k < block.cols(); ++k) block.col(k) << 1.0, 0.5;  // surface 0 first
+  block.col(40) << 0.5, 1.0;                                                 // surface 1 first
+  const Eigen::MatrixXd before = block;
+  EXPECT_THAT([&] { jump.apply_block(block, block); },
+              ::testing::ThrowsMessage<InvalidArgument>(HasSubstr("for word \"-+\"")));
+  EXPECT_TRUE(block.cwiseEqual(before).all());
+}
+
+// Input and output that share memory without being the same block are refused before anything
+// is written (they used to be mixed: a column read after an earlier one was written over it);
+// the same block in place and interleaved blocks of one matrix that share no number are mapped.
+TEST(JumpMapTest, ApplyBlockRefusesPartlyOverlappingBlocks) {
+  std::mt19937_64 rng(43);
+  for (int n : {1, 2}) {
+    const int d = 4;
+    const Eigen::MatrixXd eta = testing::random_normals(rng, n, d, false);
+    const JumpMap jump(eta, testing::random_limits(rng, eta, {}));
+    Eigen::MatrixXd m = random_block(rng, d, 11);
+    const Eigen::MatrixXd before = m;
+    // Shifted by a column, or by a row (each column of out straddles two of dx).
+    EXPECT_THAT([&] { jump.apply_block(m.leftCols(10), m.rightCols(10)); },
+                ::testing::ThrowsMessage<InvalidArgument>(
+                    HasSubstr("apply_block: the output overlaps the tangents without being the "
+                              "same block")));
+    EXPECT_THROW(jump.apply_block(m.rightCols(10), m.leftCols(10)), InvalidArgument);
+    Eigen::MatrixXd tall = random_block(rng, d + 1, 10);
+    const Eigen::MatrixXd tall_before = tall;
+    EXPECT_THROW(jump.apply_block(tall.topRows(d), tall.bottomRows(d)), InvalidArgument);
+    EXPECT_TRUE(m.cwiseEqual(before).all()) << "n=" << n;
+    EXPECT_TRUE(tall.cwiseEqual(tall_before).all()) << "n=" << n;
+    // Interleaved but disjoint: rows 0..d-1 into rows d..2d-1 of the same matrix.
+    Eigen::MatrixXd stacked(2 * d, 10);
+    stacked.topRows(d) = random_block(rng, d, 10);
+    const Eigen::MatrixXd expected = jump.apply_block(Eigen::MatrixXd(stacked.topRows(d)));
+    jump.apply_block(stacked.topRows(d), stacked.bottomRows(d));
+    EXPECT_TRUE(stacked.bottomRows(d).cwiseEqual(expected).all()) << "n=" << n;
+    // The vector form: an output one number past the tangent.
+    Eigen::VectorXd v = testing::gaussian_vector(rng, d + 1);
+    const Eigen::VectorXd v_before = v;
+    EXPECT_THAT([&] { jump.apply(v.head(d), v.tail(d)); },
+                ::testing::ThrowsMessage<InvalidArgument>(
+                    HasSubstr("apply: the output overlaps the tangent without being the same")));
+    EXPECT_EQ(v, v_before);
+  }
+}
+
+// FlowDerivative: a tangent carried beyond the double range by a transition is refused (it used
+// to come back as inf), and apply_block checks the shape and every column before mapping any,
+// naming the bad column (a block of the wrong height and no columns used to pass).
+TEST(FlowDerivativeTest, RefusesTangentsBeyondTheRangeAndBadBlocks) {
+  FlowDerivative derivative(2);
+  derivative.append_transition(1e200 * Eigen::Matrix2d::Identity());
+  EXPECT_EQ(derivative.apply(Eigen::Vector2d(1.0, -2.0)), Eigen::Vector2d(1e200, -2e200));
+  EXPECT_THAT([&] { derivative.apply(Eigen::Vector2d(1e200, 0.0)); },
+              ::testing::ThrowsMessage<InvalidArgument>(
+                  HasSubstr("FlowDerivative::apply: the tangent at the final time is beyond the "
+                            "double range")));
+  derivative.append_jump(shearing_jump(), 0.5);
+  EXPECT_THAT([&] { derivative.apply(Eigen::Vector2d(1e200, 0.0)); },
+              ::testing::ThrowsMessage<InvalidArgument>(
+                  HasSubstr("the tangent arriving at event 0 is beyond the double range")));
+  EXPECT_THAT([&] { derivative.apply_block(Eigen::MatrixXd(3, 0)); },
+              ::testing::ThrowsMessage<InvalidArgument>(
+                  HasSubstr("FlowDerivative::apply_block: tangents must have 2 rows, got 3 x 0")));
+  Eigen::MatrixXd block = Eigen::MatrixXd::Ones(2, 5);
+  block(1, 3) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THAT([&] { derivative.apply_block(block); },
+              ::testing::ThrowsMessage<InvalidArgument>(HasSubstr(
+                  "FlowDerivative::apply_block: tangent is not finite in column 3 of 5")));
 }
 
 // The properties of B on random transversal data, 1000 cases.

@@ -38,7 +38,7 @@ TEST(SignsTest, RejectsBadInputWithMessage) {
     Signs::parse("-x+");
     FAIL() << "expected InvalidArgument";
   } catch (const InvalidArgument& e) {
-    EXPECT_THAT(e.what(), HasSubstr("'x' at position 1"));
+    EXPECT_THAT(e.what(), HasSubstr("\"x\" at position 1"));
   }
   EXPECT_THROW(Signs(65), InvalidArgument);
   try {

@@ -4,7 +4,8 @@
 //
 //   exit 0:    stdout is one JSON document (sweep: lines of records, JSON lines or CSV); stderr
 //              is empty (or, where allowed, only lines starting "warning: " and progress lines);
-//   exit 1, 2: stderr is exactly one line "error: ..." that is not "error: internal: ...";
+//   exit 1, 2: stderr is exactly one line "error: ..." of at most 500 characters that is not
+//              "error: internal: ...";
 //              with exit code 1 progress lines (and, where allowed, "warning: " lines) may come
 //              before it; stdout is empty (or, where allowed with exit 1, the JSON record of a
 //              run that stopped early, or the records a sweep wrote before it failed);
@@ -45,6 +46,9 @@ struct Contract {
       summary) may come before the outcome. */
   std::vector<std::string> progress_prefixes;
 };
+
+/** The longest error line, in characters (code points) without its newline. */
+inline constexpr std::size_t kMaxErrorLine = 500;
 
 /** Called before a violation aborts: a harness removes its scratch directory there. */
 inline std::function<void()> before_abort;
@@ -148,6 +152,12 @@ inline void check(int code, const std::string& out, const std::string& err,
   }
   if (rest.compare(0, 7, "error: ") != 0) {
     violation("stderr does not start with \"error: \"", code, out, err);
+  }
+  // Bounded whatever the input: user text is quoted at a bounded length in every message.
+  std::size_t characters = 0;
+  for (char c : rest) characters += (static_cast<unsigned char>(c) & 0xc0) != 0x80 ? 1 : 0;
+  if (characters - 1 > kMaxErrorLine) {
+    violation("the error line is longer than 500 characters", code, out, err);
   }
   // "error: internal: ..." (run_cli) or "error: <command>: internal: ..." (a command's own).
   const std::size_t colon = rest.find(": ", 7);

@@ -50,6 +50,7 @@
 
 #include "bflow/core/errors.h"
 #include "bflow/core/scene.h"
+#include "bflow/core/text.h"
 
 namespace bflow {
 
@@ -77,8 +78,8 @@ inline BipedVariant parse_biped_variant(std::string_view text) {
   if (text == "conservative") return BipedVariant::kConservative;
   if (text == "dissipative") return BipedVariant::kDissipative;
   if (text == "mode-damping" || text == "mode_damping") return BipedVariant::kModeDamping;
-  throw InvalidArgument("biped variant \"" + std::string(text) +
-                        "\" is not one of conservative, dissipative, mode-damping");
+  throw InvalidArgument("biped variant " + quote(std::string(text)) +
+                        " is not one of conservative, dissipative, mode-damping");
 }
 
 struct BipedParams {
@@ -207,16 +208,16 @@ inline void set_param(BipedParams& params, std::string_view key, std::string_vie
   if (key == "thrust") field = &params.thrust;
   if (key == "thrust_speed") field = &params.thrust_speed;
   if (field == nullptr) {
-    throw InvalidArgument("set_param: unknown biped parameter \"" + std::string(key) +
-                          "\" (known: " + kBipedParamKeys + ")");
+    throw InvalidArgument("set_param: unknown biped parameter " + quote(std::string(key)) +
+                          " (known: " + kBipedParamKeys + ")");
   }
   const std::string text(value);
   char* end = nullptr;
   errno = 0;
   const double number = std::strtod(text.c_str(), &end);
   if (text.empty() || end != text.c_str() + text.size() || errno == ERANGE) {
-    throw InvalidArgument("set_param: biped parameter \"" + std::string(key) + "\" = \"" + text +
-                          "\" is not a number");
+    throw InvalidArgument("set_param: biped parameter " + quote(std::string(key)) + " = " +
+                          quote(text) + " is not a number");
   }
   internal::check_biped_param("set_param", key, number);
   *field = number;

@@ -162,6 +162,16 @@ inline constexpr int kMaxTable4Switches = 61;
     @throws InvalidArgument unless 1 <= n_c <= kMaxTable4Switches, or for n_d == 1. */
 DcsSize dcs_size_dense(int n_c, DcsFormulation formulation, int lifting_depth = 0);
 
+/** The deepest lifting depth that changes the lifted step DCS of n_c switching functions:
+    max(2, n_c). From n_d = n_c on every depth gives the products of theta without beta (the
+    library takes any n_d >= 2 so, as n_c); the commands accept n_d up to this only. */
+inline int deepest_lifting_depth(int switches) { return switches > 2 ? switches : 2; }
+
+/** "" when n_d = `depth` is 0 (no lifting) or in [2, deepest_lifting_depth(switches)]; else the
+    reason, naming `model`: "the lifting depth must be 0 (none) or in [2, 3] for irma (larger
+    depths are the same as 3), got 1000000". The one bound `bflow fesd` and `bflow ocp` apply. */
+std::string lifting_depth_error(int depth, int switches, const std::string& model);
+
 }  // namespace bflow
 
 #endif  // BFLOW_CORE_FILIPPOV_H_

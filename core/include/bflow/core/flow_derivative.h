@@ -61,8 +61,12 @@ class FlowDerivative {
   const std::vector<FlowNotice>& notices() const { return notices_; }
   const Eigen::VectorXd& time_derivative() const { return time_derivative_; }
 
-  /** D phi_t(x0; dx). @throws InvalidArgument on a size mismatch or non-finite dx. */
+  /** D phi_t(x0; dx). @throws InvalidArgument on a size mismatch, non-finite dx, or a tangent
+      carried beyond the double range (at an event or at the final time). */
   Eigen::VectorXd apply(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
+  /** apply() on each column. @throws InvalidArgument on a row count other than d (whatever the
+      number of columns) or a non-finite number, naming its column, before any column is
+      mapped; then as apply(). */
   Eigen::MatrixXd apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx) const;
   /** Which crossing order the perturbation dx takes at each event: for event i, the order in
       which the perturbed trajectory crosses the event's surfaces, in the MODEL's surface indices,

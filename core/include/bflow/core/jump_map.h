@@ -171,14 +171,25 @@ class JumpMap {
   Eigen::VectorXd transversality(Signs b) const;
 
   /** B(dx) by Algorithm 2.1. O(n d + n^2) time with Gamma cached (O(n^2 d) when each of the
-      n + 1 words is evaluated afresh), O(1) extra space, no heap allocation. `out` may alias
-      `dx`. @throws InvalidArgument on a size mismatch, non-finite dx, or an image beyond the
-      double range (then `out` is not written). */
+      n + 1 words is evaluated afresh), O(1) extra space, no heap allocation. `out` may be `dx`
+      itself (in place). @throws InvalidArgument on a size mismatch, an `out` that overlaps `dx`
+      without being it, non-finite dx, or an image beyond the double range; on any throw `out`
+      is not written. */
   void apply(const Eigen::Ref<const Eigen::VectorXd>& dx, Eigen::Ref<Eigen::VectorXd> out) const;
   Eigen::VectorXd apply(const Eigen::Ref<const Eigen::VectorXd>& dx) const;
   /** B applied to each column of a d x k block; no heap allocation. For one surface (B linear)
       the block is mapped in two passes (eta X, two rank-one updates) rather than a walk per
-      column: 18 ns per tangent at d = 6 against 50 (docs/peers.md, the jump alone). */
+      column: 18 ns per tangent at d = 6 against 50 (docs/peers.md, the jump alone). `out` may be
+      `dx` itself (the same block: same first number and outer stride), mapped in place.
+      Every column is checked before any is written: for a table whose growth bound (a product
+      over the surfaces of 1 + 2 max|Gamma| |eta_j|_1 / min eta_j . Gamma) times the sum of
+      all |dx| stays below 2^1021 no image can leave the double range, and the check is one pass
+      over the numbers; otherwise (a lazy source, extreme limits or tangents) each column is also
+      walked once without writing.
+      @throws InvalidArgument on a size mismatch, an `out` that overlaps `dx` without being the
+      same block or whose columns overlap one another, a non-finite number (naming its column),
+      an image beyond the double range, or (lazy source) a word that is not transversal; on any
+      throw `out` is not written. */
   void apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx,
                    Eigen::Ref<Eigen::MatrixXd> out) const;
   Eigen::MatrixXd apply_block(const Eigen::Ref<const Eigen::MatrixXd>& dx) const;
@@ -228,8 +239,9 @@ class JumpMap {
   // Algorithm 2.1 with every scalar a number with its own binary exponent: right wherever the
   // image and the times are representable as doubles; otherwise throws InvalidArgument (`what`
   // names the caller) without writing `out`.
-  void walk_scaled(const char* what, const double* dx, double* out, int* order,
-                   double* times) const;
+  // With `check_image` and no `out`, the image is formed and checked but not written.
+  void walk_scaled(const char* what, const double* dx, double* out, int* order, double* times,
+                   bool check_image = false) const;
   std::unique_ptr<Impl> impl_;
 };
 

@@ -75,6 +75,7 @@
 
 #include "bflow/core/errors.h"
 #include "bflow/core/scene.h"
+#include "bflow/core/text.h"
 
 namespace bflow {
 
@@ -221,16 +222,16 @@ inline void set_param(PronkParams& params, std::string_view key, std::string_vie
   if (key == "tether") field = &params.tether;
   if (key == "tether_damping") field = &params.tether_damping;
   if (field == nullptr) {
-    throw InvalidArgument("set_param: unknown pronk parameter \"" + std::string(key) +
-                          "\" (known: " + kPronkParamKeys + ")");
+    throw InvalidArgument("set_param: unknown pronk parameter " + quote(std::string(key)) +
+                          " (known: " + kPronkParamKeys + ")");
   }
   const std::string text(value);
   char* end = nullptr;
   errno = 0;
   const double number = std::strtod(text.c_str(), &end);
   if (text.empty() || end != text.c_str() + text.size() || errno == ERANGE) {
-    throw InvalidArgument("set_param: pronk parameter \"" + std::string(key) + "\" = \"" + text +
-                          "\" is not a number");
+    throw InvalidArgument("set_param: pronk parameter " + quote(std::string(key)) + " = " +
+                          quote(text) + " is not a number");
   }
   internal::check_pronk_param("set_param", key, number);
   *field = number;
