@@ -8,6 +8,7 @@
 
 #include "bflow/core/errors.h"
 #include "bflow/integrators/cvodes.h"
+#include "bflow/integrators/dop853.h"
 #include "bflow/integrators/dopri5.h"
 
 namespace bflow {

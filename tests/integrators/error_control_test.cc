@@ -14,6 +14,7 @@
 
 #include <gtest/gtest.h>
 
+#include "bflow/integrators/dop853.h"
 #include "bflow/integrators/dopri5.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"

@@ -11,6 +11,7 @@
 #include <unsupported/Eigen/MatrixFunctions>
 
 #include "bflow/examples/reference_flow.h"
+#include "bflow/integrators/dop853.h"
 #include "bflow/integrators/dopri5.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"

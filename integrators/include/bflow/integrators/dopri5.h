@@ -1,6 +1,11 @@
-// Dormand-Prince 5(4) with dense output, written once for any scalar: with T = double it
-// integrates the state; with T = ceres::Jet<double, N> the same arithmetic carries N tangent
-// directions in the Jet parts, which is the variational equation V' = DF_b(x) V ([B] (2.4)).
+// Dormand-Prince 5(4) with dense output of order 4: seven stages a step, the last one the first of
+// the next step (FSAL), an error estimate of order 4, step control with exponent 1/5.
+//
+// The explicit Runge-Kutta family. dopri5 (here) and dop853 (dop853.h) are two tableaus in one
+// stepper (integrators/src/explicit_rk_stepper.h), which owns everything below: tangents, step
+// control, events and grazing. It is written once for any scalar: with T = double it integrates
+// the state; with T = ceres::Jet<double, N> the same arithmetic carries N tangent directions in
+// the Jet parts, which is the variational equation V' = DF_b(x) V ([B] (2.4)).
 //
 // Step control holds the state and, by default (IntegratorOptions::tangents_in_error_norm), each
 // tangent direction to the tolerances: the error is the larger of the state's RMS norm and, over
@@ -52,21 +57,6 @@ class Dopri5Integrator final : public SegmentIntegrator {
       IntegratorOptions::kMinRtol or atol below IntegratorOptions::kMinAtol (or either is not
       finite), initial_step or min_step is negative or not finite, max_step is not positive, or
       max_steps is below 1. */
-  SegmentResult integrate(const SegmentModel& model, const SegmentRequest& request,
-                          const IntegratorOptions& options) override;
-};
-
-/** Dormand & Prince's 8(5,3) pair (Hairer's DOP853): twelve stages per step, order 8, the
-    error estimate of order 5 damped by one of order 3, step control with exponent 1/8, and a
-    dense output of order 7 (three more stages, spent only on a step in which a crossing is
-    located). The tangents' error estimate is damped per direction, by that direction's own
-    order-3 estimate (the state's damping factor is 0 wherever the state's estimate is).
-    Everything else (events, grazing, chunks of tangents, errors) as Dopri5Integrator.
-    Fewer steps than dopri5 at tight tolerances on smooth segments (docs/peers.md, the flow
-    comparison); at loose ones, or with many short segments, dopri5 is cheaper. */
-class Dop853Integrator final : public SegmentIntegrator {
- public:
-  /** As Dopri5Integrator::integrate; messages start with "dop853:". */
   SegmentResult integrate(const SegmentModel& model, const SegmentRequest& request,
                           const IntegratorOptions& options) override;
 };

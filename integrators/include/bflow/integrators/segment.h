@@ -1,5 +1,6 @@
 // One smooth segment of a nonsmooth flow: the contract between the hybrid flow driver and the
-// integration backends (Dormand-Prince 5(4) and 8(5,3) in dopri5.h, SUNDIALS CVODES in cvodes.h).
+// integration backends (the explicit Runge-Kutta pairs Dormand-Prince 5(4) in dopri5.h and
+// 8(5,3) in dop853.h, SUNDIALS CVODES in cvodes.h).
 //
 // On a segment the sides b of all surfaces are fixed, so the field F_b is smooth. A backend
 // integrates x' = F_b(x) and, when tangents are given, V' = DF_b(x) V (the variational
