@@ -540,7 +540,8 @@ class CvodesIntegrator::Impl {
       check(CVodeSensInit(mem, k, CV_STAGGERED, &tangent_callback, ys_.data()), "CVodeSensInit");
       std::vector<double> atol(static_cast<std::size_t>(k), options.absolute_tolerance());
       check(CVodeSensSStolerances(mem, options.rtol, atol.data()), "CVodeSensSStolerances");
-      check(CVodeSetSensErrCon(mem, SUNTRUE), "CVodeSetSensErrCon");
+      check(CVodeSetSensErrCon(mem, options.tangents_in_error_norm ? SUNTRUE : SUNFALSE),
+            "CVodeSetSensErrCon");
       // No parameters: the sensitivity right-hand side is ours, so CVODES needs neither p
       // (only its difference quotients use it) nor pbar (scales of its estimated tolerances).
       check(CVodeSetSensParams(mem, nullptr, nullptr, nullptr), "CVodeSetSensParams");

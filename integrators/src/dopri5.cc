@@ -68,28 +68,47 @@ template <typename T>
 struct TangentNorm {
   void clear() {}
   void add(const T&, const T&, const T&) {}
+  void add_damped(const T&, const T&, const T&, const T&) {}
   double error(double, double) const { return 0.0; }
 };
 template <int N>
 struct TangentNorm<ceres::Jet<double, N>> {
   using Jet = ceres::Jet<double, N>;
-  Eigen::Array<double, N, 1> error_sq, size0_sq, size1_sq;
+  Eigen::Array<double, N, 1> error_sq, low_sq, size0_sq, size1_sq;
+  bool damped = false;
   void clear() {
     error_sq.setZero();
+    low_sq.setZero();
     size0_sq.setZero();
     size1_sq.setZero();
+    damped = false;
   }
+  /** A component's local error estimate err (its tangent parts) at a step x0 -> x1. */
   void add(const Jet& err, const Jet& x0, const Jet& x1) {
     error_sq += err.v.array().square();
     size0_sq += x0.v.array().square();
     size1_sq += x1.v.array().square();
   }
+  /** The same for a pair whose estimate is `high` damped by a lower-order one, `low` (DOP853). */
+  void add_damped(const Jet& high, const Jet& low, const Jet& x0, const Jet& x1) {
+    add(high, x0, x1);
+    low_sq += low.v.array().square();
+    damped = true;
+  }
   // max over directions c of |e_c| / (atol + rtol max(|v_c(t)|, |v_c(t + h)|)), Euclidean norms:
   // each direction is held to rtol relative to its own size, the way a derivative's accuracy is
   // judged (|D dx - D_ref dx| / |D_ref dx|), not to the state's per-component scale.
+  // Damped (DOP853), e_c is each direction's own |e5_c| gamma_c, gamma_c = |e5_c| / sqrt(|e5_c|^2 +
+  // 0.01 |e3_c|^2): DOP853's rule applied to that direction as if it were a system of its own.
+  // The state's gamma would not do: it is 0 wherever the state's estimate is (an equilibrium),
+  // whatever the tangents do.
   double error(double rtol, double atol) const {
     const auto scale = atol + rtol * size0_sq.max(size1_sq).sqrt();
-    return (error_sq.sqrt() / scale).maxCoeff();
+    if (!damped) return (error_sq.sqrt() / scale).maxCoeff();
+    // |e5|^2 <= denominator^2, so the floor (reached only when both are 0) gives 0, not 0 / 0.
+    const Eigen::Array<double, N, 1> denominator =
+        (error_sq + 0.01 * low_sq).sqrt().max(std::numeric_limits<double>::min());
+    return (error_sq / denominator / scale).maxCoeff();
   }
 };
 
@@ -141,6 +160,11 @@ class Dp54Stages {
   /** The local error estimate of component i. */
   T error(int i, double h) const {
     return h * (e1 * k1_[i] + e3 * k3_[i] + e4 * k4_[i] + e5 * k5_[i] + e6 * k6_[i] + e7 * k7_[i]);
+  }
+  /** Component i's share of the tangents' error norm, given its error(i, h). */
+  void add_tangent_error(int, double, const T& error, const T& x0, const T& x1,
+                         TangentNorm<T>& norm) const {
+    norm.add(error, x0, x1);
   }
   template <typename Field>
   void prepare_dense(const std::vector<T>&, double, double, std::vector<T>&, Field&&) {}
@@ -335,6 +359,18 @@ class Dp853Stages {
       if (dp853::kE5[r] != 0.0) sum += dp853::kE5[r] * k_[r][i];
     }
     return (h * gamma_) * sum;
+  }
+  // The tangents' estimate is damped per direction from their own e5 and e3 (TangentNorm), not
+  // by gamma_, which the state sets.
+  void add_tangent_error(int i, double h, const T&, const T& x0, const T& x1,
+                         TangentNorm<T>& norm) const {
+    T high = dp853::kE5[0] * k_[0][i];
+    T low = dp853::kE3[0] * k_[0][i];
+    for (int r = 1; r < 13; ++r) {
+      if (dp853::kE5[r] != 0.0) high += dp853::kE5[r] * k_[r][i];
+      if (dp853::kE3[r] != 0.0) low += dp853::kE3[r] * k_[r][i];
+    }
+    norm.add_damped(h * high, h * low, x0, x1);
   }
   // The three extra stages of the dense output, once per step (before accept()).
   template <typename Field>
@@ -629,7 +665,7 @@ class Stepper {
       const T err = method_.error(i, last_h_);
       ratios_[i] = value_of(err) / scale(value_of(x[i]), value_of(next_[i]));
       sum += std::pow(ratios_[i], 2);
-      if (tangents) tangent_norm_.add(err, x[i], next_[i]);
+      if (tangents) method_.add_tangent_error(i, last_h_, err, x[i], next_[i], tangent_norm_);
     }
     double state = std::sqrt(sum / d_);
     if (!std::isfinite(state)) {

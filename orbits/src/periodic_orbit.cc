@@ -300,9 +300,10 @@ FlowOptions default_orbit_flow_options() {
   options.integrator.rtol = 1e-10;
   options.integrator.atol = 1e-12;
   // The return map's derivative is what the verdict reads: its error is held to the tolerance
-  // too. On a symmetric orbit (the biped's and the pronk's hops) the state's own error estimate
-  // does not see the tangents that break the symmetry; without this the pronk's bracket is off
-  // by 1e-3 (upper 0.745588 against 0.744672).
+  // too (every flow's default, stated here because the verdict depends on it). On a symmetric
+  // orbit (the biped's and the pronk's hops) the state's own error estimate does not see the
+  // tangents that break the symmetry; with the state alone the pronk's bracket is off by 1e-3
+  // (upper 0.745588 against 0.744672).
   options.integrator.tangents_in_error_norm = true;
   return options;
 }

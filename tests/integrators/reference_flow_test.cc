@@ -309,10 +309,11 @@ TEST(ReferenceFlowTest, DefaultOptionsKeepTheTripleCrossingOneEventFromEveryStar
       worst_grouped_spread = std::max(worst_grouped_spread, trajectory.events[0].spread);
       smallest_window = std::min(smallest_window, trajectory.events[0].window);
       // The grouping margin: the window must stand above the spread integration error puts on
-      // this simultaneous crossing (measured: window >= 8.07e-9, spread <= 1.46e-9, a ratio of
-      // 5.5 at the smallest: the window weighs each coordinate's tolerance by the normal, the
-      // spread carries the error accumulated over the whole run).
-      EXPECT_GE(trajectory.events[0].window, 5 * trajectory.events[0].spread) << "start " << k;
+      // this simultaneous crossing (measured: window >= 8.07e-9, spread <= 1.66e-9, a ratio of
+      // 4.9 at the smallest, start 9; 5.5 when the state alone set the steps: the window weighs
+      // each coordinate's tolerance by the normal, the spread carries the error accumulated over
+      // the whole run, which the steps chosen for the tangents too leave at a different value).
+      EXPECT_GE(trajectory.events[0].window, 4 * trajectory.events[0].spread) << "start " << k;
     }
     for (int m = 0; m < 3; ++m) {
       const auto& order = kOrders[(k + 2 * m) % 6];

@@ -307,7 +307,7 @@ TEST_F(PronkOrbit, VerdictStableAndTrueIteratesShrinkAtTheBracketedRate) {
 }
 
 TEST_F(PronkOrbit, StateAloneInTheErrorNormLoosensTheBracket) {
-  // The steps set by the state alone, as bflow's flows take them by default.
+  // The steps set by the state alone (IntegratorOptions::tangents_in_error_norm = false).
   OrbitOptions state_alone;
   state_alone.flow.integrator.tangents_in_error_norm = false;
   const PeriodicOrbit plain = find_periodic_orbit(model(), kApex, guess(), state_alone);

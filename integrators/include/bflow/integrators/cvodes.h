@@ -23,9 +23,9 @@
 //    stiff, whereas Newton costs one d x d LU per Jacobian update, small for the d of bflow.
 //  * Tangents: forward sensitivities, one per column of v0, with a user sensitivity right-hand
 //    side DF_b(x) S computed for all k columns by Jets in chunks of kTangentChunk (never by
-//    CVODES difference quotients), the staggered corrector (CV_STAGGERED), and the tangents
-//    always in the error test (CVodeSetSensErrCon on, tolerances rtol and atol per column);
-//    IntegratorOptions::tangents_in_error_norm is therefore not consulted.
+//    CVODES difference quotients), and the staggered corrector (CV_STAGGERED). The tangents are
+//    in the error test as IntegratorOptions::tangents_in_error_norm says (CVodeSetSensErrCon;
+//    on by default, tolerances rtol and atol per column); off, the state alone sets the steps.
 //  * Crossings: CVODES root finding on g_j(x) = s_j h_j(x) (s_j = +1 on the + side of b),
 //    direction "decreasing" only, so a crossing is g_j going from >= 0 to < 0 or to 0.
 //    A surface with g_j(x0) < 0 is not watched until it becomes positive (no decreasing

@@ -2,12 +2,14 @@
 // integrates the state; with T = ceres::Jet<double, N> the same arithmetic carries N tangent
 // directions in the Jet parts, which is the variational equation V' = DF_b(x) V ([B] (2.4)).
 //
-// Step control uses the state only (the Jet values), unless tangents_in_error_norm is set; the
-// step size is a plain double and is never differentiated. With the state alone in the norm,
-// every chunk of tangents takes exactly the same steps, so a d x k block integrated in chunks
-// of eight sees one trajectory. With the tangents in the norm, each tangent direction is held
-// to rtol relative to its own size (max over directions c of |e_c| / (atol + rtol |v_c|) in
-// Euclidean norms), and a later chunk may take other steps than the first, to the same end time.
+// Step control holds the state and, by default (IntegratorOptions::tangents_in_error_norm), each
+// tangent direction to the tolerances: the error is the larger of the state's RMS norm and, over
+// directions c, |e_c| / (atol + rtol |v_c|) in Euclidean norms, so a later chunk of tangents may
+// take other steps than the first, to the same end time. The step size is a plain double and is
+// never differentiated. With tangents_in_error_norm = false the state (the Jet values) alone sets
+// the steps and every chunk of tangents takes exactly the same steps; the derivative's error is
+// then not controlled (where the state's estimate vanishes, at an equilibrium or on an invariant
+// set, it is not even bounded).
 //
 // Events follow segment.h: after each accepted step the watched g_j = s_j h_j are evaluated;
 // a sign change from > 0 to <= 0 is located on the dense output (Illinois method on the
@@ -57,7 +59,9 @@ class Dopri5Integrator final : public SegmentIntegrator {
 /** Dormand & Prince's 8(5,3) pair (Hairer's DOP853): twelve stages per step, order 8, the
     error estimate of order 5 damped by one of order 3, step control with exponent 1/8, and a
     dense output of order 7 (three more stages, spent only on a step in which a crossing is
-    located). Everything else (events, grazing, chunks of tangents, errors) as Dopri5Integrator.
+    located). The tangents' error estimate is damped per direction, by that direction's own
+    order-3 estimate (the state's damping factor is 0 wherever the state's estimate is).
+    Everything else (events, grazing, chunks of tangents, errors) as Dopri5Integrator.
     Fewer steps than dopri5 at tight tolerances on smooth segments (docs/peers.md, the flow
     comparison); at loose ones, or with many short segments, dopri5 is cheaper. */
 class Dop853Integrator final : public SegmentIntegrator {
