@@ -221,15 +221,19 @@ def reference_heyoka(job):
     sides = initial_sides(name, x0)
     x0_ld = np.array(x0, dtype=L)
     start = time.process_time()
-    ref = Heyoka(name, L, None, variational=True)
-    x, jac, events = ref.run(x0_ld, p["t"], sides)
-    out["x"] = [float(v) for v in x]
-    out["events"] = events
     if job.get("directions") is None:
+        ref = Heyoka(name, L, None, variational=True)
+        x, jac, events = ref.run(x0_ld, p["t"], sides)
+        out["x"] = [float(v) for v in x]
+        out["events"] = events
         out["jacobian"] = jac.astype(float).tolist()
     else:
+        # The flow alone: no variational equations to compile (in long double that takes
+        # minutes for the biped).
         plain = Heyoka(name, L, None, variational=False)
-        base, _, _ = plain.run(x0_ld, p["t"], sides)
+        base, _, events = plain.run(x0_ld, p["t"], sides)
+        out["x"] = [float(v) for v in base]
+        out["events"] = events
         images, orders = [], []
         for v in job["directions"]:
             v = np.array(v, dtype=L)
@@ -243,8 +247,6 @@ def reference_heyoka(job):
             images.append([float(c) for c in r])
         out["images"] = images
         out["orders"] = orders
-        # The variational Jacobian with saltations in the nominal firing order: one piece.
-        out["jacobian_one_order"] = jac.astype(float).tolist()
     out["cpu_s"] = time.process_time() - start
     out["settings"] = "heyoka long double, tol = epsilon (1.08e-19)"
     return out
@@ -402,7 +404,7 @@ def run_scipy(job):
                    "x": x.tolist(), "events": events, "status": "solved"}
             row["images" if along else "jacobian"] = jac.T.tolist() if along else jac.tolist()
             out.append(row)
-        except RuntimeError as e:
+        except (RuntimeError, ValueError) as e:  # ValueError: an event's root bracket lost
             out.append({"tol": rtol, "status": "error", "message": str(e)})
     return out
 
@@ -748,8 +750,10 @@ def check_row(row, ref):
 
 def _reference_row(name, ref, heyoka, versions, ctx, simultaneous):
     """The reference row, with the cross-check against heyoka in long double."""
-    row = {"comparison": "flow", "problem": name, "tool": "reference",
-           "version": f"examples::ReferenceFlow ({ctx.bflow_version})", **ref,
+    # The program's "problem" is its model's name (biped for biped-tilt): the row's is the
+    # problem's.
+    row = {**ref, "comparison": "flow", "problem": name, "tool": "reference",
+           "version": f"examples::ReferenceFlow ({ctx.bflow_version})",
            "settings": (f"examples::ReferenceFlow, long double, RK6 step {ref['step']:g}, "
                         f"(8 D(a/4) - 6 D(a/2) + D(a)) / 3 at a = {ref['alpha']:g}")}
     if not simultaneous:
@@ -939,6 +943,11 @@ def report(data, ctx):
                f"cores, {load}), {m.get('git', '?')}, {data.get('minutes', '?')} minutes"
                f"{' (quick)' if data.get('quick') else ''}. Versions: "
                + "; ".join(sorted({r['version'] for r in flow_rows if r.get('version')})) + ".")
+    rerun = data.get("bflow_rows_rerun")
+    if rerun:
+        out.append(f"\nbflow's rows were run again on {rerun.get('date')} with {rerun.get('git')} "
+                   f"(load average {common.fmt(rerun.get('load_average_before'))}), every other "
+                   "row and the references kept from the run above.")
     problems = [p for p in fp.PROBLEMS if any(r["problem"] == p for r in flow_rows)]
     present = {r["tool"] for r in flow_rows}
     columns = [(h, [m_ for m_ in members if m_[0] in present]) for h, members in RATIO_COLUMNS]
@@ -1010,6 +1019,13 @@ def report(data, ctx):
                                 ["---", "---:", "---", "---:", "---:", "---:", "---:", "---:"]))
         if name in DIRECTIONS and ref:
             out.append(_piece_table(name, ref, flow_rows))
+            earlier = data.get("hybrid_tools_rows_from")
+            if earlier and any(r["tool"] == "hybrid-tools" and r["problem"] == name
+                               for r in flow_rows):
+                out.append(f"\nhybrid-tools was not run again: its x(T), crossings and "
+                           f"derivative are those of the run of {earlier.get('date')} "
+                           f"({earlier.get('git')}) from the same start, their errors measured "
+                           "against this reference.")
     if ctx.plots:
         _plots(flow_rows, problems)
         out.append("\n![work-precision](peers_flow_smooth.png)\n"
@@ -1017,6 +1033,12 @@ def report(data, ctx):
                    "![work-precision](peers_flow_simultaneous.png)")
     if jump_rows:
         out.append("\n### The jump alone\n")
+        earlier = data.get("jump_rows_from")
+        if earlier:
+            out.append(f"Not run again with the rows above: these rows are those of the run of "
+                       f"{earlier.get('date')} ({earlier.get('git')}, load average "
+                       f"{common.fmt(earlier.get('load_average_before'))}), without the "
+                       "harness's own cost.\n")
         out.append(flow_jump.report(jump_rows, ctx))
     return "\n".join(out)
 
