@@ -1033,6 +1033,12 @@ def report(data, ctx):
                    "![work-precision](peers_flow_simultaneous.png)")
     if jump_rows:
         out.append("\n### The jump alone\n")
+        again = data.get("jump_rows_rerun")
+        if again:
+            out.append(f"Run by itself on {again.get('date')} (load average "
+                       f"{common.fmt(again.get('load_average_before'))} before, "
+                       f"{common.fmt(again.get('load_average_after'))} after, "
+                       f"{again.get('minutes')} minutes), after the rows above.\n")
         earlier = data.get("jump_rows_from")
         if earlier:
             out.append(f"Not run again with the rows above: these rows are those of the run of "
