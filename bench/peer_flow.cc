@@ -15,10 +15,22 @@
 //
 // What is timed: the run the peers do, x(T) and the derivative in `--directions` (default the d
 // unit vectors: the full Jacobian dx(T)/dx0), by bflow::simulate with those tangents, with the
-// options given (the rest at their defaults: automatic grouping); repeated until --min-cpu
-// seconds of process CPU time have passed, the mean per run reported. The JSON: the problem and
-// settings, status, x(T), the images of the directions (d x k, "images" as k rows), the events
-// (time, surfaces, group size), steps, field evaluations, cpu_s per run and runs.
+// options given (the rest at their defaults: automatic grouping, bflow's default error
+// control); after one untimed run (as every peer gets), repeated until --min-cpu seconds of
+// process CPU time have passed, the mean per run reported. The JSON: the problem and settings,
+// status, x(T), the images of the directions (d x k, "images" as k rows), the events (time,
+// surfaces, group size), steps, field evaluations, cpu_s per run and runs.
+//
+//   peer_flow --reference --problem three --x0 crossing --t 1.5 [--directions ...]
+//
+// The reference instead (no bflow engine code: examples::ReferenceFlow, long double, fixed-step
+// sixth-order Runge-Kutta with bisected crossings, --reference-step its step): x(T), every
+// crossing, and the image of each direction by (8 D(a/4) - 6 D(a/2) + D(a)) / 3,
+// D(a) = (phi(x0 + a v) - phi(x0)) / a, a = 5e-5, with the crossing order of the a/4 run; and
+// its own accuracy, the largest relative change of the images when its step or a is halved.
+// For `three`, --x0 crossing starts at phi_{-1}(rho) under F_{---} (ReferenceFlow::backward),
+// rounded to double: the start every tool is given.
+#include <algorithm>
 #include <cstdio>
 #include <exception>
 #include <iostream>
@@ -34,6 +46,7 @@
 #include "bflow/core/errors.h"
 #include "bflow/core/model.h"
 #include "bflow/core/signs.h"
+#include "bflow/examples/reference_flow.h"
 #include "bflow/examples/three_surfaces.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
@@ -113,18 +126,22 @@ std::vector<std::vector<double>> parse_rows(const std::string& text, const char*
 struct Flags {
   std::string problem, backend = "dopri5", x0, directions;
   double t = 0.0, rtol = 1e-8, atol = -1.0, min_cpu = 0.2;
+  bool reference = false;
+  double reference_step = 1.0 / 512;
 };
 
 template <typename Model>
-ordered_json run(const Flags& f, const Model& model) {
-  const auto adapted = bflow::adapt(model);
+Eigen::VectorXd read_x0(const Flags& f, const Model& model) {
   const int d = bflow::model_states(model);
   const std::vector<std::vector<double>> x0_rows = parse_rows(f.x0, "--x0");
   if (x0_rows.size() != 1 || static_cast<int>(x0_rows[0].size()) != d) {
     throw bflow::InvalidArgument("--x0: " + std::to_string(d) + " numbers expected for " +
                                  f.problem + ", got \"" + f.x0 + "\"");
   }
-  const Eigen::VectorXd x0 = Eigen::Map<const Eigen::VectorXd>(x0_rows[0].data(), d);
+  return Eigen::Map<const Eigen::VectorXd>(x0_rows[0].data(), d);
+}
+
+Eigen::MatrixXd read_directions(const Flags& f, int d) {
   Eigen::MatrixXd directions = Eigen::MatrixXd::Identity(d, d);
   if (!f.directions.empty()) {
     const std::vector<std::vector<double>> rows = parse_rows(f.directions, "--directions");
@@ -139,12 +156,22 @@ ordered_json run(const Flags& f, const Model& model) {
           Eigen::Map<const Eigen::VectorXd>(rows[k].data(), d);
     }
   }
+  return directions;
+}
+
+template <typename Model>
+ordered_json run(const Flags& f, const Model& model) {
+  const auto adapted = bflow::adapt(model);
+  const int d = bflow::model_states(model);
+  const Eigen::VectorXd x0 = read_x0(f, model);
+  const Eigen::MatrixXd directions = read_directions(f, d);
   bflow::FlowOptions options;
   options.backend = bflow::parse_backend(f.backend);
   options.integrator.rtol = f.rtol;
   if (f.atol > 0.0) options.integrator.atol = f.atol;
 
-  bflow::FlowResult r;
+  // The untimed first run: the peers' harness gives each tool one (imports, allocations).
+  bflow::FlowResult r = bflow::simulate(adapted, x0, f.t, directions, options);
   int runs = 0;
   const double start = process_cpu_seconds();
   double elapsed = 0.0;
@@ -178,6 +205,92 @@ ordered_json run(const Flags& f, const Model& model) {
   return j;
 }
 
+// The independent reference (see the top of the file).
+template <typename Model>
+ordered_json reference(const Flags& f, const Model& model) {
+  using LVector = Eigen::Matrix<long double, Eigen::Dynamic, 1>;
+  using Reference = bflow::examples::ReferenceFlow<Model>;
+  constexpr long double kAlpha = 5e-5L;
+  const int d = bflow::model_states(model);
+  const double cpu_start = process_cpu_seconds();
+  const Reference ref(model, static_cast<long double>(f.reference_step));
+  const Reference fine(model, static_cast<long double>(f.reference_step) / 2);
+  ordered_json j;
+  Eigen::VectorXd x0;
+  if (f.x0 == "crossing") {
+    if (f.problem != "three") {
+      throw bflow::InvalidArgument("--x0 crossing: only for three, not " + f.problem);
+    }
+    const LVector rho = bflow::examples::ThreeSurfaces::crossing_point().cast<long double>();
+    const LVector back =
+        ref.backward(rho, static_cast<long double>(bflow::examples::ThreeSurfaces::kCrossingTime),
+                     bflow::Signs(3));
+    x0 = back.cast<double>();
+    j["x0_long_double"] = ordered_json::array();
+    for (Eigen::Index i = 0; i < back.size(); ++i) {
+      char text[64];
+      std::snprintf(text, sizeof text, "%.21Lg", back[i]);
+      j["x0_long_double"].push_back(text);
+    }
+  } else {
+    x0 = read_x0(f, model);
+  }
+  const Eigen::MatrixXd directions = read_directions(f, d);
+  const LVector start = x0.cast<long double>();
+  const long double t = f.t;
+  // (8 D(a/4) - 6 D(a/2) + D(a)) / 3 from the flows of `flow`, and the a/4 run's crossings.
+  const auto richardson2 = [&](const Reference& flow, const LVector& base, const LVector& v,
+                               long double a, std::vector<int>* order) {
+    const LVector d1 = (flow.flow(start + a * v, t).x - base) / a;
+    const LVector d2 = (flow.flow(start + (a / 2) * v, t).x - base) / (a / 2);
+    const auto quarter = flow.flow(start + (a / 4) * v, t);
+    const LVector d4 = (quarter.x - base) / (a / 4);
+    if (order != nullptr) {
+      for (const auto& c : quarter.crossings) order->push_back(c.surface);
+    }
+    return LVector((8.0L * d4 - 6.0L * d2 + d1) / 3.0L);
+  };
+  const auto nominal = ref.flow(start, t);
+  const LVector base_fine = fine.flow(start, t).x;
+  j["problem"] = f.problem;
+  j["x0"] = vector_json(x0);
+  j["x"] = vector_json(nominal.x.template cast<double>());
+  j["x_step_change"] = static_cast<double>((base_fine - nominal.x).cwiseAbs().maxCoeff() /
+                                           std::max(1.0L, nominal.x.cwiseAbs().maxCoeff()));
+  j["events"] = ordered_json::array();
+  for (const auto& c : nominal.crossings) {
+    j["events"].push_back({static_cast<double>(c.t), c.surface});
+  }
+  j["images"] = ordered_json::array();
+  j["orders"] = ordered_json::array();
+  double step_change = 0.0, alpha_change = 0.0;
+  for (Eigen::Index k = 0; k < directions.cols(); ++k) {
+    const LVector v = directions.col(k).cast<long double>();
+    std::vector<int> order;
+    const LVector r = richardson2(ref, nominal.x, v, kAlpha, &order);
+    const LVector r_step = richardson2(fine, base_fine, v, kAlpha, nullptr);
+    const LVector r_alpha = richardson2(ref, nominal.x, v, kAlpha / 2, nullptr);
+    const long double scale = std::max(1.0L, r.cwiseAbs().maxCoeff());
+    step_change =
+        std::max(step_change, static_cast<double>((r_step - r).cwiseAbs().maxCoeff() / scale));
+    alpha_change =
+        std::max(alpha_change, static_cast<double>((r_alpha - r).cwiseAbs().maxCoeff() / scale));
+    j["images"].push_back(vector_json(r.template cast<double>()));
+    j["orders"].push_back(order);
+  }
+  j["step_change"] = step_change;
+  j["alpha_change"] = alpha_change;
+  j["step"] = f.reference_step;
+  j["alpha"] = static_cast<double>(kAlpha);
+  j["cpu_s"] = process_cpu_seconds() - cpu_start;
+  return j;
+}
+
+template <typename Model>
+ordered_json run_or_reference(const Flags& f, const Model& model) {
+  return f.reference ? reference(f, model) : run(f, model);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -194,18 +307,22 @@ int main(int argc, char** argv) {
   app.add_option("--directions", f.directions,
                  "directions, d numbers each, separated by ';' (default: the unit vectors)");
   app.add_option("--min-cpu", f.min_cpu, "repeat the run until this much CPU time (s)");
+  app.add_flag("--reference", f.reference,
+               "the independent long double reference (examples::ReferenceFlow) instead");
+  app.add_option("--reference-step", f.reference_step, "the reference's step (default 2^-9)")
+      ->check(CLI::PositiveNumber);
   CLI11_PARSE(app, argc, argv);
   try {
     if (!(f.t > 0.0)) throw bflow::InvalidArgument("--t must be > 0, got " + std::to_string(f.t));
     ordered_json j;
     if (f.problem == "chain") {
-      j = run(f, PendulumChain{});
+      j = run_or_reference(f, PendulumChain{});
     } else if (f.problem == "ball") {
-      j = run(f, DampedBall{});
+      j = run_or_reference(f, DampedBall{});
     } else if (f.problem == "biped") {
-      j = run(f, bflow::make_biped_mode_damping(bflow::BipedParams{}));
+      j = run_or_reference(f, bflow::make_biped_mode_damping(bflow::BipedParams{}));
     } else {
-      j = run(f, bflow::examples::ThreeSurfaces{});
+      j = run_or_reference(f, bflow::examples::ThreeSurfaces{});
     }
     std::cout << j.dump() << "\n";
   } catch (const std::exception& e) {

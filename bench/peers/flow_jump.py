@@ -220,7 +220,15 @@ def worker_numpy(job):
     out["single"] = timing(*time_runs(single, repeat), 1)
     out["loop"] = timing(*time_runs(loop, repeat), k)
     out["block"] = timing(*time_runs(block, repeat), k)
+    out["harness"] = timing(*time_runs(_empty, repeat), 1)
     return out
+
+
+def _empty(calls):
+    """The timing loop with nothing in it: the harness's own cost per call."""
+    t = 0
+    for _ in range(calls):
+        t = t + 1
 
 
 def worker_jax(job):
@@ -267,6 +275,7 @@ def worker_jax(job):
 
     out["single"] = timing(*time_runs(single, repeat), 1)
     out["block"] = timing(*time_runs(block, repeat), k)
+    out["harness"] = timing(*time_runs(_empty, repeat), 1)
     return out
 
 
@@ -306,6 +315,8 @@ def _row(n, d, k, tool, version, settings, result, part, images=None, reference=
         return row
     t = result.get(part) or {}
     row["ns_per_tangent"] = t.get("ns_per_tangent")
+    # The timing loop's own cost per call (an empty call), part of ns_per_tangent at k = 1.
+    row["harness_ns_per_call"] = (result.get("harness") or {}).get("ns_per_tangent")
     row["runs_ns_per_tangent"] = t.get("runs_ns_per_tangent")
     row["calls_per_run"] = t.get("calls_per_run")
     # The CPU time of the row's k tangents.
@@ -495,6 +506,12 @@ def report(data, ctx):
     lines.append("")
     if versions:
         lines.append("Peers: " + "; ".join(versions) + ".")
+        lines.append("")
+    harness = [r["harness_ns_per_call"] for r in rows if r.get("harness_ns_per_call")]
+    if harness:
+        lines.append(f"The Python harness's own cost (the same timing loop around an empty call): "
+                     f"{_ns(min(harness))}–{_ns(max(harness))} ns per call, included in the "
+                     "numpy and JAX times at k = 1.")
         lines.append("")
 
     groups = []

@@ -24,7 +24,8 @@ PROBLEMS = {
               "x0": [0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
               "title": "mode-damping biped from rest (d = 6): both feet land at once (t = 0.397)"},
     # x0: ThreeSurfaces::nominal_start() (three_surfaces.h), phi_{-1}(rho) under F_{---}, rounded to
-    # double; peer_flow.py recomputes it with heyoka in long double and checks it.
+    # double; the reference (bench/peer_flow.cc --reference --x0 crossing) computes it with
+    # ReferenceFlow::backward in long double and hands every tool that start.
     "three": {"program": "three", "d": 5, "n": 3, "t": 1.5, "x0": None,
               "title": "three curved surfaces crossed at once (d = 5, t = 1), T = 1.5"},
 }

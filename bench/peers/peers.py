@@ -51,6 +51,10 @@ def main():
     unknown = [n for n in names if n not in COMPARISONS]
     if unknown:
         parser.error(f"unknown comparison {', '.join(unknown)}; known: {', '.join(COMPARISONS)}")
+    if args.repeat is not None and args.repeat < 1:
+        parser.error(f"--repeat {args.repeat}: the runs per row must be at least 1")
+    if not args.timeout > 0:
+        parser.error(f"--timeout {args.timeout}: the seconds per run must be > 0")
 
     ctx = Context()
     ctx.quick = args.quick
@@ -61,12 +65,25 @@ def main():
     build_dir = args.build_dir or (os.path.dirname(os.path.dirname(args.bflow))
                                    if args.bflow else None)
     results = os.path.join(common.ROOT, "out" if args.quick else "bench/results", "peers")
+    stored = {}
+    if args.report_only:
+        # Every stored file is read before any section is rewritten.
+        for name in names:
+            path = os.path.join(results, f"{name}.json")
+            try:
+                with open(path) as f:
+                    stored[name] = json.load(f)
+            except (OSError, UnicodeDecodeError, ValueError) as e:
+                parser.error(f"--report-only: cannot read {path}: {str(e)[:200]}")
+            rows = stored[name].get("rows") if isinstance(stored[name], dict) else None
+            if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+                parser.error(f"--report-only: {path} is not the results of a comparison (an "
+                             "object whose \"rows\" is a list of objects)")
     for name in names:
         module = importlib.import_module(COMPARISONS[name])
         path = os.path.join(results, f"{name}.json")
         if args.report_only:
-            with open(path) as f:
-                data = json.load(f)
+            data = stored[name]
         else:
             if not ctx.bflow or not os.access(ctx.bflow, os.X_OK):
                 parser.error(f"--bflow: {ctx.bflow} is not an executable")
@@ -78,6 +95,7 @@ def main():
                     "machine": common.machine(build_dir)}
             data["rows"] = module.run(ctx)
             data["minutes"] = round((time.time() - start) / 60.0, 2)
+            data["machine"]["load_average_after"] = os.getloadavg()[0]
             os.makedirs(results, exist_ok=True)
             with open(path, "w") as f:
                 json.dump(data, f, indent=1)
