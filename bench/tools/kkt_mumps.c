@@ -28,7 +28,9 @@
    Flags: --reps N, --phase-reps a,f,s (repetitions per phase, e.g. for profiling one phase),
    --orderings list, --pivtol x (CNTL(1)), --scaling s (ICNTL(8)),
    --permuting-scaling p (ICNTL(6)), --mem-percent m (ICNTL(14), IPOPT's mumps_mem_percent),
-   --label text (copied into each line).
+   --keep k=v (KEEP(k) = v after initialisation, repeatable: MUMPS' internal controls, which IPOPT
+   does not set; KEEP(197) = 1, the amalgamation of small fronts, is 5.8.2's default and off in
+   5.5.1), --label text (copied into each line).
 */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -129,15 +131,24 @@ static int read_matrix(const char* path, Matrix* m) {
 
 static const char* ordering_name(int k) {
   switch (k) {
-    case 0: return "AMD";
-    case 1: return "given";
-    case 2: return "AMF";
-    case 3: return "SCOTCH";
-    case 4: return "PORD";
-    case 5: return "METIS";
-    case 6: return "QAMD";
-    case 7: return "automatic";
-    default: return "?";
+    case 0:
+      return "AMD";
+    case 1:
+      return "given";
+    case 2:
+      return "AMF";
+    case 3:
+      return "SCOTCH";
+    case 4:
+      return "PORD";
+    case 5:
+      return "METIS";
+    case 6:
+      return "QAMD";
+    case 7:
+      return "automatic";
+    default:
+      return "?";
   }
 }
 
@@ -168,6 +179,7 @@ int main(int argc, char** argv) {
   double pivtol = 1e-6;
   int scaling = 77, permuting = 7, mem_percent = 1000;
   const char* label = "";
+  int keep_index[16], keep_value[16], n_keep = 0;
   int first_file = argc;
   for (int i = 1; i < argc; ++i) {
     if (!strcmp(argv[i], "--reps") && i + 1 < argc) {
@@ -187,6 +199,14 @@ int main(int argc, char** argv) {
       permuting = atoi(argv[++i]);
     } else if (!strcmp(argv[i], "--mem-percent") && i + 1 < argc) {
       mem_percent = atoi(argv[++i]);
+    } else if (!strcmp(argv[i], "--keep") && i + 1 < argc) {
+      if (n_keep == 16 ||
+          sscanf(argv[++i], "%d=%d", &keep_index[n_keep], &keep_value[n_keep]) != 2 ||
+          keep_index[n_keep] < 1 || keep_index[n_keep] > 500) {
+        fprintf(stderr, "kkt_mumps: --keep wants k=v with 1 <= k <= 500 (at most 16)\n");
+        return 2;
+      }
+      ++n_keep;
     } else if (!strcmp(argv[i], "--label") && i + 1 < argc) {
       label = argv[++i];
     } else if (argv[i][0] == '-') {
@@ -198,8 +218,10 @@ int main(int argc, char** argv) {
     }
   }
   if (first_file >= argc || reps < 1) {
-    fprintf(stderr, "usage: kkt_mumps [--reps N] [--orderings 0,2,...] [--pivtol x] "
-                    "[--scaling s] [--permuting-scaling p] [--mem-percent m] [--label text] file.mtx...\n");
+    fprintf(stderr,
+            "usage: kkt_mumps [--reps N] [--orderings 0,2,...] [--pivtol x] "
+            "[--scaling s] [--permuting-scaling p] [--mem-percent m] [--keep k=v] [--label text] "
+            "file.mtx...\n");
     return 2;
   }
   Dl_info info;
@@ -228,6 +250,7 @@ int main(int argc, char** argv) {
       id.comm_fortran = USE_COMM_WORLD;
       dmumps_c(&id);
       setup(&id, &m, ordering, pivtol, scaling, permuting, mem_percent);
+      for (int k = 0; k < n_keep; ++k) id.keep[keep_index[k] - 1] = keep_value[k];
       double phase_cpu[3], phase_wall[3];
       int status = 0;
       for (int phase = 1; phase <= 3 && status >= 0; ++phase) {
@@ -265,25 +288,27 @@ int main(int argc, char** argv) {
       }
       const int used = id.INFOG(7);
       const int available = ordering == 7 || used == ordering;
-      printf("{\"library\": \"%s\", \"mumps_version\": \"%s\", \"label\": \"%s\", "
-             "\"matrix\": \"%s\", \"n\": %d, \"nnz\": %lld, \"ordering\": %d, "
-             "\"ordering_name\": \"%s\", \"available\": %s, \"ordering_used\": %d, "
-             "\"ordering_used_name\": \"%s\", \"pivtol\": %g, \"scaling\": %d, "
-             "\"permuting_scaling\": %d, \"mem_percent\": %d, \"reps\": %d, \"status\": %d, "
-             "\"analysis_ms\": %.4f, \"factorization_ms\": %.4f, \"solve_ms\": %.4f, "
-             "\"analysis_wall_ms\": %.4f, \"factorization_wall_ms\": %.4f, "
-             "\"solve_wall_ms\": %.4f, \"factor_entries_estimated\": %d, "
-             "\"factor_entries\": %d, \"factor_integers\": %d, \"factor_entries_effective\": %d, "
-             "\"flops_estimated\": %.6g, \"flops\": %.6g, \"negative_pivots\": %d, "
-             "\"delayed_pivots\": %d, \"tree_nodes\": %d, \"max_front\": %d, "
-             "\"permuting_scaling_used\": %d, "
-             "\"compressed_ordering_used\": %d, \"scaling_used\": %d, \"residual\": %.3g}\n",
-             library, MUMPS_VERSION, label, argv[fi], m.n, m.nnz, ordering,
-             ordering_name(ordering), available ? "true" : "false", used, ordering_name(used),
-             pivtol, scaling, permuting, mem_percent, reps, status, phase_cpu[0], phase_cpu[1], phase_cpu[2],
-             phase_wall[0], phase_wall[1], phase_wall[2], id.INFOG(3), id.INFOG(9), id.INFOG(10),
-             id.INFOG(29), id.RINFOG(1), id.RINFOG(3), id.INFOG(12), id.INFOG(13), id.INFOG(6), id.INFOG(5), id.INFOG(23),
-             id.INFOG(24), id.INFOG(33), residual);
+      printf(
+          "{\"library\": \"%s\", \"mumps_version\": \"%s\", \"label\": \"%s\", "
+          "\"matrix\": \"%s\", \"n\": %d, \"nnz\": %lld, \"ordering\": %d, "
+          "\"ordering_name\": \"%s\", \"available\": %s, \"ordering_used\": %d, "
+          "\"ordering_used_name\": \"%s\", \"pivtol\": %g, \"scaling\": %d, "
+          "\"permuting_scaling\": %d, \"mem_percent\": %d, \"keep197\": %d, \"reps\": %d, "
+          "\"status\": %d, "
+          "\"analysis_ms\": %.4f, \"factorization_ms\": %.4f, \"solve_ms\": %.4f, "
+          "\"analysis_wall_ms\": %.4f, \"factorization_wall_ms\": %.4f, "
+          "\"solve_wall_ms\": %.4f, \"factor_entries_estimated\": %d, "
+          "\"factor_entries\": %d, \"factor_integers\": %d, \"factor_entries_effective\": %d, "
+          "\"flops_estimated\": %.6g, \"flops\": %.6g, \"negative_pivots\": %d, "
+          "\"delayed_pivots\": %d, \"tree_nodes\": %d, \"max_front\": %d, "
+          "\"permuting_scaling_used\": %d, "
+          "\"compressed_ordering_used\": %d, \"scaling_used\": %d, \"residual\": %.3g}\n",
+          library, MUMPS_VERSION, label, argv[fi], m.n, m.nnz, ordering, ordering_name(ordering),
+          available ? "true" : "false", used, ordering_name(used), pivtol, scaling, permuting,
+          mem_percent, id.keep[196], reps, status, phase_cpu[0], phase_cpu[1], phase_cpu[2],
+          phase_wall[0], phase_wall[1], phase_wall[2], id.INFOG(3), id.INFOG(9), id.INFOG(10),
+          id.INFOG(29), id.RINFOG(1), id.RINFOG(3), id.INFOG(12), id.INFOG(13), id.INFOG(6),
+          id.INFOG(5), id.INFOG(23), id.INFOG(24), id.INFOG(33), residual);
       fflush(stdout);
       id.job = JOB_END;
       dmumps_c(&id);

@@ -11,6 +11,10 @@
      MUMPS_PROBE_DUMP=pattern     Matrix Market file of a factorisation's matrix; "%d" in the
                                   pattern is replaced by the factorisation's number (1-based)
      MUMPS_PROBE_DUMP_AT=1,100    the factorisations to write (comma-separated, 1-based)
+     MUMPS_PROBE_KEEP=197=1       an experiment, not an observation: sets KEEP(197) = 1 (or any
+                                  k=v, comma-separated) before every analysis; MUMPS 5.8.2's
+                                  default amalgamation of small fronts, which 5.5.1 leaves off and
+                                  IPOPT cannot set
 
    The matrix is written as IPOPT hands it to MUMPS (id->n, id->nz or id->nnz, 1-based id->irn,
    id->jcn, id->a; IPOPT 3.11 and 3.14 fill nz, irn, jcn and a, sym = 2): entries are mirrored to
@@ -143,8 +147,8 @@ static void dump(const DMUMPS_STRUC_C* id, long k) {
   }
   const long long nz = entries(id);
   fprintf(f, "%%%%MatrixMarket matrix coordinate real symmetric\n");
-  fprintf(f, "%% factorisation %ld (analyses so far %ld), sym %d, %s\n", k, calls[1 + 2],
-          id->sym, library_path);
+  fprintf(f, "%% factorisation %ld (analyses so far %ld), sym %d, %s\n", k, calls[1 + 2], id->sym,
+          library_path);
   fprintf(f, "%% icntl");
   for (int i = 0; i < 40; ++i) fprintf(f, " %d", id->icntl[i]);
   fprintf(f, "\n%% cntl");
@@ -162,9 +166,21 @@ static void dump(const DMUMPS_STRUC_C* id, long k) {
   fclose(f);
 }
 
+static void set_keep(DMUMPS_STRUC_C* id) {
+  const char* spec = getenv("MUMPS_PROBE_KEEP");
+  if (!spec) return;
+  char buf[256];
+  snprintf(buf, sizeof buf, "%s", spec);
+  for (char* tok = strtok(buf, ","); tok; tok = strtok(NULL, ",")) {
+    int k = 0, v = 0;
+    if (sscanf(tok, "%d=%d", &k, &v) == 2 && k >= 1 && k <= 500) id->keep[k - 1] = v;
+  }
+}
+
 void dmumps_c(DMUMPS_STRUC_C* id) {
   dmumps_fn real = real_dmumps();
   const int job = id->job;
+  if (job == 1 || job == 4 || job == 6) set_keep(id);
   const int slot = job >= -2 && job <= 5 ? job + 2 : -1;
   if (job == 2) {
     ++factorisations;
@@ -188,15 +204,16 @@ void dmumps_c(DMUMPS_STRUC_C* id) {
 
 __attribute__((destructor)) static void report(void) {
   char json[4096];
-  int w = snprintf(json, sizeof json,
-                   "{\"library\": \"%s\", \"init\": %ld, \"end\": %ld, \"analyses\": %ld, "
-                   "\"factorizations\": %ld, \"solves\": %ld, \"rhs\": %ld, "
-                   "\"analysis_cpu_s\": %.6f, \"factorization_cpu_s\": %.6f, "
-                   "\"solve_cpu_s\": %.6f, \"first_factorization\": {\"n\": %d, \"nnz\": %lld, "
-                   "\"icntl\": [",
-                   library_path, calls[-1 + 2], calls[-2 + 2], calls[1 + 2], calls[2 + 2],
-                   calls[3 + 2], rhs_total, seconds[1 + 2], seconds[2 + 2], seconds[3 + 2],
-                   first_n, first_nnz);
+  int w =
+      snprintf(json, sizeof json,
+               "{\"library\": \"%s\", \"init\": %ld, \"end\": %ld, \"analyses\": %ld, "
+               "\"factorizations\": %ld, \"solves\": %ld, \"rhs\": %ld, "
+               "\"analysis_cpu_s\": %.6f, \"factorization_cpu_s\": %.6f, "
+               "\"solve_cpu_s\": %.6f, \"keep_override\": \"%s\", "
+               "\"first_factorization\": {\"n\": %d, \"nnz\": %lld, \"icntl\": [",
+               library_path, calls[-1 + 2], calls[-2 + 2], calls[1 + 2], calls[2 + 2], calls[3 + 2],
+               rhs_total, seconds[1 + 2], seconds[2 + 2], seconds[3 + 2],
+               getenv("MUMPS_PROBE_KEEP") ? getenv("MUMPS_PROBE_KEEP") : "", first_n, first_nnz);
   for (int i = 0; i < 40 && w < (int)sizeof json; ++i) {
     w += snprintf(json + w, sizeof json - w, "%s%d", i ? ", " : "", first_icntl[i]);
   }
