@@ -75,6 +75,7 @@ struct Flags {
   int stages = 10, elements = 3, collocation_stages = 2, steps = 0;
   double horizon = 0.0;
   double sigma_initial = -1.0, sigma_final = -1.0, sigma_factor = -1.0;
+  double early_polish_sigma = -1.0;
   bool superlinear = false, linear = false;
   double complementarity_tolerance = -1.0, nlp_tolerance = -1.0;
   double intermediate_tolerance_factor = -1.0, step_deviation_weight = 0.0;
@@ -82,6 +83,7 @@ struct Flags {
   int acceptable_iterations = 15, max_nlp_iterations = -1;
   bool no_polish = false, stop_at_complementarity = false, continue_after_failure = false;
   bool first_from_zero_multipliers = false, neutral_guess = false, no_newton = false;
+  bool probe_sparsity = false, no_mumps_amalgamation = false;
   bool x_bounds_at_stage_points = false;
 };
 
@@ -99,6 +101,7 @@ bflow::OcpOptions ocp_options(const Flags& f) {
                                                      : bflow::CrossComplementarity::kElementSums;
   if (f.sigma_initial > 0.0) o.sigma_initial = f.sigma_initial;
   if (f.sigma_final > 0.0) o.sigma_final = f.sigma_final;
+  if (f.early_polish_sigma >= 0.0) o.early_polish_sigma = f.early_polish_sigma;
   if (f.sigma_factor > 0.0) o.sigma_factor = f.sigma_factor;
   o.superlinear = f.superlinear;
   if (f.complementarity_tolerance > 0.0) o.complementarity_tolerance = f.complementarity_tolerance;
@@ -119,11 +122,14 @@ bflow::OcpOptions ocp_options(const Flags& f) {
   o.acceptable_iterations = f.acceptable_iterations;
   if (f.max_nlp_iterations > 0) o.max_nlp_iterations = f.max_nlp_iterations;
   o.neutral_algebraic_guess = f.neutral_guess;
+  o.probe_sparsity = f.probe_sparsity;
+  o.mumps_amalgamation = !f.no_mumps_amalgamation;
   return o;
 }
 
 bflow::FesdOptions fesd_options(const Flags& f, int steps) {
   bflow::FesdOptions o;
+  o.mumps_amalgamation = !f.no_mumps_amalgamation;
   o.stages = f.collocation_stages;
   o.elements = f.elements;
   o.steps = steps;
@@ -396,6 +402,8 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"element-sums", "point-pairs"}));
   app.add_option("--sigma-initial", f.sigma_initial);
   app.add_option("--sigma-final", f.sigma_final);
+  app.add_option("--early-polish-sigma", f.early_polish_sigma,
+                 "OcpOptions::early_polish_sigma (0: only the final polish)");
   app.add_option("--sigma-factor", f.sigma_factor);
   app.add_flag("--superlinear", f.superlinear, "sigma <- min(factor sigma, sigma^1.5) (ocp)");
   app.add_flag("--linear", f.linear, "sigma <- factor sigma (fesd; its default is superlinear)");
@@ -417,6 +425,11 @@ int main(int argc, char** argv) {
   app.add_option("--max-nlp-iterations", f.max_nlp_iterations);
   app.add_flag("--continue-after-failure", f.continue_after_failure);
   app.add_flag("--neutral-guess", f.neutral_guess);
+  app.add_flag("--no-mumps-amalgamation", f.no_mumps_amalgamation,
+               "MUMPS without its small-front amalgamation (OcpOptions::mumps_amalgamation)");
+  app.add_flag("--probe-sparsity", f.probe_sparsity,
+               "only the Jacobian and Hessian entries found nonzero at random points declared to "
+               "IPOPT (OcpOptions::probe_sparsity)");
   app.add_flag("--x-bounds-at-stage-points", f.x_bounds_at_stage_points,
                "the state bounds (turbo car: |v| <= 20) on every collocation stage, not only at "
                "the element boundaries");

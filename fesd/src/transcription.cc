@@ -18,6 +18,7 @@
 #include "bflow/core/errors.h"
 #include "bflow/fesd/ipopt_options.h"
 #include "bflow/fesd/linear_solver.h"
+#include "bflow/fesd/sparsity.h"
 
 namespace bflow {
 namespace fesd {
@@ -167,61 +168,42 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     nterm_ = terms_.terminal_constraints();
     rows_path_ = (l_.elements + 1) * npath_;
     constraints_ = rows_elements_ + rows_sums_ + rows_path_ + nterm_;
-    // Jacobian structure: each element row lists the inputs it reads (element_jacobian_pattern).
-    jac_pattern_ = element_jacobian_pattern(l_);
-    for (int e = 0; e < l_.elements; ++e) {
-      const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
-      for (int r = 0; r < l_.rows_per_element(); ++r) {
-        for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
-          const int col = g[static_cast<std::size_t>(c)];
-          if (col < 0) continue;
-          jac_rows_.push_back(e * l_.rows_per_element() + r);
-          jac_cols_.push_back(col);
-        }
-      }
-    }
-    for (int k = 0; k < rows_sums_; ++k) {
-      for (int n = 0; n < l_.per_stage; ++n) {
-        jac_rows_.push_back(rows_elements_ + k);
-        jac_cols_.push_back(l_.var(k * l_.per_stage + n, 0));
-      }
-    }
-    for (int b = 0; b <= l_.elements; ++b) {
-      const std::vector<int> g = path_globals(b);
-      for (int r = 0; r < npath_; ++r) {
-        for (int col : g) {
-          if (col < 0) continue;
-          jac_rows_.push_back(rows_elements_ + rows_sums_ + b * npath_ + r);
-          jac_cols_.push_back(col);
-        }
-      }
-    }
-    for (int r = 0; r < nterm_; ++r) {
-      for (int i = 0; i < d; ++i) {
-        jac_rows_.push_back(rows_elements_ + rows_sums_ + rows_path_ + r);
-        jac_cols_.push_back(l_.x_end(l_.elements - 1, i));
-      }
-    }
-    if (p_.exact_hessian) {
-      pieces_ = element_hessian_pieces(l_);
-      for (const std::vector<int>& g : element_globals_) {
-        for (const std::vector<int>& piece : pieces_) {
-          std::vector<int> globals;
-          for (int k : piece) globals.push_back(g[static_cast<std::size_t>(k)]);
-          hessian_.add_block(globals);
-        }
-      }
-      for (const Term& t : objective_terms_) hessian_.add_block(t.globals);
-      for (int b = 0; b <= l_.elements && npath_ > 0; ++b) hessian_.add_block(path_globals(b));
-      if (nterm_ > 0) hessian_.add_block(terminal_globals());
-    }
     set_guess(Eigen::MatrixXd::Zero(nu, 1), [&](int) { return std::make_pair(p_.x0, p_.x0); }, {});
   }
 
   const TranscriptionLayout& layout() const { return l_; }
   int constraints() const { return constraints_ + static_cast<int>(equal_.size()); }
-  std::size_t jacobian_nonzeros() const { return jac_rows_.size(); }
-  std::size_t hessian_nonzeros() const { return hessian_.size(); }
+  std::size_t jacobian_nonzeros() {
+    ensure_structure();
+    return jac_rows_.size();
+  }
+  std::size_t hessian_nonzeros() {
+    ensure_structure();
+    return hessian_.size();
+  }
+  // The structure IPOPT is given, built when first asked for (a step fesd_simulate solves by
+  // Newton's method never needs it): probed (sparsity.h) unless the setup or an earlier miss
+  // asks for every candidate.
+  void ensure_structure() {
+    if (!structure_ready_) build_structure(!p_.probe_sparsity);
+  }
+  bool full_structure() const { return full_structure_; }
+  // A derivative outside the declared structure was met (and left out) since clear_missed().
+  bool structure_missed() const { return jac_missed_ || hessian_.missed() > 0; }
+  void clear_missed() {
+    jac_missed_ = false;
+    hessian_.clear_missed();
+  }
+  // Every candidate entry from now on.
+  void widen_structure() { build_structure(true); }
+  // The starting point of the NLP about to be solved, kept so that it can be solved again.
+  void keep_start() { start_ = {w_, z_l_, z_u_, lambda_}; }
+  void back_to_start() {
+    w_ = start_[0];
+    z_l_ = start_[1];
+    z_u_ = start_[2];
+    lambda_ = start_[3];
+  }
   double start_v(int k) const { return v_start_[k]; }
 
   // The active set read from the solution: which member of each complementarity pair is zero on
@@ -417,6 +399,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   // --- Ipopt::TNLP ---
   bool get_nlp_info(Ipopt::Index& n, Ipopt::Index& m, Ipopt::Index& nnz_jac, Ipopt::Index& nnz_hess,
                     IndexStyleEnum& style) override {
+    ensure_structure();
     n = l_.variables();
     m = constraints();
     nnz_jac = static_cast<Ipopt::Index>(jac_rows_.size() + polish_jac_.size());
@@ -613,6 +596,9 @@ class Transcription::Nlp final : public Ipopt::TNLP {
         for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
           if (g[static_cast<std::size_t>(c)] >= 0) values[k++] = jac(r, c);
         }
+        for (int c : jac_left_out_[static_cast<std::size_t>(r)]) {
+          if (g[static_cast<std::size_t>(c)] >= 0 && jac(r, c) != 0.0) jac_missed_ = true;
+        }
       }
     }
     for (int s = 0; s < rows_sums_ * l_.per_stage; ++s) values[k++] = 1.0;
@@ -707,6 +693,122 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     lambda_ = Eigen::Map<const Eigen::VectorXd>(lambda, m);
   }
 
+  // The Jacobian's and the Hessian's structure: each element row's inputs and each Hessian
+  // piece's pairs as probed (sparsity.h), or with `full` every candidate (what each row reads,
+  // every pair of a piece's unknowns); objective terms likewise; path and terminal constraints
+  // keep every pair of their inputs.
+  void build_structure(bool full) {
+    structure_ready_ = true;
+    full_structure_ = full;
+    const int d = l_.d, rpe = l_.rows_per_element();
+    const auto residual = [&](const JetChunk* in, JetChunk* out) {
+      element_residual(tab_, l_, p_.standard, in, out);
+    };
+    const std::vector<std::vector<int>> candidates = element_jacobian_pattern(l_);
+    jac_pattern_ = full ? candidates : probe_jacobian_pattern(l_.local, rpe, candidates, residual);
+    jac_left_out_.assign(static_cast<std::size_t>(rpe), {});
+    std::vector<char> kept(static_cast<std::size_t>(l_.local));
+    for (int r = 0; r < rpe; ++r) {
+      std::fill(kept.begin(), kept.end(), 0);
+      for (int c : jac_pattern_[static_cast<std::size_t>(r)]) kept[static_cast<std::size_t>(c)] = 1;
+      for (int c : candidates[static_cast<std::size_t>(r)]) {
+        if (!kept[static_cast<std::size_t>(c)])
+          jac_left_out_[static_cast<std::size_t>(r)].push_back(c);
+      }
+    }
+    jac_rows_.clear();
+    jac_cols_.clear();
+    for (int e = 0; e < l_.elements; ++e) {
+      const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
+      for (int r = 0; r < rpe; ++r) {
+        for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
+          const int col = g[static_cast<std::size_t>(c)];
+          if (col < 0) continue;
+          jac_rows_.push_back(e * rpe + r);
+          jac_cols_.push_back(col);
+        }
+      }
+    }
+    for (int k = 0; k < rows_sums_; ++k) {
+      for (int n = 0; n < l_.per_stage; ++n) {
+        jac_rows_.push_back(rows_elements_ + k);
+        jac_cols_.push_back(l_.var(k * l_.per_stage + n, 0));
+      }
+    }
+    for (int b = 0; b <= l_.elements; ++b) {
+      const std::vector<int> g = path_globals(b);
+      for (int r = 0; r < npath_; ++r) {
+        for (int col : g) {
+          if (col < 0) continue;
+          jac_rows_.push_back(rows_elements_ + rows_sums_ + b * npath_ + r);
+          jac_cols_.push_back(col);
+        }
+      }
+    }
+    for (int r = 0; r < nterm_; ++r) {
+      for (int i = 0; i < d; ++i) {
+        jac_rows_.push_back(rows_elements_ + rows_sums_ + rows_path_ + r);
+        jac_cols_.push_back(l_.x_end(l_.elements - 1, i));
+      }
+    }
+    hessian_.clear();
+    if (!p_.exact_hessian) return;
+    pieces_ = element_hessian_pieces(l_);
+    std::vector<int> identity(static_cast<std::size_t>(l_.local));
+    for (int k = 0; k < l_.local; ++k) identity[static_cast<std::size_t>(k)] = k;
+    std::vector<std::pair<int, int>> element_pairs;
+    if (!full) {
+      element_pairs =
+          probe_hessian_pattern(l_.local, rpe, pieces_,
+                                [&](HessianBlocks& probe, const std::vector<double>& base,
+                                    const double* weights, double* values) {
+                                  add_element_hessian(tab_, l_, p_.standard, pieces_, identity,
+                                                      base, weights, probe, values);
+                                });
+    }
+    std::vector<std::pair<int, int>> global_pairs;
+    const auto register_pairs = [&](const std::vector<std::pair<int, int>>& pairs,
+                                    const std::vector<int>& g) {
+      global_pairs.clear();
+      for (const auto& [a, b] : pairs) {
+        global_pairs.emplace_back(g[static_cast<std::size_t>(a)], g[static_cast<std::size_t>(b)]);
+      }
+      hessian_.add_pairs(global_pairs);
+    };
+    for (const std::vector<int>& g : element_globals_) {
+      if (full) {
+        for (const std::vector<int>& piece : pieces_) {
+          std::vector<int> globals;
+          for (int k : piece) globals.push_back(g[static_cast<std::size_t>(k)]);
+          hessian_.add_block(globals);
+        }
+      } else {
+        register_pairs(element_pairs, g);
+      }
+    }
+    for (const Term& t : objective_terms_) {
+      if (full) {
+        hessian_.add_block(t.globals);
+        continue;
+      }
+      const int count = static_cast<int>(t.globals.size());
+      std::vector<int> local(static_cast<std::size_t>(count));
+      for (int k = 0; k < count; ++k) local[static_cast<std::size_t>(k)] = k;
+      register_pairs(probe_hessian_pattern(
+                         count, 1, {local},
+                         [&](HessianBlocks& probe, const std::vector<double>& base,
+                             const double* weights, double* values) {
+                           probe.add(
+                               local, base, 1, weights,
+                               [&](const auto* in, auto* out) { out[0] = term_value(t, in); },
+                               values);
+                         }),
+                     t.globals);
+    }
+    for (int b = 0; b <= l_.elements && npath_ > 0; ++b) hessian_.add_block(path_globals(b));
+    if (nterm_ > 0) hessian_.add_block(terminal_globals());
+  }
+
  private:
   bool penalty() const { return p_.relaxation == Relaxation::kL1Penalty && !polish_; }
 
@@ -789,8 +891,11 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   int constraints_ = 0;
   std::vector<Ipopt::Index> jac_rows_, jac_cols_;
   HessianBlocks hessian_;
-  std::vector<std::vector<int>> pieces_;       // an element's Hessian pieces (local indices)
-  std::vector<std::vector<int>> jac_pattern_;  // per element row: the local inputs it reads
+  std::vector<std::vector<int>> pieces_;        // an element's Hessian pieces (local indices)
+  std::vector<std::vector<int>> jac_pattern_;   // per element row: the local inputs it reads
+  std::vector<std::vector<int>> jac_left_out_;  // per element row: candidates not declared
+  bool structure_ready_ = false, full_structure_ = false, jac_missed_ = false;
+  std::array<Eigen::VectorXd, 4> start_;
   bool polish_ = false;
   std::vector<std::pair<int, double>> fixed_;
   std::vector<int> equal_;
@@ -866,7 +971,23 @@ struct HomotopySolver::Impl {
                      Ipopt::ApplicationReturnStatus& status) {
     apply_ipopt_options(*app, settings, settings.who);
     const double start = process_cpu_seconds();
+    const ScopedMumpsAmalgamation fronts(settings.mumps_amalgamation && linear_solver == "mumps");
+    nlp.keep_start();
+    nlp.clear_missed();
     status = app->OptimizeTNLP(&nlp);
+    int earlier_iterations = 0;
+    bool widened = false;
+    if (status != Ipopt::Invalid_Option && nlp.structure_missed() && !nlp.full_structure()) {
+      // An entry left out of the structure was not zero: the derivatives IPOPT used were
+      // wrong, so the NLP again from its start with every candidate declared.
+      earlier_iterations =
+          Ipopt::IsValid(app->Statistics()) ? app->Statistics()->IterationCount() : 0;
+      widened = true;
+      nlp.widen_structure();
+      nlp.back_to_start();
+      nlp.clear_missed();
+      status = app->OptimizeTNLP(&nlp);
+    }
     if (status == Ipopt::Invalid_Option) {
       // Not an outcome of the NLP: no NLP of this solver can run.
       const std::string what = settings.who + ": IPOPT refused its options (Invalid_Option) " +
@@ -879,7 +1000,9 @@ struct HomotopySolver::Impl {
     step.index = index;
     step.sigma = sigma;
     step.polish = polish;
-    step.iterations = Ipopt::IsValid(app->Statistics()) ? app->Statistics()->IterationCount() : 0;
+    step.iterations = earlier_iterations +
+                      (Ipopt::IsValid(app->Statistics()) ? app->Statistics()->IterationCount() : 0);
+    step.structure_widened = widened;
     step.cpu_seconds = process_cpu_seconds() - start;
     step.ipopt_status = ipopt_status_name(status);
     step.objective = nlp.cost(nlp.solution().data());
@@ -918,6 +1041,8 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
   double sigma = rules.sigma_initial, last_sigma = sigma;
   bool first = true, finishing = false;
   int retries = 0;
+  double last_objective = std::numeric_limits<double>::quiet_NaN();
+  std::vector<std::vector<int>> polished_sides;  // the active set of the last early polish
   while (true) {
     nlp.set_sigma(sigma);
     if (rules.max_total_iterations > 0) {
@@ -1025,6 +1150,46 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
     nlp.save();
     out.last_sigma = last_sigma = sigma;
     out.acceptable_only = status == Ipopt::Solved_To_Acceptable_Level;
+    const double cost_moved = std::abs(step.objective - last_objective);
+    last_objective = step.objective;
+    // (sigma_initial times powers of the factor lands within round-off of a round threshold.)
+    if (rules.early_polish_sigma > 0.0 && sigma <= rules.early_polish_sigma * (1.0 + 1e-9) &&
+        !final_nlp && !finishing) {
+      // The active set the relaxation has settled on, fixed: when its exact solution is about
+      // as good as the relaxed one, the smaller sigmas would only confirm it.
+      const double active_tol = std::clamp(std::sqrt(sigma), 1e-9, 1e-4);
+      std::vector<std::vector<int>> sides;
+      for (int e = 0; e < nlp.layout().elements; ++e)
+        sides.push_back(transcription.sides(nlp.solution(), e, active_tol));
+      if (sides != polished_sides) {
+        polished_sides = sides;
+        const double slack = std::max(1e-6 * (1.0 + std::abs(step.objective)),
+                                      std::isfinite(cost_moved) ? cost_moved : 0.0);
+        // Only an exact FESD solution ends the homotopy early (every product zero): where the
+        // active set read this far up is not consistent, the polish leaves small products, and
+        // the smaller sigmas are still needed.
+        const PolishOutcome p = polish(transcription, active_tol, rules.nlp_tolerance, 0.0,
+                                       static_cast<int>(out.steps.size()), on_step, slack);
+        out.iterations += p.step.iterations;
+        out.steps.push_back(p.step);
+        if (p.kept) {
+          // Once more from the polished point, as the final polish starts from the solution at
+          // sigma_final: a polish from a relaxed point this far up ends as exactly as IPOPT's
+          // tolerance asks, one from an exact FESD solution as exactly as round-off allows.
+          const double again_tol = std::clamp(std::sqrt(rules.sigma_final), 1e-9, 1e-4);
+          const PolishOutcome q = polish(transcription, again_tol, rules.nlp_tolerance, 0.0,
+                                         static_cast<int>(out.steps.size()), on_step);
+          out.iterations += q.step.iterations;
+          out.steps.push_back(q.step);
+          out.result_step = static_cast<int>(out.steps.size()) - (q.kept ? 1 : 2);
+          out.done = true;
+          out.polished_early = true;
+          out.acceptable_only = false;
+          return out;
+        }
+        out.polishes_not_kept.push_back(sigma);
+      }
+    }
     const bool within =
         rules.stop_complementarity > 0.0 && step.complementarity <= rules.stop_complementarity;
     if (final_nlp || (within && tol <= rules.nlp_tolerance)) {
@@ -1044,7 +1209,8 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
 PolishOutcome HomotopySolver::polish(Transcription& transcription, double active_tol,
                                      double nlp_tolerance, double complementarity_tolerance,
                                      int index,
-                                     const std::function<void(const HomotopyStep&)>& on_step) {
+                                     const std::function<void(const HomotopyStep&)>& on_step,
+                                     double cost_slack) {
   Transcription::Nlp& nlp = *transcription.handle_->nlp;
   const TranscriptionLayout& l = nlp.layout();
   Ipopt::OptionsList& o = *impl_->app->Options();
@@ -1065,7 +1231,7 @@ PolishOutcome HomotopySolver::polish(Transcription& transcription, double active
   Ipopt::ApplicationReturnStatus status;
   out.step = impl_->solve(nlp, 0.0, true, index, status);
   if (on_step) on_step(out.step);
-  const double slack = 1e-6 * (1.0 + std::abs(out.cost_before));
+  const double slack = cost_slack >= 0.0 ? cost_slack : 1e-6 * (1.0 + std::abs(out.cost_before));
   // A polish with as many equations as free unknowns (every control pinned, e.g. by a clock
   // constraint) is a square system, which IPOPT reports as Feasible_Point_Found.
   out.kept = (status == Ipopt::Solve_Succeeded || status == Ipopt::Feasible_Point_Found) &&

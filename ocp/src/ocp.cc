@@ -189,6 +189,10 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
                           " and sigma_final = " + number(o.sigma_final) +
                           " must satisfy 0 < sigma_final <= sigma_initial < inf");
   }
+  if (!(o.early_polish_sigma >= 0.0) || !std::isfinite(o.early_polish_sigma)) {
+    throw InvalidArgument("ocp: early_polish_sigma = " + number(o.early_polish_sigma) +
+                          " must be >= 0 and finite (0: only the final polish)");
+  }
   if (!(o.sigma_factor > 0.0 && o.sigma_factor < 1.0)) {
     throw InvalidArgument("ocp: sigma_factor = " + number(o.sigma_factor) + " must lie in (0, 1)");
   }
@@ -546,6 +550,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   setup.neutral_algebraic_guess = options.neutral_algebraic_guess;
   setup.exact_hessian = options.exact_hessian;
   setup.exact_hessian_scale = options.exact_hessian_scale;
+  setup.probe_sparsity = options.probe_sparsity;
   const OcpTerms terms(model, problem, options.stages, options.tracking);
 
   // Controls of the guess: given, or 0 clamped into the bounds.
@@ -604,8 +609,6 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   nlp.set_guess(u_guess, ends, lengths);
   result.unknowns = l.variables();
   result.constraints = nlp.constraints();
-  result.jacobian_nonzeros = static_cast<int>(nlp.jacobian_nonzeros());
-  result.hessian_nonzeros = static_cast<int>(nlp.hessian_nonzeros());
 
   fesd::HomotopySolver solver(fesd::ipopt_settings(options, "ocp"));
   fesd::HomotopyRules rules = fesd::homotopy_schedule(options);
@@ -636,6 +639,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   rules.intermediate_tolerance_factor = options.intermediate_tolerance_factor;
   if (options.stop_at_complementarity)
     rules.stop_complementarity = options.complementarity_tolerance;
+  if (options.polish) rules.early_polish_sigma = options.early_polish_sigma;
   const auto on_step = [&](const OcpHomotopyStep& step) {
     result.ipopt_iterations += step.iterations;
     result.homotopy.push_back(step);
@@ -661,6 +665,13 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     }
   }
 
+  for (const fesd::HomotopyStep& step : outcome.steps) {
+    if (!step.structure_widened) continue;
+    result.notes.push_back("at sigma = " + number(step.sigma) +
+                           " a derivative outside the probed sparsity was nonzero (the model "
+                           "branches on values): every candidate entry was declared from there "
+                           "on and that NLP solved again");
+  }
   for (const double sigma : outcome.continued) {
     result.notes.push_back("the NLP at sigma = " + number(sigma) +
                            " was not solved; its last iterate started the next sigma");
@@ -673,13 +684,28 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   // The active set is read at the last sigma (sigma_final unless the homotopy stopped earlier).
   const double active_tol =
       std::clamp(std::sqrt(outcome.done ? outcome.last_sigma : options.sigma_final), 1e-9, 1e-4);
-  bool polished = false;
-  if (outcome.done && options.polish) {
+  bool polished = outcome.polished_early;
+  for (const double sigma : outcome.polishes_not_kept) {
+    result.notes.push_back("the polish with the active set of sigma = " + number(sigma) +
+                           " was not kept; the homotopy went on");
+  }
+  if (outcome.polished_early) {
+    result.notes.push_back("polished at sigma = " + number(outcome.last_sigma) +
+                           ": the active set fixed there gave an exact solution within the "
+                           "relaxation's reach, so the homotopy stopped (early_polish_sigma " +
+                           number(options.early_polish_sigma) + ")");
+  }
+  if (outcome.done && options.polish && !outcome.polished_early) {
     // The active set of the last NLP, fixed: an exact FESD solution without relaxation.
     const fesd::PolishOutcome p =
         solver.polish(nlp, active_tol, options.nlp_tolerance, options.complementarity_tolerance,
                       static_cast<int>(result.homotopy.size()), on_step);
     polished = p.kept;
+    if (p.step.structure_widened) {
+      result.notes.push_back(
+          "in the polish a derivative outside the probed sparsity was nonzero (the model "
+          "branches on values): every candidate entry was declared and the polish solved again");
+    }
     if (p.kept) {
       result.notes.push_back("polished: the active set of sigma = " + number(outcome.last_sigma) +
                              " fixed, cost " + number(p.cost_before) + " -> " +
@@ -701,6 +727,10 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   const OcpHomotopyStep* last = nullptr;
   for (const OcpHomotopyStep& step : result.homotopy) {
     if (step.polish ? polished : step.sigma == outcome.last_sigma) last = &step;
+  }
+  if (outcome.polished_early && outcome.result_step >= 0 &&
+      outcome.result_step < static_cast<int>(result.homotopy.size())) {
+    last = &result.homotopy[static_cast<std::size_t>(outcome.result_step)];
   }
   if (last != nullptr) {
     result.ipopt_status = last->ipopt_status;
@@ -762,6 +792,9 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     result.active_sets.push_back(std::move(sides));
   }
   result.cpu_seconds = fesd::process_cpu_seconds() - cpu_start;
+  // The structure the last NLP was given (probe_sparsity: widened after a miss).
+  result.jacobian_nonzeros = static_cast<int>(nlp.jacobian_nonzeros());
+  result.hessian_nonzeros = static_cast<int>(nlp.hessian_nonzeros());
   result.cpu_per_iteration =
       result.ipopt_iterations > 0 ? result.cpu_seconds / result.ipopt_iterations : 0.0;
   return result;

@@ -14,6 +14,7 @@
 #include <gtest/gtest.h>
 
 #include "bflow/examples/ocp_examples.h"
+#include "bflow/fesd/linear_solver.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
 
@@ -327,18 +328,138 @@ TEST(OcpHessian, IpoptsCheckerFindsNoError) {
   o.print_level = 5;  // the checker reports on IPOPT's console output
   o.ipopt_string_options = {{"derivative_test", "second-order"}};
   o.ipopt_integer_options = {{"max_iter", 0}};
-  for (const bool car : {true, false}) {
-    ::testing::internal::CaptureStdout();
-    if (car) {
-      ocp_solve(adapt_ocp(TurboCar{}), TurboCar::problem(), o);
-    } else {
-      ocp_solve(adapt_ocp(BrakingBlock{}), BrakingBlock::problem(), o);
+  // With the probed structure (probe_sparsity) the declared entries' values are checked; an
+  // entry left out that is not zero is the transcription's own check (OcpSparsity below).
+  for (const bool probe : {false, true}) {
+    o.probe_sparsity = probe;
+    for (const bool car : {true, false}) {
+      ::testing::internal::CaptureStdout();
+      if (car) {
+        ocp_solve(adapt_ocp(TurboCar{}), TurboCar::problem(), o);
+      } else {
+        ocp_solve(adapt_ocp(BrakingBlock{}), BrakingBlock::problem(), o);
+      }
+      const std::string text = ::testing::internal::GetCapturedStdout();
+      EXPECT_THAT(text, testing::HasSubstr("Starting derivative checker for second derivatives"))
+          << car << probe;
+      EXPECT_THAT(text, testing::HasSubstr("No errors detected by derivative checker"))
+          << car << probe;
     }
-    const std::string text = ::testing::internal::GetCapturedStdout();
-    EXPECT_THAT(text, testing::HasSubstr("Starting derivative checker for second derivatives"))
-        << car;
-    EXPECT_THAT(text, testing::HasSubstr("No errors detected by derivative checker")) << car;
   }
+}
+
+// The turbo car with a term that only exists beyond q = 150, where none of the probe points
+// (|entries| <= 2) lies: q' = v (1 + 0.01 (q - 150)) there. The probed structure leaves out
+// dq'/dq and the (q, v) second derivative; once an iterate passes q = 150 the transcription
+// finds them nonzero, declares every candidate, solves that NLP again and says so. The optimum is
+// the one of the full structure (both to IPOPT's tol 1e-10; measured difference below 1e-11).
+struct FarBranchCar {
+  static constexpr int kStates = 2, kControls = 1, kSwitches = 1;
+  static constexpr int kTerminal = 2;
+  template <typename T>
+  void switching(const T* x, T* c) const {
+    TurboCar{}.switching(x, c);
+  }
+  template <typename T>
+  void field(const T* x, const T* u, const T* a, T* xdot) const {
+    TurboCar{}.field(x, u, a, xdot);
+    if (x[0] > T(150.0)) xdot[0] = x[1] * (T(1.0) + T(0.01) * (x[0] - T(150.0)));
+  }
+  template <typename T>
+  void terminal(const T* x, T* g) const {
+    TurboCar{}.terminal(x, g);
+  }
+};
+
+TEST(OcpSparsity, ABranchNoProbeTookWidensTheStructureAndKeepsTheOptimum) {
+  OcpOptions o;
+  o.stages = 5;
+  o.probe_sparsity = true;
+  const OcpResult probed = ocp_solve(adapt_ocp(FarBranchCar{}), TurboCar::problem(), o);
+  o.probe_sparsity = false;
+  const OcpResult full = ocp_solve(adapt_ocp(FarBranchCar{}), TurboCar::problem(), o);
+  ASSERT_TRUE(probed.ok()) << probed.message;
+  ASSERT_TRUE(full.ok()) << full.message;
+  // The extra term shortens the run (q > 150 moves faster), so the optimum is below 40/3.
+  EXPECT_LT(full.T, TurboCar::kOptimalTime - 1e-3);
+  EXPECT_NEAR(probed.T, full.T, 1e-8);
+  int widened = 0;
+  for (const auto& step : probed.homotopy) widened += step.structure_widened ? 1 : 0;
+  EXPECT_EQ(widened, 1);
+  EXPECT_THAT(probed.notes, testing::Contains(testing::HasSubstr(
+                                "a derivative outside the probed sparsity was nonzero")));
+  for (const auto& step : full.homotopy) EXPECT_FALSE(step.structure_widened);
+  // The result reports the structure of its last NLP: the widened one is every candidate.
+  EXPECT_EQ(probed.jacobian_nonzeros, full.jacobian_nonzeros);
+  EXPECT_EQ(probed.hessian_nonzeros, full.hessian_nonzeros);
+}
+
+// MUMPS's small-front amalgamation (bflow::ScopedMumpsAmalgamation) is set on every analysis of
+// a default solve and on none when switched off; both solves reach T* = 40/3 (the answers of every
+// other test here are computed with it on).
+TEST(OcpLinearAlgebra, SmallFrontAmalgamationFollowsTheOption) {
+  OcpOptions o;
+  o.stages = 5;
+  const long before = mumps_amalgamated_analyses();
+  const OcpResult on = solve_car(5, o);
+  const long with = mumps_amalgamated_analyses() - before;
+  o.mumps_amalgamation = false;
+  const OcpResult off = solve_car(5, o);
+  const long without = mumps_amalgamated_analyses() - before - with;
+  ASSERT_TRUE(on.ok()) << on.message;
+  ASSERT_TRUE(off.ok()) << off.message;
+  // One analysis per NLP (IPOPT analyses each new structure once), the polish included.
+  EXPECT_EQ(with, static_cast<long>(on.homotopy.size()));
+  EXPECT_EQ(without, 0);
+  EXPECT_NEAR(on.T, TurboCar::kOptimalTime, 1e-8);
+  EXPECT_NEAR(off.T, TurboCar::kOptimalTime, 1e-8);
+}
+
+// The early polish (early_polish_sigma): on the turbo car at N = 5 a polish of an NLP at
+// sigma <= 1e-4 (measured: 1e-5, the one at 1e-4 not kept) ends the homotopy at T* = 40/3
+// (bound 1e-8) in fewer IPOPT iterations than the homotopy down to 1e-10, and notes say where it
+// stopped; the products left are within the tolerance.
+TEST(OcpHomotopy, EarlyPolishEndsTheHomotopyAtTheExactOptimum) {
+  OcpOptions o;
+  o.early_polish_sigma = 1e-4;
+  const OcpResult early = solve_car(5, o);
+  OcpOptions to_the_end;
+  to_the_end.early_polish_sigma = 0.0;
+  const OcpResult full = solve_car(5, to_the_end);
+  ASSERT_EQ(early.status, OcpStatus::kSolved) << early.message;
+  ASSERT_TRUE(full.ok()) << full.message;
+  EXPECT_TRUE(early.polished);
+  EXPECT_NEAR(early.T, TurboCar::kOptimalTime, 1e-8);
+  EXPECT_LE(early.max_complementarity, o.complementarity_tolerance);
+  EXPECT_LT(early.ipopt_iterations, full.ipopt_iterations);
+  EXPECT_TRUE(early.homotopy.back().polish);
+  // The polish kept, then the polish once more from its solution: the NLP before them.
+  ASSERT_GE(early.homotopy.size(), 3u);
+  EXPECT_TRUE(early.homotopy[early.homotopy.size() - 2].polish);
+  const double stop = early.homotopy[early.homotopy.size() - 3].sigma;
+  EXPECT_LE(stop, 1e-4 * (1 + 1e-12));
+  EXPECT_GT(stop, o.sigma_final);
+  EXPECT_THAT(early.notes, testing::Contains(testing::HasSubstr("polished at sigma = ")));
+  EXPECT_EQ(full.homotopy[full.homotopy.size() - 2].sigma, o.sigma_final);
+  // As exact as the final polish: no product left.
+  EXPECT_EQ(early.max_complementarity, 0.0);
+}
+
+// Without a branch the probed structure is kept through the whole homotopy and is smaller than
+// every candidate; the optimum is the same.
+TEST(OcpSparsity, ProbedStructureIsSmallerAndReachesTheSameOptimum) {
+  OcpOptions o;
+  o.stages = 5;
+  o.probe_sparsity = true;
+  const OcpResult probed = solve_car(5, o);
+  const OcpResult full = solve_car(5);
+  ASSERT_TRUE(probed.ok()) << probed.message;
+  ASSERT_TRUE(full.ok()) << full.message;
+  EXPECT_NEAR(probed.T, TurboCar::kOptimalTime, 1e-8);
+  EXPECT_NEAR(full.T, TurboCar::kOptimalTime, 1e-8);
+  for (const auto& step : probed.homotopy) EXPECT_FALSE(step.structure_widened);
+  EXPECT_LT(probed.jacobian_nonzeros, full.jacobian_nonzeros);
+  EXPECT_LT(probed.hessian_nonzeros, full.hessian_nonzeros);
 }
 
 TEST(OcpInput, BadDataIsRefusedWithTheValues) {

@@ -118,6 +118,10 @@ struct FesdOptions {
       @throws InvalidArgument (from fesd_simulate) for another name, LinearSolverUnavailable
       when its library cannot be loaded (docs/ocp.md, "Linear solvers: MUMPS and HSL"). */
   std::string linear_solver = "mumps";
+  /** With MUMPS, its amalgamation of small fronts (KEEP(197) = 1, which IPOPT 3.11 cannot
+      set; bflow::ScopedMumpsAmalgamation): about half the cost of an IPOPT iteration on
+      FESD's KKT matrices with Debian's MUMPS 5.5.1; other round-off, the same solutions. */
+  bool mumps_amalgamation = true;
   /** Further IPOPT options, set after bflow's, both once at the start and before every NLP of
       the homotopy (which resets tol, mu_init, warm_start_*, acceptable_* each time), so these
       win (e.g. {"output_file", "ipopt.log"}, {"derivative_test", "second-order"},

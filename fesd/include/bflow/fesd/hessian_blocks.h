@@ -45,6 +45,30 @@ class HessianBlocks {
     }
     index_ready_ = false;
   }
+  // Registers the listed pairs of unknowns (either order; pairs with a constant are skipped).
+  void add_pairs(const std::vector<std::pair<int, int>>& pairs) {
+    for (const auto& [x, y] : pairs) {
+      if (x < 0 || y < 0) continue;
+      const int a = std::max(x, y), b = std::min(x, y);
+      if (position_.emplace(std::make_pair(a, b), static_cast<int>(position_.size())).second) {
+        rows_.push_back(a);
+        cols_.push_back(b);
+      }
+    }
+    index_ready_ = false;
+  }
+  // Forgets every registered pair (and the misses).
+  void clear() {
+    position_.clear();
+    rows_.clear();
+    cols_.clear();
+    index_ready_ = false;
+    missed_ = 0;
+  }
+  // Nonzero second derivatives `add` found at pairs that were not registered, and left out,
+  // since the last clear_missed(): the registered structure is too small for them.
+  long missed() const { return missed_; }
+  void clear_missed() { missed_ = 0; }
   std::size_t size() const { return rows_.size(); }
   const std::vector<int>& rows() const { return rows_; }
   const std::vector<int>& cols() const { return cols_; }
@@ -160,10 +184,11 @@ class HessianBlocks {
         if (value == 0.0) continue;
         // Two locals may name one unknown (never in FESD's blocks, but allowed): each pair of
         // lanes is one term of the chain rule, the diagonal counted once per lane pair.
-        if (gi == gj && i != j) {
-          values[position(gi, gj)] += 2.0 * value;
+        const long at = find(std::max(gi, gj), std::min(gi, gj));
+        if (at < 0) {
+          ++missed_;
         } else {
-          values[position(std::max(gi, gj), std::min(gi, gj))] += value;
+          values[at] += gi == gj && i != j ? 2.0 * value : value;
         }
       }
     }
@@ -190,20 +215,21 @@ class HessianBlocks {
     row_begin_[0] = 0;
     index_ready_ = true;
   }
-  // The position of the registered pair (a, b), a >= b.
-  std::size_t position(int a, int b) const {
+  // The position of the pair (a, b), a >= b, or -1 when it is not registered.
+  long find(int a, int b) const {
+    if (static_cast<std::size_t>(a) + 1 >= row_begin_.size()) return -1;
     const auto first = index_cols_.begin() + row_begin_[static_cast<std::size_t>(a)];
     const auto last = index_cols_.begin() + row_begin_[static_cast<std::size_t>(a) + 1];
     const auto it = std::lower_bound(first, last, b);
-    BFLOW_ASSERT(it != last && *it == b);
-    return static_cast<std::size_t>(
-        index_positions_[static_cast<std::size_t>(it - index_cols_.begin())]);
+    if (it == last || *it != b) return -1;
+    return index_positions_[static_cast<std::size_t>(it - index_cols_.begin())];
   }
 
   std::map<std::pair<int, int>, int> position_;
   std::vector<int> rows_, cols_;
   bool index_ready_ = false;
   std::vector<int> row_begin_, index_cols_, index_positions_;
+  long missed_ = 0;
 };
 
 }  // namespace fesd

@@ -147,6 +147,13 @@ struct TranscriptionSetup {
       place of the sides of the guessed states (PointDcs::initial). */
   bool neutral_algebraic_guess = false;
   bool exact_hessian = true;
+  /** The Jacobian and Hessian structure IPOPT is given: true, the entries found nonzero at
+      random points (sparsity.h), checked at every evaluation, with every candidate declared and
+      the NLP solved again on a miss (HomotopyStep::structure_widened); false, every candidate
+      (what each row reads, every pair of a Hessian piece's unknowns). False by default: with
+      Debian's MUMPS an iteration costs the same or more with the smaller structure (docs/ocp.md,
+      the KKT experiments). */
+  bool probe_sparsity = false;
   /** Tests only: the Hessian handed to IPOPT is multiplied by this. */
   double exact_hessian_scale = 1.0;
 };
@@ -167,6 +174,8 @@ class Transcription {
 
   const TranscriptionLayout& layout() const;
   int constraints() const;
+  /** The nonzeros of the Jacobian and of the Hessian's lower triangle declared to IPOPT (the
+      probed structure, TranscriptionSetup::probe_sparsity). */
   std::size_t jacobian_nonzeros() const;
   std::size_t hessian_nonzeros() const;
 
@@ -222,13 +231,15 @@ struct IpoptSettings {
   bool exact_hessian = true;
   int max_iterations = 3000;
   std::string linear_solver = "mumps";  ///< one of kLinearSolvers (linear_solver.h)
+  /** With MUMPS: its amalgamation of small fronts (ScopedMumpsAmalgamation, linear_solver.h). */
+  bool mumps_amalgamation = true;
   std::vector<std::pair<std::string, std::string>> ipopt_string_options;
   std::vector<std::pair<std::string, double>> ipopt_numeric_options;
   std::vector<std::pair<std::string, int>> ipopt_integer_options;
 };
 
 /** IpoptSettings from FesdOptions or OcpOptions (their print_level, exact_hessian,
-    max_nlp_iterations, linear_solver and ipopt_*_options). */
+    max_nlp_iterations, linear_solver, mumps_amalgamation and ipopt_*_options). */
 template <typename Options>
 IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
   IpoptSettings s;
@@ -237,6 +248,7 @@ IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
   s.exact_hessian = options.exact_hessian;
   s.max_iterations = options.max_nlp_iterations;
   s.linear_solver = options.linear_solver;
+  s.mumps_amalgamation = options.mumps_amalgamation;
   s.ipopt_string_options = options.ipopt_string_options;
   s.ipopt_numeric_options = options.ipopt_numeric_options;
   s.ipopt_integer_options = options.ipopt_integer_options;
@@ -290,6 +302,14 @@ struct HomotopyRules {
       (nosnoc's rule), re-solved at nlp_tolerance at the same sigma when it was solved more
       loosely; sigma_final then only bounds it. 0: every NLP down to sigma_final. */
   double stop_complementarity = 0.0;
+  /** > 0: after every NLP solved at a sigma at most this (above sigma_final) the active set is
+      fixed and the NLP polished (HomotopySolver::polish), unless the same active set was
+      polished before; a polish that is kept (every product zero) is polished once more from its
+      own solution (kept likewise only with every product zero) and ends the homotopy
+      (HomotopyOutcome::polished_early). Its cost may exceed the
+     relaxed NLP's by what the last step in sigma moved the cost (the relaxation's effect still
+     left), at least 1e-6 (1 + |cost|). 0: no early polish. */
+  double early_polish_sigma = 0.0;
 };
 
 /** HomotopyRules with the sigma schedule and nlp_tolerance of FesdOptions or OcpOptions, the
@@ -320,6 +340,11 @@ struct HomotopyStep {
   /** The final point's largest constraint violation, unscaled. */
   double constraint_violation = std::numeric_limits<double>::infinity();
   bool polish = false;  ///< the final solve with the active set fixed (sigma 0)
+  /** A Jacobian or Hessian entry outside the probed structure was nonzero (the model took a
+      branch none of the probe points took): the entry had been left out, so the NLP was solved
+      again from the same start with every candidate entry declared, as are all later NLPs of
+      the transcription. `iterations` and `cpu_seconds` count both solves. */
+  bool structure_widened = false;
 };
 
 struct HomotopyOutcome {
@@ -343,6 +368,14 @@ struct HomotopyOutcome {
   bool budget_exhausted = false;
   /** sigma of every NLP that failed and handed its last iterate on (continue_after_failure). */
   std::vector<double> continued;
+  /** HomotopyRules::early_polish_sigma: the homotopy ended with a kept polish of the NLP at
+      last_sigma (the transcription holds it; its step is the last of `steps`). */
+  bool polished_early = false;
+  /** With polished_early: the index in `steps` of the polish the transcription holds (the
+      second, from the first's solution, unless IPOPT did not solve it). */
+  int result_step = -1;
+  /** sigma of every early polish that was not kept (the homotopy went on). */
+  std::vector<double> polishes_not_kept;
 };
 
 struct PolishOutcome {
@@ -376,10 +409,13 @@ class HomotopySolver {
   /** The NLP once more with the active set of the current solution fixed (element sides at
       `active_tol`): the zero member of every complementarity pair at its bound, equal lengths of
       neighbouring elements of a stage with the same sides, no relaxation and no equilibration:
-      an exact FESD solution, kept only as PolishOutcome::kept says. `index` numbers its step. */
+      an exact FESD solution, kept only as PolishOutcome::kept says, its cost at most
+      `cost_slack` above the relaxed one (negative: 1e-6 (1 + |cost|)). `index` numbers its
+      step. */
   PolishOutcome polish(Transcription& nlp, double active_tol, double nlp_tolerance,
                        double complementarity_tolerance, int index,
-                       const std::function<void(const HomotopyStep&)>& on_step = {});
+                       const std::function<void(const HomotopyStep&)>& on_step = {},
+                       double cost_slack = -1.0);
 
  private:
   struct Impl;

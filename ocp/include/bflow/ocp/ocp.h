@@ -418,6 +418,16 @@ struct OcpOptions {
       solution. It is kept only when IPOPT solves it and its cost is not worse (by 1e-6
       relative); OcpResult::polished and notes say what happened. */
   bool polish = true;
+  /** With `polish`: from the first NLP solved at sigma <= this on, the polish is tried after
+      every NLP whose active set differs from the last one tried; the first polish kept is
+      polished once more from its own solution (as exact as the final polish) and ends the
+      homotopy there. Its cost may exceed the relaxed NLP's by what the last step in sigma moved
+      the cost (at least 1e-6 relative); a polish not kept costs its iterations and the
+      homotopy goes on. `notes` says where it stopped. 0: only the final polish after
+      sigma_final. Over the turbo car (N = 3 ... 15) and the braking block (N = 5 ... 20) it took
+      0.47 times the CPU of the homotopy down to sigma_final, at the same optima (docs/ocp.md,
+      Early polish). */
+  double early_polish_sigma = 1e-4;
   /** End the homotopy at the first NLP whose complementarity residual is at most
       complementarity_tolerance (nosnoc's rule; an NLP solved more loosely than nlp_tolerance is
       solved once more at the same sigma), instead of going down to sigma_final, which then
@@ -450,6 +460,10 @@ struct OcpOptions {
       @throws InvalidArgument (from ocp_solve) for another name, LinearSolverUnavailable when its
       library cannot be loaded (docs/ocp.md, "Linear solvers: MUMPS and HSL"). */
   std::string linear_solver = "mumps";
+  /** With MUMPS, its amalgamation of small fronts (KEEP(197) = 1, which IPOPT 3.11 cannot
+      set; bflow::ScopedMumpsAmalgamation): about half the cost of an IPOPT iteration on
+      FESD's KKT matrices with Debian's MUMPS 5.5.1; other round-off, the same solutions. */
+  bool mumps_amalgamation = true;
   /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
   std::function<void(const OcpHomotopyStep&)> progress;
   /** IPOPT options set after bflow's own (mu_strategy adaptive, bound_relax_factor 0 and those
@@ -460,6 +474,14 @@ struct OcpOptions {
   std::vector<std::pair<std::string, std::string>> ipopt_string_options;
   std::vector<std::pair<std::string, double>> ipopt_numeric_options;
   std::vector<std::pair<std::string, int>> ipopt_integer_options;
+  /** The Jacobian and Hessian structure handed to IPOPT. false (default): every entry an
+      element's rows and Hessian pieces can read, as the transcription lists them; true: only the
+      entries found nonzero at random points (fesd/sparsity.h), checked at every evaluation (a
+      miss declares every candidate, solves that NLP again, and `notes` says so). The probed
+      structure is about nosnoc's size (the braking block at N = 10: 1910 / 606 Jacobian / Hessian
+      nonzeros against 3254 / 2188) but Debian's MUMPS factorises it no faster (docs/ocp.md, the
+      KKT experiments). */
+  bool probe_sparsity = false;
   /** For testing derivative checks only: with exact_hessian, the Hessian handed to IPOPT is
       multiplied by this (1 in any real use), so a test can show that IPOPT's second-order
       derivative checker reports a wrong Hessian. */
