@@ -425,7 +425,7 @@ struct OcpOptions {
       the cost (at least 1e-6 relative); a polish not kept costs its iterations and the
       homotopy goes on. `notes` says where it stopped. 0: only the final polish after
       sigma_final. Over the turbo car (N = 3 ... 15) and the braking block (N = 5 ... 20) it took
-      0.47 times the CPU of the homotopy down to sigma_final, at the same optima (docs/ocp.md,
+      0.63 times the CPU of the homotopy down to sigma_final, at the same optima (docs/ocp.md,
       Early polish). */
   double early_polish_sigma = 1e-4;
   /** End the homotopy at the first NLP whose complementarity residual is at most
