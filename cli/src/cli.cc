@@ -269,7 +269,7 @@ struct NumericTexts {
   std::optional<std::string> max_input_bytes, max_output_bytes;
   std::optional<std::string> fesd_stages, fesd_nfe, fesd_nsim, fesd_t, fesd_lifting;
   std::optional<std::string> ocp_n, ocp_nfe, ocp_stages, ocp_sigma0, ocp_sigma_final, ocp_tol,
-      ocp_max_iterations, ocp_lifting;
+      ocp_max_iterations, ocp_lifting, ocp_early_polish_sigma;
 };
 
 int read_int(const std::string& text, const char* option) {
@@ -304,6 +304,9 @@ void read_numbers(const NumericTexts& t, JumpOptions& jump, FesdCommandOptions& 
   if (t.ocp_max_iterations)
     ocp.max_iterations = read_int(*t.ocp_max_iterations, "--max-iterations");
   if (t.ocp_lifting) ocp.lifting = read_int(*t.ocp_lifting, "--lifting");
+  if (t.ocp_early_polish_sigma) {
+    ocp.early_polish_sigma = read_double(*t.ocp_early_polish_sigma, "--early-polish-sigma");
+  }
 }
 
 // Refuses an option of `command` given with an empty value ("--N ''"), which CLI11 would take
@@ -514,6 +517,12 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     ocp->add_option("--sigma-final", numbers.ocp_sigma_final,
                     "Final relaxation sigma, > 0 and <= --sigma0 (default 1e-10; monoped: 1e-4 for "
                     "--setup nosnoc, 0.4^14 with stewart, 1e-7 for --setup strict)")
+        ->type_name("X");
+    ocp->add_option("--early-polish-sigma", numbers.ocp_early_polish_sigma,
+                    "From the first NLP at sigma <= X on, try the polish after every NLP with a "
+                    "new active set and end the homotopy at the first one kept, >= 0 (default "
+                    "1e-4; 0: only the final polish after --sigma-final; the monoped and the "
+                    "hopper do not polish)")
         ->type_name("X");
     ocp->add_option("--tol", numbers.ocp_tol,
                     "IPOPT's tolerance for the last NLP, >= 1e-14 (default 1e-10; monoped: 1e-5 "

@@ -123,6 +123,13 @@ void check_ranges(const OcpCommandOptions& options, const OcpOptions& defaults) 
   check_positive(options.sigma0, "--sigma0", "the initial relaxation parameter");
   check_positive(options.sigma_final, "--sigma-final", "the final relaxation parameter");
   check_positive(options.tol, "--tol", "the NLP tolerance");
+  if (options.early_polish_sigma &&
+      !(*options.early_polish_sigma >= 0.0 && std::isfinite(*options.early_polish_sigma))) {
+    fail("--early-polish-sigma",
+         "the sigma from which the polish is tried must be finite and "
+         ">= 0 (0: only the final polish), got " +
+             format_number(*options.early_polish_sigma));
+  }
   if (options.tol && *options.tol < kMinNlpTolerance) {
     fail("--tol", "must be >= " + format_number(kMinNlpTolerance) +
                       " (below that IPOPT cannot meet it in double precision), got " +
@@ -609,6 +616,15 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
     if (options.sigma0) o.sigma_initial = *options.sigma0;
     if (options.sigma_final) o.sigma_final = *options.sigma_final;
     if (options.tol) o.nlp_tolerance = *options.tol;
+    if (options.early_polish_sigma) {
+      if (!o.polish && *options.early_polish_sigma > 0.0) {
+        fail("--early-polish-sigma", "the " + options.example +
+                                         " does not polish (its homotopy ends at its last NLP), "
+                                         "so there is no early polish to try from sigma " +
+                                         format_number(*options.early_polish_sigma));
+      }
+      o.early_polish_sigma = *options.early_polish_sigma;
+    }
     if (options.max_iterations) o.max_total_iterations = *options.max_iterations;
     if (options.lifting) {
       if (*options.lifting != 0 && formulation != DcsFormulation::kStep) {

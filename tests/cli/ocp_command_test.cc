@@ -5,6 +5,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <optional>
 #include <sstream>
 #include <string>
@@ -26,6 +27,7 @@ namespace bflow::cli {
 namespace {
 
 namespace fs = std::filesystem;
+using ::testing::HasSubstr;
 using ::testing::StartsWith;
 
 // A run with its standard output parsed as JSON (null when it wrote none).
@@ -149,6 +151,43 @@ TEST(OcpCommandTest, TurboCarFindsTheExactTimeAndSwitches) {
   EXPECT_TRUE(is_sigma_progress_line(progress.front())) << progress.front();
   EXPECT_THAT(progress.front(), StartsWith("ocp: sigma 1.0e+02  objective "));
   EXPECT_THAT(progress.back(), StartsWith("ocp: polish         objective 13.3333  "));
+}
+
+// --early-polish-sigma 0 runs the homotopy down to --sigma-final before the one polish; the
+// default (1e-4) ends it at the first polish kept from sigma = 1e-4 on. Both reach T* = 40/3
+// (measured errors 1.2e-10 and below 1e-12; bound 1e-8 as above), the early one in fewer NLPs
+// and with a note that says where it stopped.
+TEST(OcpCommandTest, EarlyPolishSigmaZeroRunsTheHomotopyToSigmaFinal) {
+  OcpCommandOptions o;
+  o.example = "turbo-car";
+  o.n = 5;
+  o.quiet = true;
+  const Outcome early = solve(o);
+  o.early_polish_sigma = 0.0;
+  const Outcome full = solve(o);
+  ASSERT_EQ(early.code, kExitOk) << early.err;
+  ASSERT_EQ(full.code, kExitOk) << full.err;
+  for (const auto* j : {&early.json, &full.json}) {
+    EXPECT_EQ((*j)["status"], "solved");
+    EXPECT_NEAR((*j)["T"].get<double>(), 40.0 / 3.0, 1e-8);
+    EXPECT_TRUE((*j)["polished"].get<bool>());
+  }
+  const auto& hf = full.json["homotopy"];
+  ASSERT_GE(hf.size(), 2u);
+  EXPECT_TRUE(hf.back()["polish"].get<bool>());
+  int polishes = 0;
+  for (const auto& step : hf) polishes += step["polish"].get<bool>() ? 1 : 0;
+  EXPECT_EQ(polishes, 1);
+  EXPECT_DOUBLE_EQ(hf[hf.size() - 2]["sigma"].get<double>(), 1e-10);
+  const auto& he = early.json["homotopy"];
+  EXPECT_LT(he.size(), hf.size());
+  double smallest = 1.0;
+  for (const auto& step : he) {
+    if (!step["polish"].get<bool>()) smallest = std::min(smallest, step["sigma"].get<double>());
+  }
+  EXPECT_LE(smallest, 1e-4 * (1 + 1e-9));
+  EXPECT_GT(smallest, 1e-10);
+  EXPECT_THAT(early.json["notes"].dump(), HasSubstr("early_polish_sigma"));
 }
 
 // Standard time-stepping cannot put the switches on element boundaries: its solved runs end
@@ -382,6 +421,20 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
        "error: --sigma0: 1e-12 is below the final 1e-10 (the default of --sigma-final)"},
       {"tol", [](OcpCommandOptions& o) { o.tol = 0.0; },
        "error: --tol: the NLP tolerance must be finite and > 0, got 0"},
+      {"early-polish-sigma", [](OcpCommandOptions& o) { o.early_polish_sigma = -0.5; },
+       "error: --early-polish-sigma: the sigma from which the polish is tried must be finite "
+       "and >= 0 (0: only the final polish), got -0.5"},
+      {"early-polish-sigma inf",
+       [](OcpCommandOptions& o) { o.early_polish_sigma = std::numeric_limits<double>::infinity(); },
+       "error: --early-polish-sigma: the sigma from which the polish is tried must be finite "
+       "and >= 0 (0: only the final polish), got inf"},
+      {"early-polish-sigma monoped",
+       [](OcpCommandOptions& o) {
+         o.example = "monoped";
+         o.early_polish_sigma = 1e-3;
+       },
+       "error: --early-polish-sigma: the monoped does not polish (its homotopy ends at its last "
+       "NLP), so there is no early polish to try from sigma 0.001"},
       {"max-iterations", [](OcpCommandOptions& o) { o.max_iterations = -3; },
        "error: --max-iterations: the iteration budget must be >= 0 (0: no limit), got -3"},
       {"plot", [](OcpCommandOptions& o) { o.plot = ""; },
