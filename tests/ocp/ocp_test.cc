@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <iterator>
 #include <string>
 #include <vector>
 
@@ -440,6 +441,13 @@ TEST(OcpHomotopy, EarlyPolishEndsTheHomotopyAtTheExactOptimum) {
   EXPECT_LE(stop, 1e-4 * (1 + 1e-12));
   EXPECT_GT(stop, o.sigma_final);
   EXPECT_THAT(early.notes, testing::Contains(testing::HasSubstr("polished at sigma = ")));
+  // The first polish is tried right after the NLP at sigma = 100 * 0.1^6, which is 1e-4 only to
+  // round-off (1.0000000000000003e-4): the threshold allows for that, or the first try would
+  // wait for 1e-5.
+  const auto first_polish = std::find_if(early.homotopy.begin(), early.homotopy.end(),
+                                         [](const OcpHomotopyStep& s) { return s.polish; });
+  ASSERT_NE(first_polish, early.homotopy.begin());
+  EXPECT_NEAR(std::prev(first_polish)->sigma, 1e-4, 1e-16);
   EXPECT_EQ(full.homotopy[full.homotopy.size() - 2].sigma, o.sigma_final);
   // As exact as the final polish: no product left.
   EXPECT_EQ(early.max_complementarity, 0.0);
