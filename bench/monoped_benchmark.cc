@@ -30,9 +30,10 @@
 // IPOPT options for every row: --ipopt-int=name=value, --ipopt-num=..., --ipopt-str=...
 // (repeatable; bench/ipopt_flags.h); the context records them and the BLAS and LAPACK loaded.
 // --budget=K bounds each BM_Monoped row's homotopy to K IPOPT iterations in all
-// (OcpOptions::max_total_iterations; counter "budget"). A row's label is its status (and
-// message) and, after " | ", its homotopy: "sigma objective complementarity iterations status"
-// per NLP, "; " between them.
+// (OcpOptions::max_total_iterations; counter "budget"). --no-mumps-amalgamation solves every row
+// with MUMPS as it comes (OcpOptions::mumps_amalgamation false; the context says which). A row's
+// label is its status (and message) and, after " | ", its homotopy: "sigma objective
+// complementarity iterations status" per NLP, "; " between them.
 //
 //   build-bench/bench/monoped_benchmark   (scripts/bench --monoped stores the JSON and draws
 //                                          docs/monoped_cpu.png; scripts/bench
@@ -51,15 +52,19 @@
 namespace {
 
 bflow_bench::IpoptFlags g_ipopt_flags;  // from the command line, for every row
-int g_budget = 0;  // --budget=K: OcpOptions::max_total_iterations of every BM_Monoped row
+int g_budget = 0;            // --budget=K: OcpOptions::max_total_iterations of every BM_Monoped row
+bool g_amalgamation = true;  // false with --no-mumps-amalgamation
 
 // Takes --budget=K out of argv (before benchmark::Initialize).
+// Also takes --no-mumps-amalgamation.
 int take_budget(int& argc, char** argv) {
   int budget = 0, kept = 1;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     if (arg.rfind("--budget=", 0) == 0) {
       budget = std::stoi(arg.substr(9));
+    } else if (arg == "--no-mumps-amalgamation") {
+      g_amalgamation = false;
     } else {
       argv[kept++] = argv[i];
     }
@@ -101,6 +106,7 @@ void BM_Monoped(benchmark::State& state, bflow::DcsFormulation formulation) {
   const bflow::OcpProblem problem = task.problem(stages);
   bflow::OcpOptions o = task.options(stages, formulation);
   g_ipopt_flags.apply_to(o);
+  o.mumps_amalgamation = g_amalgamation;
   o.max_total_iterations = g_budget;
   OcpResult r;
   for (auto _ : state) {
@@ -148,6 +154,7 @@ bool first_nlp(benchmark::State& state, bflow::DcsFormulation formulation, Confi
   const bflow_bench::IpoptLog log;
   log.apply_to(o);
   g_ipopt_flags.apply_to(o);
+  o.mumps_amalgamation = g_amalgamation;
   for (auto _ : state) {
     r = bflow::ocp_solve(model, problem, o);
     if (r.homotopy.empty() || r.homotopy.front().iterations == 0) {
@@ -245,6 +252,7 @@ int main(int argc, char** argv) {
         benchmark::kMillisecond);
   }
   benchmark::AddCustomContext("ipopt_options", g_ipopt_flags.describe());
+  benchmark::AddCustomContext("mumps_amalgamation", g_amalgamation ? "on" : "off");
   benchmark::AddCustomContext("blas", bflow_bench::loaded_library("libblas.so"));
   benchmark::AddCustomContext("lapack", bflow_bench::loaded_library("liblapack.so"));
   benchmark::Initialize(&argc, argv);
