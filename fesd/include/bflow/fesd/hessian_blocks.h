@@ -36,26 +36,13 @@ class HessianBlocks {
   void add_block(const std::vector<int>& globals) {
     for (int a : globals) {
       for (int b : globals) {
-        if (a < 0 || b < 0 || a < b) continue;
-        if (position_.emplace(std::make_pair(a, b), static_cast<int>(position_.size())).second) {
-          rows_.push_back(a);
-          cols_.push_back(b);
-        }
+        if (a >= b) register_pair(a, b);
       }
     }
-    index_ready_ = false;
   }
   // Registers the listed pairs of unknowns (either order; pairs with a constant are skipped).
   void add_pairs(const std::vector<std::pair<int, int>>& pairs) {
-    for (const auto& [x, y] : pairs) {
-      if (x < 0 || y < 0) continue;
-      const int a = std::max(x, y), b = std::min(x, y);
-      if (position_.emplace(std::make_pair(a, b), static_cast<int>(position_.size())).second) {
-        rows_.push_back(a);
-        cols_.push_back(b);
-      }
-    }
-    index_ready_ = false;
+    for (const auto& [x, y] : pairs) register_pair(std::max(x, y), std::min(x, y));
   }
   // Forgets every registered pair (and the misses).
   void clear() {
@@ -214,6 +201,15 @@ class HessianBlocks {
       row_begin_[a] = row_begin_[a - 1];
     row_begin_[0] = 0;
     index_ready_ = true;
+  }
+  // Registers the pair (a, b), a >= b, once; a pair with a constant (index < 0) is skipped.
+  void register_pair(int a, int b) {
+    if (b < 0) return;
+    if (position_.emplace(std::make_pair(a, b), static_cast<int>(position_.size())).second) {
+      rows_.push_back(a);
+      cols_.push_back(b);
+      index_ready_ = false;
+    }
   }
   // The position of the pair (a, b), a >= b, or -1 when it is not registered.
   long find(int a, int b) const {
