@@ -453,6 +453,26 @@ TEST(OcpHomotopy, EarlyPolishEndsTheHomotopyAtTheExactOptimum) {
   EXPECT_EQ(early.max_complementarity, 0.0);
 }
 
+// The early polish's cost allowance is what the last step in sigma moved the cost. On the turbo
+// car at N = 10 the relaxed NLP at sigma = 1e-4 costs 13.3333128 and its polish 40/3: 2.05e-5
+// more, above the plain 1e-6 (1 + |J|) = 1.43e-5 but within the 1.85e-4 the step from 1e-3
+// moved the cost (measured). So the first polish is kept and ends the homotopy there; with the
+// plain allowance it is refused and the homotopy runs on to 1e-10.
+TEST(OcpHomotopy, EarlyPolishAllowsTheCostTheLastSigmaStepMoved) {
+  const OcpResult r = solve_car(10);
+  ASSERT_EQ(r.status, OcpStatus::kSolved) << r.message;
+  EXPECT_NEAR(r.T, TurboCar::kOptimalTime, 1e-8);
+  EXPECT_THAT(r.notes, testing::Contains(testing::HasSubstr("polished at sigma = ")));
+  EXPECT_THAT(r.notes, testing::Not(testing::Contains(testing::HasSubstr("was not kept"))));
+  ASSERT_GE(r.homotopy.size(), 3u);
+  const OcpHomotopyStep& relaxed = r.homotopy[r.homotopy.size() - 3];
+  EXPECT_FALSE(relaxed.polish);
+  EXPECT_NEAR(relaxed.sigma, 1e-4, 1e-16);
+  // The case the rule is for: the polish costs more than the plain allowance above the relaxed
+  // NLP.
+  EXPECT_GT(r.objective - relaxed.objective, 1e-6 * (1.0 + std::abs(relaxed.objective)));
+}
+
 // Without a branch the probed structure is kept through the whole homotopy and is smaller than
 // every candidate; the optimum is the same.
 TEST(OcpSparsity, ProbedStructureIsSmallerAndReachesTheSameOptimum) {
