@@ -259,7 +259,8 @@ def build(args):
         ns.CrossComplementarityMode.SUM_LAMBDAS_COMPLEMENT_WITH_EVERY_THETA
         if args.cross_comp == "sum"
         else ns.CrossComplementarityMode.COMPLEMENT_ALL_STAGE_VALUES_WITH_EACH_OTHER)
-    opts.mpcc_mode = ns.MpccMode.SCHOLTES_INEQ
+    opts.mpcc_mode = (ns.MpccMode.ELASTIC_INEQ if args.mpcc_mode == "elastic-ineq"
+                      else ns.MpccMode.SCHOLTES_INEQ)
     opts.sigma_0 = 1.0
     opts.homotopy_update_slope = 0.1
     opts.homotopy_update_rule = ns.HomotopyUpdateRule.LINEAR
@@ -357,6 +358,9 @@ def main():
     ap.add_argument("--formulation", choices=["step", "stewart"], default="step")
     ap.add_argument("--cross-comp", choices=["sum", "all"], default="sum")
     ap.add_argument("--tracking", choices=["stage-end", "integrated"], default="stage-end")
+    ap.add_argument("--mpcc-mode", choices=["scholtes", "elastic-ineq"], default="scholtes",
+                    help="scholtes: products <= sigma; elastic-ineq: products <= s, s in [0, 10] "
+                         "and s / sigma added to the cost (the package's l-infinity elastic mode)")
     ap.add_argument("--max-iter", type=int, default=10000, help="IPOPT iterations per NLP")
     ap.add_argument("--out", default=".")
     ap.add_argument("--tag", default="")

@@ -501,7 +501,8 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                     "The monoped's setup: nosnoc (its benchmark behind the paper's Figure 10, the "
                     "default) or strict (tighter tolerances, a foot path constraint)");
     ocp->add_option("--relaxation", ocp_options.relaxation,
-                    "scholtes (products <= sigma) or l1 (penalty 1/sigma times the products)")
+                    "scholtes (products <= sigma), l1 (penalty 1/sigma times the products) or "
+                    "elastic (products <= s, s >= 0 one slack with penalty s/sigma)")
         ->type_name("NAME")
         ->capture_default_str();
     ocp->add_option("--cross", ocp_options.cross,

@@ -94,7 +94,8 @@ int stages_of(const OcpCommandOptions& options) {
 OcpRelaxation parse_relaxation(const std::string& text) {
   if (text == "scholtes") return OcpRelaxation::kScholtes;
   if (text == "l1") return OcpRelaxation::kL1Penalty;
-  fail("--relaxation", "unknown relaxation " + quote(text) + "; use scholtes or l1");
+  if (text == "elastic") return OcpRelaxation::kElastic;
+  fail("--relaxation", "unknown relaxation " + quote(text) + "; use scholtes, l1 or elastic");
 }
 
 void check_positive(const std::optional<double>& value, const std::string& option,

@@ -262,6 +262,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       }
     }
     for (const auto& [index, value] : fixed_) w_[index] = value;
+    if (elastic()) w_[slack()] = 0.0;
     const int base = constraints_;
     polish_jac_.clear();
     for (std::size_t r = 0; r < equal_.size(); ++r) {
@@ -285,8 +286,8 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   // A warm start from the primal point only: every multiplier 0 (IPOPT pushes the bounds' up to
   // warm_start_mult_bound_push).
   void forget_multipliers() {
-    z_l_.setZero(l_.variables());
-    z_u_.setZero(l_.variables());
+    z_l_.setZero(variables());
+    z_u_.setZero(variables());
     lambda_.setZero(constraints_);
   }
   void restore() {
@@ -368,7 +369,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     const int d = l_.d, nu = l_.nu;
     BFLOW_ASSERT(u_guess.rows() == nu);
     BFLOW_ASSERT(lengths.empty() || static_cast<int>(lengths.size()) == l_.elements);
-    w_.setZero(l_.variables());
+    w_.setZero(variables());
     if (l_.scaled) w_[TranscriptionLayout::kT] = p_.horizon;
     Eigen::VectorXd y(d + nu), z(l_.nz);
     for (int k = 0; k < l_.stages; ++k) {
@@ -394,13 +395,15 @@ class Transcription::Nlp final : public Ipopt::TNLP {
         w_.segment(l_.var(e, l_.off_x), d) = xb;
       }
     }
+    // The elastic slack starts where every relaxed row of the guess holds.
+    if (elastic()) w_[slack()] = complementarity(w_.data());
   }
 
   // --- Ipopt::TNLP ---
   bool get_nlp_info(Ipopt::Index& n, Ipopt::Index& m, Ipopt::Index& nnz_jac, Ipopt::Index& nnz_hess,
                     IndexStyleEnum& style) override {
     ensure_structure();
-    n = l_.variables();
+    n = variables();
     m = constraints();
     nnz_jac = static_cast<Ipopt::Index>(jac_rows_.size() + polish_jac_.size());
     nnz_hess = static_cast<Ipopt::Index>(hessian_.size());
@@ -417,6 +420,10 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       x_u[TranscriptionLayout::kT] = std::min(p_.T_max, kInfinity);
     } else if (l_.scaled) {
       x_l[TranscriptionLayout::kT] = x_u[TranscriptionLayout::kT] = p_.horizon;
+    }
+    if (elastic()) {
+      x_l[slack()] = 0.0;
+      x_u[slack()] = polish_ ? 0.0 : kInfinity;
     }
     for (int k = 0; k < l_.stages; ++k) {
       for (int j = 0; j < l_.nu; ++j) {
@@ -452,6 +459,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
         g_l[row] = equality ? 0.0 : -kInfinity;
         g_u[row] = equality                                               ? 0.0
                    : (p_.relaxation == Relaxation::kScholtes && !polish_) ? sigma_
+                   : (elastic() && !polish_)                              ? 0.0
                                                                           : kInfinity;
       }
     }
@@ -501,6 +509,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       gather(t, x, in);
       value += term_value(t, in.data());
     }
+    if (elastic() && !polish_) value += x[slack()] / sigma_;
     if (penalty()) {
       std::vector<double> out(static_cast<std::size_t>(l_.rows_per_element()));
       for (int e = 0; e < l_.elements; ++e) {
@@ -517,6 +526,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   bool eval_grad_f(Ipopt::Index n, const Ipopt::Number* x, bool, Ipopt::Number* grad) override {
     std::fill(grad, grad + n, 0.0);
     if (p_.time_optimal) grad[TranscriptionLayout::kT] = 1.0;
+    if (elastic() && !polish_) grad[slack()] = 1.0 / sigma_;
     std::vector<double> in;
     for (const Term& t : objective_terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
@@ -547,7 +557,11 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     std::vector<double> in;
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, in);
-      element_residual(tab_, l_, p_.standard, in.data(), g + e * l_.rows_per_element());
+      double* rows = g + e * l_.rows_per_element();
+      element_residual(tab_, l_, p_.standard, in.data(), rows);
+      // Products <= s (s = 0 in the polish).
+      for (int r = l_.equalities; elastic() && r < l_.rows_per_element(); ++r)
+        rows[r] -= x[slack()];
     }
     for (int k = 0; k < rows_sums_; ++k) {
       double sum = 0.0;
@@ -620,6 +634,9 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       for (int r = 0; r < nterm_; ++r) {
         for (int i = 0; i < l_.d; ++i) values[k++] = jac(r, i);
       }
+    }
+    for (int e = 0; elastic() && e < l_.elements; ++e) {
+      for (int r = l_.equalities; r < rpe; ++r) values[k++] = -1.0;
     }
     for (std::size_t r = 0; r < equal_.size(); ++r) {
       values[k++] = 1.0;
@@ -751,6 +768,12 @@ class Transcription::Nlp final : public Ipopt::TNLP {
         jac_cols_.push_back(l_.x_end(l_.elements - 1, i));
       }
     }
+    for (int e = 0; elastic() && e < l_.elements; ++e) {
+      for (int r = l_.equalities; r < rpe; ++r) {
+        jac_rows_.push_back(e * rpe + r);
+        jac_cols_.push_back(slack());
+      }
+    }
     hessian_.clear();
     if (!p_.exact_hessian) return;
     pieces_ = element_hessian_pieces(l_);
@@ -811,6 +834,10 @@ class Transcription::Nlp final : public Ipopt::TNLP {
 
  private:
   bool penalty() const { return p_.relaxation == Relaxation::kL1Penalty && !polish_; }
+  bool elastic() const { return p_.relaxation == Relaxation::kElastic; }
+  // The elastic slack's index, the last unknown.
+  int slack() const { return l_.variables(); }
+  int variables() const { return l_.variables() + (elastic() ? 1 : 0); }
 
   void gather(const Term& t, const double* w, std::vector<double>& out) const {
     out.resize(t.globals.size());

@@ -543,6 +543,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   setup.x_bounds_at_stage_points = problem.x_bounds_at_stage_points;
   setup.standard = options.standard;
   setup.relaxation = options.relaxation == OcpRelaxation::kL1Penalty ? fesd::Relaxation::kL1Penalty
+                     : options.relaxation == OcpRelaxation::kElastic ? fesd::Relaxation::kElastic
                                                                      : fesd::Relaxation::kScholtes;
   setup.equilibration_weight = options.equilibration_weight;
   setup.equilibration_fades = true;
@@ -607,7 +608,8 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     ends = [x](int) { return std::make_pair(x, x); };
   }
   nlp.set_guess(u_guess, ends, lengths);
-  result.unknowns = l.variables();
+  // The elastic slack is IPOPT's last unknown.
+  result.unknowns = l.variables() + (options.relaxation == OcpRelaxation::kElastic ? 1 : 0);
   result.constraints = nlp.constraints();
 
   fesd::HomotopySolver solver(fesd::ipopt_settings(options, "ocp"));

@@ -391,7 +391,7 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
       {"formulation", [](OcpCommandOptions& o) { o.formulation = "heaviside"; },
        "error: --formulation: unknown formulation \"heaviside\": use step or stewart"},
       {"relaxation", [](OcpCommandOptions& o) { o.relaxation = "smooth"; },
-       "error: --relaxation: unknown relaxation \"smooth\"; use scholtes or l1"},
+       "error: --relaxation: unknown relaxation \"smooth\"; use scholtes, l1 or elastic"},
       {"cross", [](OcpCommandOptions& o) { o.cross = "stage-stage"; },
        "error: --cross: unknown cross complementarity \"stage-stage\"; use element-sums, "
        "point-pairs or point-sums"},

@@ -295,6 +295,11 @@ TEST(OcpHessian, EveryCostAlone) {
   penalty.relaxation = OcpRelaxation::kL1Penalty;
   objective_flagged(pass_and_control(curved, Curved::problem(), penalty, "l1 penalty", 1.0),
                     "l1 penalty");
+  // The elastic slack: its column of -1 in every relaxed row and its linear cost 1 / sigma pass
+  // the first-order test; the slack adds no second derivative.
+  OcpOptions elastic = radau2;
+  elastic.relaxation = OcpRelaxation::kElastic;
+  pass_and_control(curved, Curved::problem(), elastic, "elastic", 1.0);
   objective_flagged(pass_and_control(adapt_ocp(CurvedMayer{}), Curved::problem(), radau1, "Mayer"),
                     "Mayer");
   OcpProblem tracking = Curved::problem();

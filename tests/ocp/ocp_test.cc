@@ -288,6 +288,28 @@ TEST(OcpRelaxations, PenaltyReachesTheScholtesOptimum) {
   EXPECT_EQ(penalty.max_complementarity, 0.0);
 }
 
+// The l-infinity elastic mode (one slack bounding every product, s / sigma in the objective)
+// reaches the exact optima too: the braking block's Scholtes optimum (measured: the same objective
+// to the last digit; bound 2e-14), the turbo car's T = 40/3 and its switch times (measured:
+// 2.1e-10 at N = 10; bounds as the Scholtes runs'). Its NLPs have one unknown more, the slack.
+TEST(OcpRelaxations, ElasticModeReachesTheExactOptima) {
+  OcpOptions options;
+  options.relaxation = OcpRelaxation::kElastic;
+  const OcpResult elastic = solve_block(10, options);
+  const OcpResult scholtes = solve_block(10);
+  ASSERT_EQ(elastic.status, OcpStatus::kSolved) << elastic.message;
+  ASSERT_TRUE(scholtes.ok()) << scholtes.message;
+  EXPECT_NEAR(elastic.objective, scholtes.objective, 2e-14);
+  EXPECT_EQ(elastic.max_complementarity, 0.0);
+  EXPECT_EQ(elastic.unknowns, scholtes.unknowns + 1);
+  const OcpResult car = solve_car(10, options);
+  ASSERT_EQ(car.status, OcpStatus::kSolved) << car.message;
+  EXPECT_NEAR(car.T, TurboCar::kOptimalTime, 1e-8);
+  ASSERT_EQ(car.switch_times.size(), 2u);
+  EXPECT_NEAR(car.switch_times[0], TurboCar::kSwitchTimes[0], 2e-9);
+  EXPECT_NEAR(car.switch_times[1], TurboCar::kSwitchTimes[1], 1e-8);
+}
+
 // Without the warm start every NLP after the first starts from the previous solution's point
 // alone (IPOPT's own initialisation): the homotopy takes another path to the same exact optimum.
 // Measured: |T - 40/3| = 1.2e-10 (bound 1e-8), the switch times 2.7e-11 (t = 2, bound 2e-9) and

@@ -114,6 +114,10 @@ class TranscriptionTerms {
 enum class Relaxation {
   kScholtes,   ///< products <= sigma
   kL1Penalty,  ///< (1 / sigma) sum of products added to the objective (elastic)
+  /** One slack s >= 0 bounds every product (products <= s) and s / sigma enters the objective:
+      the l-infinity elastic mode (nosnoc's ELASTIC_INEQ). The NLP has one unknown more, the last
+      one; s starts at the guess's largest product and is fixed at 0 in the polish. */
+  kElastic,
 };
 
 /** The problem data of a transcription. Empty bound vectors mean unbounded. */

@@ -340,6 +340,10 @@ struct OcpProblem {
 enum class OcpRelaxation {
   kScholtes,   ///< products <= sigma
   kL1Penalty,  ///< (1 / sigma) sum of products added to the objective (elastic)
+  /** One slack s >= 0 bounds every product (products <= s), s / sigma added to the objective:
+      the l-infinity elastic mode of nosnoc (ELASTIC_INEQ). The products may exceed sigma where
+      that pays; the polish fixes s at 0. */
+  kElastic,
 };
 
 /** How least-squares tracking (OcpProblem::track_Q, track_R) enters the cost. */
