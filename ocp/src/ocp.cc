@@ -386,15 +386,61 @@ FesdResult simulate_controls(const OcpModel& model, const Eigen::Ref<const Eigen
     throw InvalidArgument("simulate_controls: the horizon must be positive and finite, got " +
                           number(horizon));
   }
+  const Eigen::MatrixXd held = u;
+  return simulate_policy(
+      model, x0, horizon, static_cast<int>(u.cols()),
+      [&held](int k, const Eigen::VectorXd&) { return Eigen::VectorXd(held.col(k)); }, options);
+}
+
+FesdResult simulate_policy(const OcpModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
+                           double horizon, int stages, const OcpPolicy& policy, FesdOptions options,
+                           const Eigen::VectorXd& u_lower, const Eigen::VectorXd& u_upper,
+                           Eigen::MatrixXd* controls, int* clamped) {
+  const int nu = model.controls();
+  if (stages < 1) {
+    throw InvalidArgument("simulate_policy: the number of stages must be >= 1, got " +
+                          std::to_string(stages));
+  }
+  if (!(horizon > 0.0) || !std::isfinite(horizon)) {
+    throw InvalidArgument("simulate_policy: the horizon must be positive and finite, got " +
+                          number(horizon));
+  }
+  if (!policy) throw InvalidArgument("simulate_policy: the policy is empty");
+  for (const auto& [bounds, what] :
+       {std::make_pair(&u_lower, "u_lower"), std::make_pair(&u_upper, "u_upper")}) {
+    if (bounds->size() != 0 && bounds->size() != nu) {
+      throw InvalidArgument("simulate_policy: " + std::string(what) + " has " +
+                            std::to_string(bounds->size()) + " entries, expected " +
+                            std::to_string(nu));
+    }
+  }
   options.sensitivities = false;
-  const int n = static_cast<int>(u.cols());
-  const double length = horizon / n;
+  const double length = horizon / stages;
   FesdResult all;
   all.grid.push_back(0.0);
   std::vector<Eigen::VectorXd> states{x0};
   Eigen::VectorXd x = x0;
-  for (int k = 0; k < n; ++k) {
-    const HeldControlModel held(model, u.col(k));
+  if (controls != nullptr) controls->setZero(nu, stages);
+  if (clamped != nullptr) *clamped = 0;
+  for (int k = 0; k < stages; ++k) {
+    Eigen::VectorXd uk = policy(k, x);
+    if (uk.size() != nu || !uk.allFinite()) {
+      throw InvalidArgument("simulate_policy: the policy gave " +
+                            std::string(uk.size() != nu ? std::to_string(uk.size()) + " controls"
+                                                        : "a value that is not finite") +
+                            " at stage " + std::to_string(k) + ", expected " + std::to_string(nu) +
+                            " finite controls");
+    }
+    bool clamp = false;
+    for (int j = 0; j < nu; ++j) {
+      const double v =
+          std::clamp(uk[j], bound(u_lower, j, -kInfinity), bound(u_upper, j, kInfinity));
+      clamp = clamp || v != uk[j];
+      uk[j] = v;
+    }
+    if (clamp && clamped != nullptr) ++*clamped;
+    if (controls != nullptr) controls->col(k) = uk;
+    const HeldControlModel held(model, uk);
     FesdResult r = fesd_simulate(held, x, length, options);
     const double t0 = k * length;
     for (std::size_t i = 1; i < r.grid.size(); ++i) {
@@ -574,7 +620,20 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     sim.steps = 1;
     sim.newton = true;
     sim.linear_solver = options.linear_solver;
-    simulation = simulate_controls(model, problem.x0, problem.horizon, per_stage, sim);
+    if (problem.guess_policy) {
+      int clamped = 0;
+      simulation =
+          simulate_policy(model, problem.x0, problem.horizon, options.stages, problem.guess_policy,
+                          sim, problem.u_lower, problem.u_upper, &per_stage, &clamped);
+      u_guess = per_stage;
+      if (clamped > 0) {
+        result.notes.push_back("the guess policy's controls were clamped into the bounds on " +
+                               std::to_string(clamped) + " of " + std::to_string(options.stages) +
+                               " stages");
+      }
+    } else {
+      simulation = simulate_controls(model, problem.x0, problem.horizon, per_stage, sim);
+    }
     simulated = simulation.ok() && static_cast<int>(simulation.step_sizes.size()) == l.elements;
     if (!simulated) {
       result.notes.push_back("the simulated guess " +

@@ -799,6 +799,66 @@ TEST(OcpFeatures, ReferenceAndSimulatedGuessesReachTheOptimum) {
   }
 }
 
+// A sampled feedback law as the guess: u_k = -v(t_k) on the braking block (N = 10, stages of
+// 0.3). Piecewise constant forces give piecewise linear speeds, so the stage ends have a closed
+// form: v = 2, 1.1, 0.47, 0.029, then 0 from 0.029 / 1.029 into stage 3 (sticking, |u| < 1);
+// p = 0.465, 0.7005, 0.77535, then + 0.029^2 / (2 * 1.029). FESD reproduces them to round-off
+// (measured 1.1e-16, the controls too; bound 1e-12), and the OCP solved from this guess reaches the
+// optimum of the other guesses (2e-14). With |u| <= 1 the first two stages are clamped (v = 2,
+// then 1.4), which the result's notes report; a policy of the wrong size is refused naming the
+// stage.
+TEST(OcpFeatures, FeedbackPolicyGuessIsSimulatedStageByStage) {
+  const auto model = adapt_ocp(BrakingBlock{});
+  const OcpPolicy damping = [](int, const Eigen::VectorXd& x) {
+    return Eigen::VectorXd::Constant(1, -x[1]);
+  };
+  FesdOptions sim;
+  sim.elements = 3;
+  Eigen::MatrixXd u;
+  int clamped = -1;
+  const FesdResult r = simulate_policy(model, BrakingBlock::problem().x0, 3.0, 10, damping, sim, {},
+                                       {}, &u, &clamped);
+  ASSERT_TRUE(r.ok()) << r.message;
+  ASSERT_EQ(r.states.cols(), 31);
+  const double v[] = {2.0, 1.1, 0.47, 0.029, 0.0};
+  const double p[] = {0.0, 0.465, 0.7005, 0.77535, 0.77535 + 0.029 * 0.029 / (2.0 * 1.029)};
+  for (int k = 0; k <= 10; ++k) {
+    SCOPED_TRACE("stage end " + std::to_string(k));
+    EXPECT_NEAR(r.states(0, 3 * k), p[std::min(k, 4)], 1e-12);
+    EXPECT_NEAR(r.states(1, 3 * k), v[std::min(k, 4)], 1e-12);
+    if (k < 10) {
+      EXPECT_NEAR(u(0, k), -v[std::min(k, 4)], 1e-12);
+    }
+  }
+  EXPECT_EQ(clamped, 0);
+
+  OcpProblem problem = BrakingBlock::problem();
+  problem.guess = OcpGuess::kSimulation;
+  problem.guess_policy = damping;
+  OcpOptions options;
+  options.stages = 10;
+  const OcpResult from_policy = ocp_solve(model, problem, options);
+  const OcpResult own = solve_block(10);
+  ASSERT_TRUE(from_policy.ok()) << from_policy.message;
+  EXPECT_NEAR(from_policy.objective, own.objective, 2e-14);
+
+  problem.u_lower = Eigen::VectorXd::Constant(1, -1.0);
+  problem.u_upper = Eigen::VectorXd::Constant(1, 1.0);
+  const OcpResult bounded = ocp_solve(model, problem, options);
+  EXPECT_THAT(bounded.notes, testing::Contains(testing::HasSubstr(
+                                 "the guess policy's controls were clamped into the bounds on 2 "
+                                 "of 10 stages")));
+
+  problem.guess_policy = [](int, const Eigen::VectorXd&) { return Eigen::VectorXd::Zero(2); };
+  try {
+    ocp_solve(model, problem, options);
+    ADD_FAILURE() << "a policy of two controls was taken";
+  } catch (const InvalidArgument& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "simulate_policy: the policy gave 2 controls at stage 0, expected 1 finite controls");
+  }
+}
+
 // IPOPT's linear solver: MUMPS named explicitly is the default (the same iterates to the last
 // bit on the braking block, N = 4, with its simulated guess); an unknown name and, without
 // libhsl.so, MA27 are refused before anything is computed, the latter as LinearSolverUnavailable

@@ -287,9 +287,11 @@ class ControlledPiecewiseSmoothAsStep {
 
 /** Where the initial guess of the NLP comes from. */
 enum class OcpGuess {
-  kConstant,    ///< x = guess_x (x0 if empty) everywhere, u = guess_u on every stage
-  kReference,   ///< x from guess_trajectory(t), u = guess_u
-  kSimulation,  ///< guess_u simulated by FESD stage by stage (simulate_controls)
+  kConstant,   ///< x = guess_x (x0 if empty) everywhere, u = guess_u on every stage
+  kReference,  ///< x from guess_trajectory(t), u = guess_u
+  /** guess_u, or guess_policy's controls, simulated by FESD stage by stage (simulate_policy):
+      states, element lengths and algebraic variables of one FESD solution. */
+  kSimulation,
 };
 
 /** The data of an OCP (the functions are the model's). Vectors left empty mean "none" or
@@ -335,6 +337,11 @@ struct OcpProblem {
   Eigen::VectorXd guess_x;
   Eigen::MatrixXd guess_u;
   std::function<Eigen::VectorXd(double)> guess_trajectory;
+  /** With kSimulation, in place of guess_u: a sampled feedback law, the controls of stage k from
+      the state at its start (e.g. a hopping controller). Its values are clamped into
+      [u_lower, u_upper] (OcpResult::notes counts the stages clamped) and become the guess's
+      controls. */
+  std::function<Eigen::VectorXd(int stage, const Eigen::VectorXd& x)> guess_policy;
 };
 
 enum class OcpRelaxation {
@@ -572,6 +579,20 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem,
 FesdResult simulate_controls(const OcpModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
                              double horizon, const Eigen::Ref<const Eigen::MatrixXd>& u,
                              FesdOptions options = {});
+
+/** A sampled feedback law: the controls of stage k from the state at its start. */
+using OcpPolicy = std::function<Eigen::VectorXd(int stage, const Eigen::VectorXd& x)>;
+
+/** As simulate_controls, with the controls of stage k = policy(k, x(k T / N)) clamped into
+    [u_lower, u_upper] (empty: unbounded); `controls` (if not null) receives them (nu x N) and
+    `clamped` (if not null) the number of stages whose policy value was clamped.
+    @throws InvalidArgument for stages < 1, a horizon that is not positive and finite, bounds of
+    the wrong size, or a policy value of the wrong size or not finite (naming the stage). */
+FesdResult simulate_policy(const OcpModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
+                           double horizon, int stages, const OcpPolicy& policy,
+                           FesdOptions options = {}, const Eigen::VectorXd& u_lower = {},
+                           const Eigen::VectorXd& u_upper = {}, Eigen::MatrixXd* controls = nullptr,
+                           int* clamped = nullptr);
 
 /** The model with its controls held at u, as a StepModel for fesd_simulate. */
 class HeldControlModel final : public StepModel {
