@@ -1,0 +1,180 @@
+// The monoped's OCP (examples/include/bflow/examples/monoped_ocp.h, nosnoc's setup at N = 30)
+// under one change of its start, homotopy or linear algebra at a time, within a budget of IPOPT
+// iterations: the experiments of docs/ocp.md ("Routes towards the monoped's gait with MUMPS").
+// Prints one progress line per NLP on stderr and one JSON object on stdout.
+//
+//   monoped_routes [--N 30] [--formulation step|stewart] [--budget 2500]
+//                  [--relaxation scholtes|l1|elastic] [--sigma0 X] [--polish-from X]
+//                  [--guess constant|gait] [--sides-guess] [--ipopt-num=mumps_pivtol=1e-4 ...]
+//
+// --polish-from X turns the polish on (the setup has it off) from the first NLP at sigma <= X
+// (OcpOptions::early_polish_sigma); its iterations count against the budget too.
+// --guess gait starts from a kinematic two-hop gait (GaitGuess below) in place of x0 everywhere;
+// --sides-guess sets the algebraic variables at the sides of the guessed states instead of the
+// setup's neutral ones.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <iostream>
+#include <string>
+
+#include <CLI/CLI.hpp>
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+
+#include "bflow/examples/monoped.h"
+#include "bflow/examples/monoped_ocp.h"
+#include "bflow/ocp/ocp.h"
+#include "ipopt_flags.h"
+
+namespace {
+
+// A kinematic two-hop gait from x0 to the target: three stances with the foot fixed on the
+// ground at x = 0, 1.5 and 3 (the body moves 0.1 past the foot, crouching to 0.33 and back to
+// 0.38 with the knee bent so that the foot stays put), and two ballistic flights of 0.5 s
+// between them (g = 9.81, the leg angles interpolated). It satisfies the contact geometry (the
+// foot on the ground in stance, above it in flight) but not the dynamics: a start whose flight
+// phases and contact sides are those of a hopping gait.
+struct GaitGuess {
+  double t_takeoff[2] = {0.4, 1.6}, t_landing[2] = {0.9, 2.1};
+  double foot[3] = {0.0, 1.5, 3.0};
+  double reach = 0.1, z_end = 0.38, z_mid = 0.33, g = 9.81, horizon = 3.0;
+
+  // The base during stance i at normalised time s in [0, 1].
+  void stance(int i, double s, double& x, double& z) const {
+    const double xa = i == 0 ? foot[0] : foot[i] - reach;
+    const double xb = i == 2 ? foot[2] : foot[i] + reach;
+    const double smooth = s * s * (3.0 - 2.0 * s);
+    x = xa + (xb - xa) * (i == 1 ? s : smooth);
+    const double e = 2.0 * s - 1.0;
+    const bool standing_end = (i == 0 && s < 0.5) || (i == 2 && s > 0.5);
+    z = z_mid + ((standing_end ? 0.4 : z_end) - z_mid) * e * e;
+  }
+  // Hip and knee angles that put the foot (links of 0.2) at x_foot on the ground.
+  static void legs(double x, double z, double x_foot, double& hip, double& knee) {
+    const double dx = x_foot - x;
+    const double length = std::min(std::sqrt(dx * dx + z * z), 0.4 - 1e-9);
+    const double beta = std::acos(length / 0.4);
+    hip = std::atan2(dx, z) + beta;
+    knee = -2.0 * beta;
+  }
+  Eigen::Vector4d q(double t) const {
+    double x = 0.0, z = 0.0, hip = 0.0, knee = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      const double ta = i == 0 ? 0.0 : t_landing[i - 1];
+      const double tb = i == 2 ? horizon : t_takeoff[i];
+      if (t >= ta && t <= tb) {
+        stance(i, (t - ta) / (tb - ta), x, z);
+        legs(x, z, foot[i], hip, knee);
+        return {x, z, hip, knee};
+      }
+    }
+    const int i = t < t_landing[0] ? 0 : 1;
+    double xa, za, xb, zb, hip_a, knee_a, hip_b, knee_b;
+    stance(i, 1.0, xa, za);
+    legs(xa, za, foot[i], hip_a, knee_a);
+    stance(i + 1, 0.0, xb, zb);
+    legs(xb, zb, foot[i + 1], hip_b, knee_b);
+    const double flight = t_landing[i] - t_takeoff[i], tau = t - t_takeoff[i];
+    const double vz0 = (zb - za) / flight + g * flight / 2.0;
+    return {xa + (xb - xa) * tau / flight, za + vz0 * tau - g * tau * tau / 2.0,
+            hip_a + (hip_b - hip_a) * tau / flight, knee_a + (knee_b - knee_a) * tau / flight};
+  }
+  // (q, v, clock) at t, v by central differences.
+  Eigen::VectorXd state(double t) const {
+    Eigen::VectorXd s = Eigen::VectorXd::Zero(9);
+    s.head(4) = q(t);
+    const double h = 1e-5, ta = std::max(0.0, t - h), tb = std::min(horizon, t + h);
+    s.segment(4, 4) = (q(tb) - q(ta)) / (tb - ta);
+    s[8] = t;
+    return s;
+  }
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const bflow_bench::IpoptFlags ipopt = bflow_bench::take_ipopt_flags(argc, argv);
+  CLI::App app("The monoped's OCP with one route changed, within an iteration budget (JSON)");
+  int stages = 30, budget = 2500;
+  std::string formulation = "step", relaxation = "scholtes", guess = "constant";
+  double sigma0 = 0.0, polish_from = -1.0;
+  bool sides = false;
+  app.add_option("--N", stages, "control stages")->check(CLI::PositiveNumber);
+  app.add_option("--formulation", formulation, "step or stewart");
+  app.add_option("--budget", budget, "IPOPT iterations of the whole run (0: none)");
+  app.add_option("--relaxation", relaxation, "scholtes, l1 or elastic");
+  app.add_option("--sigma0", sigma0, "initial sigma (default the setup's 1)");
+  app.add_option("--polish-from", polish_from,
+                 "polish from the first NLP at sigma <= X (default: no polish, as the setup)");
+  app.add_option("--guess", guess, "constant (the setup's) or gait (GaitGuess)");
+  app.add_flag("--sides-guess", sides, "algebraic variables at the sides of the guessed states");
+  CLI11_PARSE(app, argc, argv);
+
+  const bflow::examples::MonopedTask task;
+  const bflow::DcsFormulation form = bflow::parse_dcs_formulation(formulation);
+  bflow::OcpOptions o = task.options(stages, form);
+  bflow::OcpProblem p = task.problem(stages);
+  o.max_total_iterations = budget;
+  o.relaxation = relaxation == "elastic" ? bflow::OcpRelaxation::kElastic
+                 : relaxation == "l1"    ? bflow::OcpRelaxation::kL1Penalty
+                                         : bflow::OcpRelaxation::kScholtes;
+  if (sigma0 > 0.0) o.sigma_initial = sigma0;
+  if (polish_from >= 0.0) {
+    o.polish = true;
+    o.early_polish_sigma = polish_from;
+  }
+  if (guess == "gait") {
+    p.guess = bflow::OcpGuess::kReference;
+    p.guess_trajectory = [](double t) { return GaitGuess{}.state(t); };
+  }
+  if (sides) o.neutral_algebraic_guess = false;
+  ipopt.apply_to(o);
+  o.progress = [](const bflow::OcpHomotopyStep& s) {
+    std::fprintf(stderr,
+                 "  sigma %.3g%s: %d iterations, cost %.4g, complementarity %.2g, %.1f s, %s\n",
+                 s.sigma, s.polish ? " (polish)" : "", s.iterations, s.objective, s.complementarity,
+                 s.cpu_seconds, s.ipopt_status.c_str());
+  };
+  const bflow::OcpResult r = bflow::examples::with_monoped(
+      task, form, stages,
+      [&](const auto& model, const bflow::OcpProblem&) { return bflow::ocp_solve(model, p, o); });
+
+  const bflow::examples::Monoped robot;
+  double lowest = 0.0;
+  for (Eigen::Index c = 0; c < r.x_grid.cols(); ++c)
+    lowest = std::min(lowest, robot.gap(r.x_grid.col(c).data()));
+  const Eigen::VectorXd end = r.x_stages.col(r.x_stages.cols() - 1);
+  nlohmann::ordered_json j;
+  j["N"] = stages;
+  j["formulation"] = formulation;
+  j["relaxation"] = relaxation;
+  j["guess"] = guess + (sides ? " (sides)" : " (neutral)");
+  j["sigma0"] = o.sigma_initial;
+  j["polish_from"] = polish_from;
+  j["budget"] = budget;
+  j["status"] = bflow::to_string(r.status);
+  j["message"] = r.message;
+  j["notes"] = r.notes;
+  j["ipopt_iterations"] = r.ipopt_iterations;
+  j["cpu_seconds"] = r.cpu_seconds;
+  j["objective"] = r.objective;
+  j["complementarity"] = r.max_complementarity;
+  j["polished"] = r.polished;
+  j["hops"] = bflow::examples::MonopedTask::hops(r.x_grid);
+  j["q_error"] = bflow::examples::MonopedTask::target_error(end);
+  j["v_end_max"] = end.segment(4, 4).cwiseAbs().maxCoeff();
+  j["clock_end"] = end[8];
+  j["deepest_foot"] = lowest;
+  for (const bflow::OcpHomotopyStep& s : r.homotopy) {
+    j["homotopy"].push_back({{"sigma", s.sigma},
+                             {"polish", s.polish},
+                             {"iterations", s.iterations},
+                             {"objective", s.objective},
+                             {"complementarity", s.complementarity},
+                             {"cpu_seconds", s.cpu_seconds},
+                             {"status", s.ipopt_status}});
+  }
+  std::cout << j.dump(1) << "\n";
+  return 0;
+}
