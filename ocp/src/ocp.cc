@@ -522,7 +522,9 @@ OcpProblemSize ocp_problem_size(const OcpModel& model, const OcpOptions& options
   f.sensitivities = false;
   const HeldControlModel held(model, Eigen::VectorXd::Zero(model.controls()));
   const FesdProblemSize elements = fesd_problem_size(held, f);
-  size.unknowns = elements.unknowns + std::int64_t{options.stages} * model.controls() + 1;
+  // T, and the elastic slack.
+  size.unknowns = elements.unknowns + std::int64_t{options.stages} * model.controls() + 1 +
+                  (options.relaxation == OcpRelaxation::kElastic ? 1 : 0);
   size.constraints = elements.constraints;
   size.jacobian_nonzeros = elements.jacobian_nonzeros;
   if (!options.standard && options.cross_complementarity == CrossComplementarity::kPointPairs) {

@@ -302,6 +302,8 @@ TEST(OcpRelaxations, ElasticModeReachesTheExactOptima) {
   EXPECT_NEAR(elastic.objective, scholtes.objective, 2e-14);
   EXPECT_EQ(elastic.max_complementarity, 0.0);
   EXPECT_EQ(elastic.unknowns, scholtes.unknowns + 1);
+  options.stages = 10;
+  EXPECT_EQ(ocp_problem_size(adapt_ocp(BrakingBlock{}), options).unknowns, elastic.unknowns);
   const OcpResult car = solve_car(10, options);
   ASSERT_EQ(car.status, OcpStatus::kSolved) << car.message;
   EXPECT_NEAR(car.T, TurboCar::kOptimalTime, 1e-8);

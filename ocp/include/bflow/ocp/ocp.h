@@ -547,7 +547,8 @@ struct OcpResult {
 
 /** The size of the NLP ocp_solve builds, in 64 bits, from the model's dimensions and the
     options alone: N N_FE finite elements sized as one FESD integration step of that many
-    elements (fesd_problem_size, without the dense Newton matrices), plus N nu controls and T. */
+    elements (fesd_problem_size, without the dense Newton matrices), plus N nu controls and T
+    (and kElastic's slack). */
 struct OcpProblemSize {
   std::int64_t elements = 0;  ///< N N_FE
   std::int64_t unknowns = 0, constraints = 0, jacobian_nonzeros = 0, hessian_nonzeros = 0;
