@@ -217,35 +217,64 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     const PointDcs& dcs = *l_.dcs;
     const int P = l_.points;
     std::vector<bool> u_fixed_prev(static_cast<std::size_t>(l_.npairs), false);
+    const auto n = static_cast<std::size_t>(l_.npairs);
+    // Two pairs that share their u member (the step formulation's alpha with lambda+ and
+    // 1 - alpha with lambda-) cannot both fix it, to 0 and to 1: far up the homotopy both
+    // multipliers can outweigh their selections. The pair whose u member is nearer its zero keeps
+    // it fixed; the other fixes its v.
+    const auto resolve = [&](const std::vector<double>& su, std::vector<char>& fix_u) {
+      for (std::size_t a = 0; a < n; ++a) {
+        for (std::size_t b = a + 1; b < n; ++b) {
+          const Pair& pa = dcs.pairs()[a];
+          const Pair& pb = dcs.pairs()[b];
+          if (pa.u != pb.u || PointDcs::u_zero(pa) == PointDcs::u_zero(pb)) continue;
+          if (fix_u[a] && fix_u[b]) (su[a] <= su[b] ? fix_u[b] : fix_u[a]) = 0;
+        }
+      }
+    };
+    std::vector<double> su(n), sv(n), v0(n);
+    std::vector<char> fix_u(n);
     for (int e = 0; e < l_.elements; ++e) {
-      std::vector<bool> u_fixed(static_cast<std::size_t>(l_.npairs), false);
-      for (int k = 0; k < l_.npairs; ++k) {
-        const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
-        if (p_.standard) {
-          for (int m = 0; m < P; ++m) {
-            const double um = PointDcs::member_u(pair, &w[l_.z(e, m, 0)]);
-            const double vm = w[l_.z(e, m, pair.v)];
-            if (um <= vm) {
+      std::vector<bool> u_fixed(n, false);
+      if (p_.standard) {
+        for (int m = 0; m < P; ++m) {
+          for (std::size_t k = 0; k < n; ++k) {
+            const Pair& pair = dcs.pairs()[k];
+            su[k] = PointDcs::member_u(pair, &w[l_.z(e, m, 0)]);
+            fix_u[k] = su[k] <= w[l_.z(e, m, pair.v)];
+          }
+          resolve(su, fix_u);
+          for (std::size_t k = 0; k < n; ++k) {
+            const Pair& pair = dcs.pairs()[k];
+            if (fix_u[k]) {
               fixed_.push_back({l_.z(e, m, pair.u), PointDcs::u_zero(pair)});
             } else {
               fixed_.push_back({l_.z(e, m, pair.v), 0.0});
             }
           }
-          continue;
         }
-        double su = 0.0, sv = 0.0;
+        u_fixed_prev = std::move(u_fixed);
+        continue;
+      }
+      for (std::size_t k = 0; k < n; ++k) {
+        const Pair& pair = dcs.pairs()[k];
+        su[k] = sv[k] = 0.0;
         for (int m = 0; m < P; ++m) {
-          su += PointDcs::member_u(pair, &w[l_.z(e, m, 0)]);
-          sv += w[l_.z(e, m, pair.v)];
+          su[k] += PointDcs::member_u(pair, &w[l_.z(e, m, 0)]);
+          sv[k] += w[l_.z(e, m, pair.v)];
         }
-        const double v0 = e == 0 ? v_start_[k] : w[l_.z(e - 1, P - 1, pair.v)];
-        const bool fix_u = su <= sv + v0 || (e == 0 && v0 > 0.0);
-        if (fix_u) {
-          u_fixed[static_cast<std::size_t>(k)] = true;
+        v0[k] = e == 0 ? v_start_[k] : w[l_.z(e - 1, P - 1, pair.v)];
+        fix_u[k] = su[k] <= sv[k] + v0[k] || (e == 0 && v0[k] > 0.0);
+      }
+      resolve(su, fix_u);
+      for (std::size_t k = 0; k < n; ++k) {
+        const Pair& pair = dcs.pairs()[k];
+        if (fix_u[k]) {
+          u_fixed[k] = true;
           for (int m = 0; m < P; ++m)
             fixed_.push_back({l_.z(e, m, pair.u), PointDcs::u_zero(pair)});
           // Leaving a sliding arc: the selection is continuous there.
-          if (e > 0 && !u_fixed_prev[static_cast<std::size_t>(k)] &&
+          if (e > 0 && !u_fixed_prev[k] &&
               dcs.leaves_sliding(sides[static_cast<std::size_t>(e - 1)],
                                  sides[static_cast<std::size_t>(e)], pair.group)) {
             fixed_.push_back({l_.z(e - 1, P - 1, pair.u), PointDcs::u_zero(pair)});

@@ -312,6 +312,25 @@ TEST(OcpRelaxations, ElasticModeReachesTheExactOptima) {
   EXPECT_NEAR(car.switch_times[1], TurboCar::kSwitchTimes[1], 1e-8);
 }
 
+// The polish from a far relaxation (one NLP at sigma = 10): both multipliers of a switching
+// function can outweigh their selections there, and fixing both pairs' shared member alpha (to 0
+// and to 1) left a product of 505 in a polish IPOPT called solved. Each member is fixed once
+// now, so the polished point is complementary exactly.
+TEST(OcpPolish, FromAFarRelaxationTheActiveSetIsConsistent) {
+  for (const double sigma : {10.0, 100.0}) {
+    SCOPED_TRACE("sigma " + std::to_string(sigma));
+    OcpOptions options;
+    options.sigma_initial = options.sigma_final = sigma;
+    const OcpResult r = solve_block(10, options);
+    ASSERT_FALSE(r.homotopy.empty());
+    const OcpHomotopyStep& polish = r.homotopy.back();
+    ASSERT_TRUE(polish.polish);
+    if (polish.ipopt_status == "Solve_Succeeded") {
+      EXPECT_EQ(polish.complementarity, 0.0);
+    }
+  }
+}
+
 // Without the warm start every NLP after the first starts from the previous solution's point
 // alone (IPOPT's own initialisation): the homotopy takes another path to the same exact optimum.
 // Measured: |T - 40/3| = 1.2e-10 (bound 1e-8), the switch times 2.7e-11 (t = 2, bound 2e-9) and
