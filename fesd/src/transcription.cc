@@ -1217,7 +1217,10 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
       std::vector<std::vector<int>> sides;
       for (int e = 0; e < nlp.layout().elements; ++e)
         sides.push_back(transcription.sides(nlp.solution(), e, active_tol));
-      if (sides != polished_sides) {
+      // An early polish is part of the homotopy: it gets what is left of the budget, if any.
+      const int left = rules.max_total_iterations > 0 ? rules.max_total_iterations - out.iterations
+                                                      : impl_->settings.max_iterations;
+      if (sides != polished_sides && left > 0) {
         polished_sides = sides;
         const double slack = std::max(1e-6 * (1.0 + std::abs(step.objective)),
                                       std::isfinite(cost_moved) ? cost_moved : 0.0);
@@ -1225,7 +1228,7 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
         // active set read this far up is not consistent, the polish leaves small products, and
         // the smaller sigmas are still needed.
         const PolishOutcome p = polish(transcription, active_tol, rules.nlp_tolerance, 0.0,
-                                       static_cast<int>(out.steps.size()), on_step, slack);
+                                       static_cast<int>(out.steps.size()), on_step, slack, left);
         out.iterations += p.step.iterations;
         out.steps.push_back(p.step);
         if (p.kept) {
@@ -1233,11 +1236,18 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
           // sigma_final: a polish from a relaxed point this far up ends as exactly as IPOPT's
           // tolerance asks, one from an exact FESD solution as exactly as round-off allows.
           const double again_tol = std::clamp(std::sqrt(rules.sigma_final), 1e-9, 1e-4);
-          const PolishOutcome q = polish(transcription, again_tol, rules.nlp_tolerance, 0.0,
-                                         static_cast<int>(out.steps.size()), on_step);
-          out.iterations += q.step.iterations;
-          out.steps.push_back(q.step);
-          out.result_step = static_cast<int>(out.steps.size()) - (q.kept ? 1 : 2);
+          const int still_left = rules.max_total_iterations > 0
+                                     ? rules.max_total_iterations - out.iterations
+                                     : impl_->settings.max_iterations;
+          out.result_step = static_cast<int>(out.steps.size()) - 1;
+          if (still_left > 0) {
+            const PolishOutcome q =
+                polish(transcription, again_tol, rules.nlp_tolerance, 0.0,
+                       static_cast<int>(out.steps.size()), on_step, -1.0, still_left);
+            out.iterations += q.step.iterations;
+            out.steps.push_back(q.step);
+            out.result_step = static_cast<int>(out.steps.size()) - (q.kept ? 1 : 2);
+          }
           out.done = true;
           out.polished_early = true;
           out.acceptable_only = false;
@@ -1266,7 +1276,7 @@ PolishOutcome HomotopySolver::polish(Transcription& transcription, double active
                                      double nlp_tolerance, double complementarity_tolerance,
                                      int index,
                                      const std::function<void(const HomotopyStep&)>& on_step,
-                                     double cost_slack) {
+                                     double cost_slack, int max_iterations) {
   Transcription::Nlp& nlp = *transcription.handle_->nlp;
   const TranscriptionLayout& l = nlp.layout();
   Ipopt::OptionsList& o = *impl_->app->Options();
@@ -1279,7 +1289,9 @@ PolishOutcome HomotopySolver::polish(Transcription& transcription, double active
   nlp.enter_polish(sides);
   o.SetNumericValue("tol", nlp_tolerance);
   o.SetNumericValue("acceptable_tol", nlp_tolerance);
-  o.SetIntegerValue("max_iter", impl_->settings.max_iterations);
+  o.SetIntegerValue("max_iter", max_iterations > 0
+                                    ? std::min(max_iterations, impl_->settings.max_iterations)
+                                    : impl_->settings.max_iterations);
   o.SetStringValue("warm_start_init_point", "no");
   o.SetNumericValue("mu_init", 1e-9);
   o.SetNumericValue("bound_push", 1e-12);

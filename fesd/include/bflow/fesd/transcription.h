@@ -282,8 +282,9 @@ struct HomotopyRules {
       of IPOPT's own initialisation (least-squares constraint multipliers, bound multipliers 1,
       bound_push 1e-2). */
   bool first_from_zero_multipliers = false;
-  /** > 0: the IPOPT iterations of the whole homotopy: each NLP gets at most what is left of it
-      (and of IpoptSettings::max_iterations), and the homotopy ends, not done and with
+  /** > 0: the IPOPT iterations of the whole homotopy, early polishes included: each NLP and
+      early polish gets at most what is left of it (and of IpoptSettings::max_iterations), and
+      the homotopy ends, not done and with
       budget_exhausted, when an NLP stops for want of it or nothing is left; 0: no limit. */
   int max_total_iterations = 0;
   /** An NLP before the last that IPOPT does not solve (other than by invalid numbers or the
@@ -415,11 +416,12 @@ class HomotopySolver {
       neighbouring elements of a stage with the same sides, no relaxation and no equilibration:
       an exact FESD solution, kept only as PolishOutcome::kept says, its cost at most
       `cost_slack` above the relaxed one (negative: 1e-6 (1 + |cost|)). `index` numbers its
-      step. */
+      step; `max_iterations` > 0 caps IPOPT's iterations below the settings' (what is left of a
+      budget). */
   PolishOutcome polish(Transcription& nlp, double active_tol, double nlp_tolerance,
                        double complementarity_tolerance, int index,
                        const std::function<void(const HomotopyStep&)>& on_step = {},
-                       double cost_slack = -1.0);
+                       double cost_slack = -1.0, int max_iterations = 0);
 
  private:
   struct Impl;

@@ -455,9 +455,10 @@ struct OcpOptions {
       max(1e-11, 1e-2 sigma), a start near the previous solution's barrier. */
   double later_mu_init = 0.0;
   int max_nlp_iterations = 3000;  ///< per NLP of the homotopy
-  /** > 0: IPOPT iterations of the whole homotopy (and polish excluded): each NLP gets at most
-      what is left, and when it runs out the result is kBudgetExhausted with the last solved
-      NLP's solution; 0: no limit but max_nlp_iterations per NLP. */
+  /** > 0: IPOPT iterations of the whole homotopy, its early polishes included: each NLP and
+      early polish gets at most what is left, and when it runs out the result is
+      kBudgetExhausted with the last solved NLP's solution; the final polish after sigma_final
+      is not bounded by it. 0: no limit but max_nlp_iterations per NLP. */
   int max_total_iterations = 0;
   /** An NLP before the last that IPOPT does not solve hands its last iterate to the next,
       smaller sigma (nosnoc's rule; notes name each), instead of being retried from the last
