@@ -5,18 +5,25 @@
 //
 //   monoped_routes [--N 30] [--formulation step|stewart] [--budget 2500]
 //                  [--relaxation scholtes|l1|elastic] [--sigma0 X] [--polish-from X]
-//                  [--guess constant|gait] [--sides-guess] [--ipopt-num=mumps_pivtol=1e-4 ...]
+//                  [--guess constant|gait] [--sides-guess] [--start FILE.json]
+//                  [--ipopt-num=mumps_pivtol=1e-4 ...]
 //
 // --polish-from X turns the polish on (the setup has it off) from the first NLP at sigma <= X
 // (OcpOptions::early_polish_sigma); its iterations count against the budget too.
 // --guess gait starts from a kinematic two-hop gait (GaitGuess below) in place of x0 everywhere;
 // --sides-guess sets the algebraic variables at the sides of the guessed states instead of the
 // setup's neutral ones.
+// --start FILE.json continues from an earlier run's output (its element-boundary states and its
+// controls, resampled to this N): continuation in N (solve coarse, start the fine grid from it)
+// or in sigma from a solution of another formulation; the algebraic variables follow the sides.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <iostream>
+#include <stdexcept>
 #include <string>
+#include <vector>
 
 #include <CLI/CLI.hpp>
 #include <Eigen/Core>
@@ -91,6 +98,52 @@ struct GaitGuess {
   }
 };
 
+// An earlier run's trajectory: x linear between its element boundaries (in numerical time),
+// and its controls piecewise constant over its stages.
+struct StartFrom {
+  std::vector<double> grid;
+  Eigen::MatrixXd x, u;
+  double horizon = 3.0;
+
+  explicit StartFrom(const std::string& path) {
+    std::ifstream in(path);
+    if (!in) throw std::runtime_error("--start: cannot read " + path);
+    const nlohmann::json j = nlohmann::json::parse(in);
+    grid = j.at("grid").get<std::vector<double>>();
+    const auto xs = j.at("x_grid").get<std::vector<std::vector<double>>>();
+    const auto us = j.at("u").get<std::vector<std::vector<double>>>();
+    if (xs.size() != grid.size() || us.empty())
+      throw std::runtime_error("--start: " + path + " has no trajectory of matching size");
+    x.resize(static_cast<Eigen::Index>(xs[0].size()), static_cast<Eigen::Index>(xs.size()));
+    for (std::size_t c = 0; c < xs.size(); ++c)
+      x.col(static_cast<Eigen::Index>(c)) =
+          Eigen::Map<const Eigen::VectorXd>(xs[c].data(), static_cast<Eigen::Index>(xs[c].size()));
+    u.resize(static_cast<Eigen::Index>(us[0].size()), static_cast<Eigen::Index>(us.size()));
+    for (std::size_t c = 0; c < us.size(); ++c)
+      u.col(static_cast<Eigen::Index>(c)) =
+          Eigen::Map<const Eigen::VectorXd>(us[c].data(), static_cast<Eigen::Index>(us[c].size()));
+    horizon = grid.back();
+  }
+  Eigen::VectorXd state(double t) const {
+    const auto it = std::upper_bound(grid.begin(), grid.end(), t);
+    if (it == grid.begin()) return x.col(0);
+    if (it == grid.end()) return x.col(x.cols() - 1);
+    const auto b = static_cast<Eigen::Index>(it - grid.begin());
+    const double w = (t - grid[static_cast<std::size_t>(b - 1)]) /
+                     (grid[static_cast<std::size_t>(b)] - grid[static_cast<std::size_t>(b - 1)]);
+    return (1.0 - w) * x.col(b - 1) + w * x.col(b);
+  }
+  Eigen::MatrixXd controls(int stages) const {
+    Eigen::MatrixXd out(u.rows(), stages);
+    for (int k = 0; k < stages; ++k) {
+      const double middle = (k + 0.5) / stages;
+      out.col(k) =
+          u.col(std::min<Eigen::Index>(static_cast<Eigen::Index>(middle * u.cols()), u.cols() - 1));
+    }
+    return out;
+  }
+};
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -100,6 +153,7 @@ int main(int argc, char** argv) {
   std::string formulation = "step", relaxation = "scholtes", guess = "constant";
   double sigma0 = 0.0, polish_from = -1.0;
   bool sides = false;
+  std::string start;
   app.add_option("--N", stages, "control stages")->check(CLI::PositiveNumber);
   app.add_option("--formulation", formulation, "step or stewart");
   app.add_option("--budget", budget, "IPOPT iterations of the whole run (0: none)");
@@ -109,6 +163,8 @@ int main(int argc, char** argv) {
                  "polish from the first NLP at sigma <= X (default: no polish, as the setup)");
   app.add_option("--guess", guess, "constant (the setup's) or gait (GaitGuess)");
   app.add_flag("--sides-guess", sides, "algebraic variables at the sides of the guessed states");
+  app.add_option("--start", start, "an earlier run's JSON output to start from (any N)")
+      ->check(CLI::ExistingFile);
   CLI11_PARSE(app, argc, argv);
 
   const bflow::examples::MonopedTask task;
@@ -128,13 +184,23 @@ int main(int argc, char** argv) {
     p.guess = bflow::OcpGuess::kReference;
     p.guess_trajectory = [](double t) { return GaitGuess{}.state(t); };
   }
+  if (!start.empty()) {
+    const StartFrom from(start);
+    p.guess = bflow::OcpGuess::kReference;
+    p.guess_trajectory = [from](double t) { return from.state(t); };
+    p.guess_u = from.controls(stages);
+    guess = "start " + start;
+    sides = true;
+  }
   if (sides) o.neutral_algebraic_guess = false;
   ipopt.apply_to(o);
   o.progress = [](const bflow::OcpHomotopyStep& s) {
     std::fprintf(stderr,
-                 "  sigma %.3g%s: %d iterations, cost %.4g, complementarity %.2g, %.1f s, %s\n",
+                 "  sigma %.3g%s: %d iterations, cost %.4g, complementarity %.2g, sum mu %.3g, "
+                 "largest mu %.3g, %.1f s, %s\n",
                  s.sigma, s.polish ? " (polish)" : "", s.iterations, s.objective, s.complementarity,
-                 s.cpu_seconds, s.ipopt_status.c_str());
+                 s.product_multipliers, s.largest_product_multiplier, s.cpu_seconds,
+                 s.ipopt_status.c_str());
   };
   const bflow::OcpResult r = bflow::examples::with_monoped(
       task, form, stages,
@@ -166,12 +232,23 @@ int main(int argc, char** argv) {
   j["v_end_max"] = end.segment(4, 4).cwiseAbs().maxCoeff();
   j["clock_end"] = end[8];
   j["deepest_foot"] = lowest;
+  j["grid"] = r.grid;
+  for (Eigen::Index c = 0; c < r.x_grid.cols(); ++c) {
+    const Eigen::VectorXd col = r.x_grid.col(c);
+    j["x_grid"].push_back(std::vector<double>(col.data(), col.data() + col.size()));
+  }
+  for (Eigen::Index c = 0; c < r.u.cols(); ++c) {
+    const Eigen::VectorXd col = r.u.col(c);
+    j["u"].push_back(std::vector<double>(col.data(), col.data() + col.size()));
+  }
   for (const bflow::OcpHomotopyStep& s : r.homotopy) {
     j["homotopy"].push_back({{"sigma", s.sigma},
                              {"polish", s.polish},
                              {"iterations", s.iterations},
                              {"objective", s.objective},
                              {"complementarity", s.complementarity},
+                             {"product_multipliers", s.product_multipliers},
+                             {"largest_product_multiplier", s.largest_product_multiplier},
                              {"cpu_seconds", s.cpu_seconds},
                              {"status", s.ipopt_status}});
   }

@@ -289,6 +289,8 @@ OrderedJson homotopy_json(const std::vector<OcpHomotopyStep>& steps) {
     j["sigma"] = s.sigma;
     j["objective"] = s.objective;
     j["complementarity"] = s.complementarity;
+    j["product_multipliers"] = s.product_multipliers;
+    j["largest_product_multiplier"] = s.largest_product_multiplier;
     j["iterations"] = s.iterations;
     j["cpu_seconds"] = s.cpu_seconds;
     j["status"] = s.ipopt_status;

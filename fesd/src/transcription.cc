@@ -7,6 +7,7 @@
 #include <cmath>
 #include <limits>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -391,6 +392,22 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       }
     }
     return worst;
+  }
+
+  // The multipliers of the rows relaxed to <= sigma (Scholtes, not in a polish) at the last
+  // point IPOPT returned: their sum and the largest; zeros otherwise.
+  std::pair<double, double> product_multipliers() const {
+    if (p_.relaxation != Relaxation::kScholtes || polish_ || lambda_.size() != constraints_)
+      return {0.0, 0.0};
+    double sum = 0.0, largest = 0.0;
+    for (int e = 0; e < l_.elements; ++e) {
+      for (int r = l_.equalities; r < l_.rows_per_element(); ++r) {
+        const double mu = lambda_[e * l_.rows_per_element() + r];
+        sum += mu;
+        largest = std::max(largest, mu);
+      }
+    }
+    return {sum, largest};
   }
 
   void set_guess(const Eigen::MatrixXd& u_guess, const ElementEnds& ends,
@@ -1065,6 +1082,7 @@ struct HomotopySolver::Impl {
     step.complementarity = nlp.complementarity(nlp.solution().data());
     step.kkt_error = nlp.kkt_error();
     step.constraint_violation = nlp.constraint_violation();
+    std::tie(step.product_multipliers, step.largest_product_multiplier) = nlp.product_multipliers();
     return step;
   }
 };

@@ -145,6 +145,10 @@ TEST(OcpCommandTest, TurboCarFindsTheExactTimeAndSwitches) {
   for (const auto& step : h) iterations += step["iterations"].get<int>();
   EXPECT_EQ(j["ipopt_iterations"].get<int>(), iterations);
   EXPECT_GT(j["cpu_seconds"].get<double>(), 0.0);
+  // The relaxed products' multipliers (their values are checked in the library's tests against
+  // the cost's slope in sigma): none in the polish, nonnegative at the first NLP's active rows.
+  EXPECT_EQ(h.back()["product_multipliers"].get<double>(), 0.0);
+  EXPECT_GT(h[0]["largest_product_multiplier"].get<double>(), 0.0);
 
   const std::vector<std::string> progress = lines(r.err);
   ASSERT_EQ(progress.size(), h.size()) << r.err;

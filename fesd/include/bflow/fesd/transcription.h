@@ -345,6 +345,17 @@ struct HomotopyStep {
   /** The final point's largest constraint violation, unscaled. */
   double constraint_violation = std::numeric_limits<double>::infinity();
   bool polish = false;  ///< the final solve with the active set fixed (sigma 0)
+  /** The multipliers of the complementarity rows relaxed to <= sigma (Scholtes' relaxation; 0
+      for the l1 penalty, the elastic mode and the polish) at the NLP's final point: their sum
+      and the largest (rows far from their bound carry multipliers of IPOPT's tolerance, of
+      either sign). By the envelope theorem the sum is the rate at which the NLP's optimal
+      objective falls as sigma grows, -dJ/dsigma. They tell what kind of point the relaxed
+      optima approach as sigma -> 0: on a pair whose members both vanish (biactive), the MPCC's
+      multipliers of the two members are -mu times the other member, both negative, so
+      S-stationarity (B-stationarity under MPCC-LICQ) needs mu times the members -> 0; sigma
+      times the largest mu staying away from 0 (mu ~ 1/sigma, members ~ sqrt(sigma)) means the
+      relaxed optima approach no S-stationary point. */
+  double product_multipliers = 0.0, largest_product_multiplier = 0.0;
   /** A Jacobian or Hessian entry outside the probed structure was nonzero (the model took a
       branch none of the probe points took): the entry had been left out, so the NLP was solved
       again from the same start with every candidate entry declared, as are all later NLPs of
