@@ -201,6 +201,7 @@ int main(int argc, char** argv) {
                  s.sigma, s.polish ? " (polish)" : "", s.iterations, s.objective, s.complementarity,
                  s.product_multipliers, s.largest_product_multiplier, s.cpu_seconds,
                  s.ipopt_status.c_str());
+    if (!s.worst_rows.empty()) std::fprintf(stderr, "    worst rows: %s\n", s.worst_rows.c_str());
   };
   const bflow::OcpResult r = bflow::examples::with_monoped(
       task, form, stages,
@@ -250,7 +251,8 @@ int main(int argc, char** argv) {
                              {"product_multipliers", s.product_multipliers},
                              {"largest_product_multiplier", s.largest_product_multiplier},
                              {"cpu_seconds", s.cpu_seconds},
-                             {"status", s.ipopt_status}});
+                             {"status", s.ipopt_status},
+                             {"worst_rows", s.worst_rows}});
   }
   std::cout << j.dump(1) << "\n";
   return 0;

@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
+#include <functional>
 #include <limits>
 #include <string>
 #include <tuple>
@@ -392,6 +394,64 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       }
     }
     return worst;
+  }
+
+  // The rows the current point violates most (at most `count`, largest first), named by kind
+  // and place, e.g. "element 17 (stage 5) end row of state 8: 0.012"; "" when none is violated.
+  std::string worst_rows(int count) {
+    const int n = variables(), m = constraints();
+    Eigen::VectorXd x_l(n), x_u(n), g_l(m), g_u(m), g(m);
+    get_bounds_info(n, x_l.data(), x_u.data(), m, g_l.data(), g_u.data());
+    eval_g(n, w_.data(), true, m, g.data());
+    std::vector<std::pair<double, int>> worst;
+    for (int r = 0; r < m; ++r) {
+      const double v = std::max({g_l[r] - g[r], g[r] - g_u[r], 0.0});
+      if (v > 0.0) worst.push_back({v, r});
+    }
+    const auto shown = std::min(worst.size(), static_cast<std::size_t>(std::max(count, 0)));
+    std::partial_sort(worst.begin(), worst.begin() + static_cast<std::ptrdiff_t>(shown),
+                      worst.end(), std::greater<>());
+    std::string out;
+    const int per = l_.rows_per_element(), s = l_.s, d = l_.d;
+    for (std::size_t k = 0; k < shown; ++k) {
+      const int row = worst[k].second;
+      std::string what;
+      if (row < rows_elements_) {
+        const int e = row / per, r = row % per;
+        what =
+            "element " + std::to_string(e) + " (stage " + std::to_string(e / l_.per_stage) + ") ";
+        if (r < s * d) {
+          what += "collocation row of point " + std::to_string(r / d) + ", state " +
+                  std::to_string(r % d);
+        } else if (r < s * d + d) {
+          what += "end row of state " + std::to_string(r - s * d);
+        } else if (r < l_.equalities) {
+          const int a = r - s * d - d;
+          what += "algebraic row " + std::to_string(a % l_.neq) + " of point " +
+                  std::to_string(a / l_.neq);
+        } else {
+          what += "complementarity row " + std::to_string(r - l_.equalities);
+        }
+      } else if (row < rows_elements_ + rows_sums_) {
+        what = "stage " + std::to_string(row - rows_elements_) + "'s sum of element lengths";
+      } else if (row < rows_elements_ + rows_sums_ + rows_path_) {
+        const int b = (row - rows_elements_ - rows_sums_) / std::max(npath_, 1);
+        what = "path constraint " +
+               std::to_string((row - rows_elements_ - rows_sums_) % std::max(npath_, 1)) +
+               " at element boundary " + std::to_string(b);
+      } else if (row < constraints_) {
+        what =
+            "terminal constraint " + std::to_string(row - rows_elements_ - rows_sums_ - rows_path_);
+      } else {
+        const int e = equal_[static_cast<std::size_t>(row - constraints_)];
+        what = "polish: equal lengths of elements " + std::to_string(e - 1) + " and " +
+               std::to_string(e);
+      }
+      char value[32];
+      std::snprintf(value, sizeof value, ": %.4g", worst[k].first);
+      out += (out.empty() ? "" : "; ") + what + value;
+    }
+    return out;
   }
 
   // The multipliers of the rows relaxed to <= sigma (Scholtes, not in a polish) at the last
@@ -1078,6 +1138,8 @@ struct HomotopySolver::Impl {
     step.structure_widened = widened;
     step.cpu_seconds = process_cpu_seconds() - start;
     step.ipopt_status = ipopt_status_name(status);
+    if (status != Ipopt::Solve_Succeeded && status != Ipopt::Solved_To_Acceptable_Level)
+      step.worst_rows = nlp.worst_rows(3);
     step.objective = nlp.cost(nlp.solution().data());
     step.complementarity = nlp.complementarity(nlp.solution().data());
     step.kkt_error = nlp.kkt_error();

@@ -362,6 +362,16 @@ TEST(OcpPolish, FromAFarRelaxationTheActiveSetIsConsistent) {
                   polish.ipopt_status.c_str(), polish.complementarity);
       if (polish.ipopt_status == "Solve_Succeeded") {
         EXPECT_EQ(polish.complementarity, 0.0);
+        EXPECT_EQ(polish.worst_rows, "");
+      } else {
+        // Where the infeasible polish ends: its worst row's violation is IPOPT's own unscaled
+        // constraint violation (to the four digits printed), evaluated independently.
+        ASSERT_NE(polish.worst_rows, "");
+        const std::string first = polish.worst_rows.substr(0, polish.worst_rows.find(';'));
+        const double worst = std::stod(first.substr(first.rfind(": ") + 2));
+        EXPECT_NEAR(worst, polish.constraint_violation, 1e-3 * polish.constraint_violation)
+            << polish.worst_rows;
+        std::printf("  worst rows: %s\n", polish.worst_rows.c_str());
       }
     }
   }

@@ -356,6 +356,10 @@ struct HomotopyStep {
       times the largest mu staying away from 0 (mu ~ 1/sigma, members ~ sqrt(sigma)) means the
       relaxed optima approach no S-stationary point. */
   double product_multipliers = 0.0, largest_product_multiplier = 0.0;
+  /** When IPOPT did not solve the NLP: the (at most three) rows its final point violates most,
+      by kind and place with their violations, largest first (e.g. "element 17 (stage 5) end row
+      of state 8: 0.012; ..."), so that an infeasible polish says where; "" otherwise. */
+  std::string worst_rows;
   /** A Jacobian or Hessian entry outside the probed structure was nonzero (the model took a
       branch none of the probe points took): the entry had been left out, so the NLP was solved
       again from the same start with every candidate entry declared, as are all later NLPs of
