@@ -195,7 +195,8 @@ Output, one JSON object: "example", "N", "nfe", "status", "message", "ipopt_stat
 "T", "t" (stage boundaries), "x" (state at each), "u" (control per stage), "switch_times",
 "max_complementarity", "polished", "homotopy" [{"sigma", "objective", "complementarity",
 "product_multipliers", "largest_product_multiplier" (the relaxed products' multipliers: their
-sum is -d objective / d sigma), "iterations", "cpu_seconds", "status", "kkt_error", "polish"}],
+sum is -d objective / d sigma), "iterations", "cpu_seconds", "status", "kkt_error", "polish",
+"worst_rows" (only when IPOPT did not solve it: the rows it violates most)}],
 "ipopt_iterations", "cpu_seconds",
 "cpu_per_iteration", "exact" (the optimum and this run's errors against it); with
 --trajectory also "grid", "x_grid", "step_sizes", "active_sets".

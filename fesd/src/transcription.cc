@@ -235,7 +235,19 @@ class Transcription::Nlp final : public Ipopt::TNLP {
         }
       }
     };
-    std::vector<double> su(n), sv(n), v0(n);
+    // Stewart's theta sum to one at every point, and lambda_i = g_i - min_j g_j vanishes for one
+    // region at least: when every pair would fix its theta at 0 (a relaxed point spread over
+    // several regions, each theta below its lambda), the pair least sure of it, with the
+    // smallest margin, keeps theta free and fixes lambda instead.
+    const bool stewart = dcs.kind() == PointDcs::Kind::kStewart;
+    const auto keep_one_region = [&](const std::vector<double>& margin, std::vector<char>& fix_u) {
+      if (!stewart || std::find(fix_u.begin(), fix_u.end(), 0) != fix_u.end()) return;
+      std::size_t least = 0;
+      for (std::size_t k = 1; k < n; ++k)
+        if (margin[k] < margin[least]) least = k;
+      fix_u[least] = 0;
+    };
+    std::vector<double> su(n), sv(n), v0(n), margin(n);
     std::vector<char> fix_u(n);
     for (int e = 0; e < l_.elements; ++e) {
       std::vector<bool> u_fixed(n, false);
@@ -245,8 +257,10 @@ class Transcription::Nlp final : public Ipopt::TNLP {
             const Pair& pair = dcs.pairs()[k];
             su[k] = PointDcs::member_u(pair, &w[l_.z(e, m, 0)]);
             fix_u[k] = su[k] <= w[l_.z(e, m, pair.v)];
+            margin[k] = w[l_.z(e, m, pair.v)] - su[k];
           }
           resolve(su, fix_u);
+          keep_one_region(margin, fix_u);
           for (std::size_t k = 0; k < n; ++k) {
             const Pair& pair = dcs.pairs()[k];
             if (fix_u[k]) {
@@ -268,8 +282,16 @@ class Transcription::Nlp final : public Ipopt::TNLP {
         }
         v0[k] = e == 0 ? v_start_[k] : w[l_.z(e - 1, P - 1, pair.v)];
         fix_u[k] = su[k] <= sv[k] + v0[k] || (e == 0 && v0[k] > 0.0);
+        margin[k] =
+            e == 0 && v0[k] > 0.0 ? std::numeric_limits<double>::infinity() : sv[k] + v0[k] - su[k];
       }
       resolve(su, fix_u);
+      keep_one_region(margin, fix_u);
+      // Stewart's selection is continuous where a sliding arc is left for one of its own regions;
+      // where no region is free on both elements it is a crossing, and fixing the theta left at
+      // the earlier element's end would leave none there.
+      bool continues = !stewart || e == 0;
+      for (std::size_t k = 0; k < n && !continues; ++k) continues = !u_fixed_prev[k] && !fix_u[k];
       for (std::size_t k = 0; k < n; ++k) {
         const Pair& pair = dcs.pairs()[k];
         if (fix_u[k]) {
@@ -277,7 +299,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
           for (int m = 0; m < P; ++m)
             fixed_.push_back({l_.z(e, m, pair.u), PointDcs::u_zero(pair)});
           // Leaving a sliding arc: the selection is continuous there.
-          if (e > 0 && !u_fixed_prev[k] &&
+          if (e > 0 && continues && !u_fixed_prev[k] &&
               dcs.leaves_sliding(sides[static_cast<std::size_t>(e - 1)],
                                  sides[static_cast<std::size_t>(e)], pair.group)) {
             fixed_.push_back({l_.z(e - 1, P - 1, pair.u), PointDcs::u_zero(pair)});

@@ -416,6 +416,19 @@ TEST(MonopedOcp, HopsCountFlightPhasesFromTheGround) {
   EXPECT_THROW(MonopedTask::hops(x, 1e-2, 1e-3), InvalidArgument);
 }
 
+// Standing still at x0 for 0.3 s, the reference x0 with the clock running.
+OcpProblem standing_problem(const MonopedTask& task, int stages) {
+  OcpProblem p = task.problem(stages);
+  p.horizon = 0.3;
+  const Eigen::VectorXd x0 = p.x0;
+  p.x_ref = [x0](double t) {
+    Eigen::VectorXd x = x0;
+    x[8] = t;
+    return x;
+  };
+  return p;
+}
+
 // The monoped's OCP solved: standing. From the published start (the straight leg vertical on
 // the ground, at rest) with the reference held at that state, nosnoc's setup over a short
 // horizon T = 0.3 (N = 3 stages, the stage-wise clock constraint, the speed of time free in
@@ -429,14 +442,8 @@ TEST(MonopedOcp, HopsCountFlightPhasesFromTheGround) {
 TEST(MonopedOcp, StandsStillWithoutTorques) {
   const int stages = 3;
   const MonopedTask task;  // nosnoc's setup
-  OcpProblem p = task.problem(stages);
-  p.horizon = 0.3;
+  OcpProblem p = standing_problem(task, stages);
   const Eigen::VectorXd x0 = p.x0;
-  p.x_ref = [x0](double t) {
-    Eigen::VectorXd x = x0;
-    x[8] = t;
-    return x;
-  };
   OcpOptions o = task.options(stages);
   o.sigma_final = 1e-6;
   const OcpResult r =
@@ -459,6 +466,40 @@ TEST(MonopedOcp, StandsStillWithoutTorques) {
   EXPECT_LT(clock_error, 1e-12);
   EXPECT_LE(r.max_complementarity, 1e-5);
   EXPECT_LE(r.kkt_error, 1e-5);
+}
+
+// The polish in Stewart's formulation from a relaxed point of the standing robot (eight regions,
+// theta spread over those of the sliding contact). At sigma = 1 and 0.1 every theta of some
+// points lay below its lambda, and the polish fixed them all at 0: IPOPT ended with the row
+// sum theta = 1 (algebraic row 8) violated by 1 at elements 7 and 8. One region now stays free at
+// every point (and a crossing out of a sliding arc fixes no theta at the earlier element's end);
+// those polishes still end infeasible, on the element lengths, but not on that row. From sigma =
+// 0.01 the polish reaches the closed-form optimum, cost 0 (measured 8.5e-18; bound 1e-12).
+TEST(MonopedOcp, StewartPolishKeepsARegionAtEveryPoint) {
+  const int stages = 3;
+  const MonopedTask task;
+  for (const double sigma : {1.0, 0.1, 0.01}) {
+    const OcpProblem p = standing_problem(task, stages);
+    OcpOptions o = task.options(stages, DcsFormulation::kStewart);
+    o.sigma_initial = o.sigma_final = sigma;
+    o.stop_at_complementarity = false;
+    o.polish = true;
+    const OcpResult r =
+        with_monoped(task, DcsFormulation::kStewart, stages,
+                     [&](const auto& model, const OcpProblem&) { return ocp_solve(model, p, o); });
+    const OcpHomotopyStep& polish = r.homotopy.back();
+    std::printf("sigma %g: relaxed %s cost %.3g; polish %s cost %.3g products %.2g; %s\n", sigma,
+                r.homotopy.front().ipopt_status.c_str(), r.homotopy.front().objective,
+                polish.ipopt_status.c_str(), polish.objective, polish.complementarity,
+                polish.worst_rows.c_str());
+    ASSERT_TRUE(polish.polish);
+    EXPECT_EQ(polish.worst_rows.find("algebraic row 8"), std::string::npos) << polish.worst_rows;
+    if (sigma == 0.01) {
+      EXPECT_EQ(polish.ipopt_status, "Solve_Succeeded");
+      EXPECT_LT(polish.objective, 1e-12);
+      EXPECT_EQ(polish.complementarity, 0.0);
+    }
+  }
 }
 
 }  // namespace

@@ -348,30 +348,34 @@ TEST(OcpStationarity, ProductMultipliersAreTheCostsSlopeInSigma) {
 // (sigma = 10) and 226 (100); with it the consistent active set has no solution there
 // (Infeasible_Problem_Detected), which the homotopy refuses.
 TEST(OcpPolish, FromAFarRelaxationTheActiveSetIsConsistent) {
-  for (const bool standard : {false, true}) {
-    for (const double sigma : {10.0, 100.0}) {
-      SCOPED_TRACE("sigma " + std::to_string(sigma) + (standard ? ", standard" : ", FESD"));
-      OcpOptions options;
-      options.standard = standard;
-      options.sigma_initial = options.sigma_final = sigma;
-      const OcpResult r = solve_block(10, options);
-      ASSERT_FALSE(r.homotopy.empty());
-      const OcpHomotopyStep& polish = r.homotopy.back();
-      ASSERT_TRUE(polish.polish);
-      std::printf("%s sigma %g: polish %s, products %g\n", standard ? "standard" : "FESD", sigma,
-                  polish.ipopt_status.c_str(), polish.complementarity);
-      if (polish.ipopt_status == "Solve_Succeeded") {
-        EXPECT_EQ(polish.complementarity, 0.0);
-        EXPECT_EQ(polish.worst_rows, "");
-      } else {
-        // Where the infeasible polish ends: its worst row's violation is IPOPT's own unscaled
-        // constraint violation (to the four digits printed), evaluated independently.
-        ASSERT_NE(polish.worst_rows, "");
-        const std::string first = polish.worst_rows.substr(0, polish.worst_rows.find(';'));
-        const double worst = std::stod(first.substr(first.rfind(": ") + 2));
-        EXPECT_NEAR(worst, polish.constraint_violation, 1e-3 * polish.constraint_violation)
-            << polish.worst_rows;
-        std::printf("  worst rows: %s\n", polish.worst_rows.c_str());
+  for (const DcsFormulation formulation : {DcsFormulation::kStep, DcsFormulation::kStewart}) {
+    for (const bool standard : {false, true}) {
+      for (const double sigma : {10.0, 100.0}) {
+        SCOPED_TRACE("sigma " + std::to_string(sigma) + (standard ? ", standard" : ", FESD") +
+                     (formulation == DcsFormulation::kStewart ? ", Stewart" : ", step"));
+        OcpOptions options;
+        options.formulation = formulation;
+        options.standard = standard;
+        options.sigma_initial = options.sigma_final = sigma;
+        const OcpResult r = solve_block(10, options);
+        ASSERT_FALSE(r.homotopy.empty());
+        const OcpHomotopyStep& polish = r.homotopy.back();
+        ASSERT_TRUE(polish.polish);
+        std::printf("%s sigma %g: polish %s, products %g\n", standard ? "standard" : "FESD", sigma,
+                    polish.ipopt_status.c_str(), polish.complementarity);
+        if (polish.ipopt_status == "Solve_Succeeded") {
+          EXPECT_EQ(polish.complementarity, 0.0);
+          EXPECT_EQ(polish.worst_rows, "");
+        } else {
+          // Where the infeasible polish ends: its worst row's violation is IPOPT's own unscaled
+          // constraint violation (to the four digits printed), evaluated independently.
+          ASSERT_NE(polish.worst_rows, "");
+          const std::string first = polish.worst_rows.substr(0, polish.worst_rows.find(';'));
+          const double worst = std::stod(first.substr(first.rfind(": ") + 2));
+          EXPECT_NEAR(worst, polish.constraint_violation, 1e-3 * polish.constraint_violation)
+              << polish.worst_rows;
+          std::printf("  worst rows: %s\n", polish.worst_rows.c_str());
+        }
       }
     }
   }

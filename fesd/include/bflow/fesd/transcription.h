@@ -427,8 +427,10 @@ class HomotopySolver {
                       const std::function<void(const HomotopyStep&)>& on_step = {});
 
   /** The NLP once more with the active set of the current solution fixed (element sides at
-      `active_tol`): the zero member of every complementarity pair at its bound, equal lengths of
-      neighbouring elements of a stage with the same sides, no relaxation and no equilibration:
+      `active_tol`): the zero member of every complementarity pair at its bound (a shared member
+      fixed by one pair only; in Stewart's formulation one region free at every point),
+      equal lengths of neighbouring elements of a stage with the same sides, no relaxation and no
+      equilibration:
       an exact FESD solution, kept only as PolishOutcome::kept says, its cost at most
       `cost_slack` above the relaxed one (negative: 1e-6 (1 + |cost|)). `index` numbers its
       step; `max_iterations` > 0 caps IPOPT's iterations below the settings' (what is left of a
