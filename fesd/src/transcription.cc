@@ -310,7 +310,10 @@ class Transcription::Nlp final : public Ipopt::TNLP {
         }
       }
       u_fixed_prev = std::move(u_fixed);
-      if (!p_.standard && e % l_.per_stage != 0 &&
+      // The exact step equilibration: equal lengths of neighbours with the same sides; with the
+      // step deviation penalty instead (nosnoc's heuristic), the polish keeps that penalty, as
+      // the relaxed NLPs had it, and imposes no lengths.
+      if (!p_.standard && p_.step_deviation_weight == 0.0 && e % l_.per_stage != 0 &&
           sides[static_cast<std::size_t>(e)] == sides[static_cast<std::size_t>(e - 1)]) {
         equal_.push_back(e);
       }
