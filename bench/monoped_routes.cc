@@ -103,7 +103,6 @@ struct GaitGuess {
 struct StartFrom {
   std::vector<double> grid;
   Eigen::MatrixXd x, u;
-  double horizon = 3.0;
 
   explicit StartFrom(const std::string& path) {
     std::ifstream in(path);
@@ -122,7 +121,6 @@ struct StartFrom {
     for (std::size_t c = 0; c < us.size(); ++c)
       u.col(static_cast<Eigen::Index>(c)) =
           Eigen::Map<const Eigen::VectorXd>(us[c].data(), static_cast<Eigen::Index>(us[c].size()));
-    horizon = grid.back();
   }
   Eigen::VectorXd state(double t) const {
     const auto it = std::upper_bound(grid.begin(), grid.end(), t);
