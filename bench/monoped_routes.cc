@@ -7,6 +7,7 @@
 //                  [--relaxation scholtes|l1|elastic] [--sigma0 X] [--polish-from X]
 //                  [--guess constant|gait] [--sides-guess] [--start FILE.json]
 //                  [--ipopt-num=mumps_pivtol=1e-4 ...]
+//   monoped_routes --simulate FILE.json [--hop-gain 1] [--lbfgs] [--formulation stewart]
 //
 // --polish-from X turns the polish on (the setup has it off) from the first NLP at sigma <= X
 // (OcpOptions::early_polish_sigma); its iterations count against the budget too.
@@ -16,7 +17,10 @@
 // --start FILE.json continues from an earlier run's output (its element-boundary states and its
 // controls, resampled to this N): continuation in N (solve coarse, start the fine grid from it)
 // or in sigma from a solution of another formulation; the algebraic variables follow the sides.
+// --simulate FILE.json only simulates HopController (below) by FESD, stage by stage, printing
+// each stage's start, and writes the trajectory as a --start file.
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -26,6 +30,7 @@
 #include <vector>
 
 #include <CLI/CLI.hpp>
+#include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <nlohmann/json.hpp>
 
@@ -142,6 +147,50 @@ struct StartFrom {
   }
 };
 
+// A hopping controller sampled at the start of each stage: constant torques by inverse dynamics
+// that take the hip and knee angles to GaitGuess's angles at the stage's end (the joints'
+// accelerations a = 2 (q_ref - q - v dt) / dt^2; in flight with the base free, in stance with
+// the foot held on the ground by the contact force), clamped to |u| <= 100, and the speed of
+// time that brings the clock to the stage's end time (time-freezing's clock runs slower in
+// contact).
+struct HopController {
+  int stages = 30;
+  double horizon = 3.0, gain = 1.0;
+  Eigen::VectorXd operator()(int k, const Eigen::VectorXd& x) const {
+    const bflow::examples::Monoped robot;
+    const double length = horizon / stages, t_next = (k + 1) * length;
+    const double s = std::clamp((t_next - x[8]) / length, 0.99, 5.0), dt = s * length;
+    const Eigen::VectorXd ref = GaitGuess{}.state(std::min(t_next, horizon));
+    const Eigen::Vector4d q = x.head(4), v = x.segment(4, 4);
+    Eigen::Matrix4d M;
+    Eigen::Matrix<double, 4, 4, Eigen::RowMajor> Mr;
+    robot.mass(q.data(), Mr.data());
+    M = Mr;
+    Eigen::Vector4d f;
+    robot.forces(q.data(), v.data(), static_cast<const double*>(nullptr), f.data());
+    Eigen::Vector2d a;
+    for (int j = 0; j < 2; ++j)
+      a[j] = gain * 2.0 * (ref[2 + j] - q[2 + j] - v[2 + j] * dt) / (dt * dt);
+    Eigen::Vector2d base, tau;
+    if (robot.gap(x.data()) > 2e-3) {
+      base = M.topLeftCorner<2, 2>().ldlt().solve(f.head(2) - M.topRightCorner<2, 2>() * a);
+      tau = M.bottomLeftCorner<2, 2>() * base + M.bottomRightCorner<2, 2>() * a - f.tail(2);
+    } else {
+      double p[2], bias[2];
+      Eigen::Matrix<double, 2, 4, Eigen::RowMajor> J;
+      robot.point(q.data(), v.data(), robot.l_thigh, robot.l_shank, p, J.data(), bias);
+      base = -J.rightCols<2>() * a - Eigen::Vector2d(bias[0], bias[1]);
+      const Eigen::Vector2d lambda =
+          M.topLeftCorner<2, 2>() * base + M.topRightCorner<2, 2>() * a - f.head(2);
+      tau = M.bottomLeftCorner<2, 2>() * base + M.bottomRightCorner<2, 2>() * a - f.tail(2) -
+            J.rightCols<2>().transpose() * lambda;
+    }
+    Eigen::VectorXd u(3);
+    u << std::clamp(tau[0], -100.0, 100.0), std::clamp(tau[1], -100.0, 100.0), s;
+    return u;
+  }
+};
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -163,6 +212,16 @@ int main(int argc, char** argv) {
   app.add_flag("--sides-guess", sides, "algebraic variables at the sides of the guessed states");
   app.add_option("--start", start, "an earlier run's JSON output to start from (any N)")
       ->check(CLI::ExistingFile);
+  std::string simulate;
+  app.add_option("--simulate", simulate,
+                 "only simulate the hopping controller (HopController) by FESD and write its "
+                 "trajectory to FILE (a --start file)");
+  double hop_gain = 1.0;
+  bool lbfgs = false;
+  app.add_option(
+      "--hop-gain", hop_gain,
+      "--simulate: the controller's joint accelerations times this (0: hold the joints)");
+  app.add_flag("--lbfgs", lbfgs, "--simulate: IPOPT's limited-memory Hessian");
   CLI11_PARSE(app, argc, argv);
 
   const bflow::examples::MonopedTask task;
@@ -201,6 +260,54 @@ int main(int argc, char** argv) {
                  s.ipopt_status.c_str());
     if (!s.worst_rows.empty()) std::fprintf(stderr, "    worst rows: %s\n", s.worst_rows.c_str());
   };
+  if (!simulate.empty()) {
+    HopController hop{stages};
+    hop.gain = hop_gain;
+    const auto started = std::chrono::steady_clock::now();
+    const auto policy = [&](int k, const Eigen::VectorXd& x) {
+      const Eigen::VectorXd u = hop(k, x);
+      const bflow::examples::Monoped robot;
+      std::fprintf(
+          stderr,
+          "stage %d at %.0f s: q = (%.3f, %.3f, %.3f, %.3f), gap %.4f, clock %.3f, "
+          "u = (%.2f, %.2f, %.3f)\n",
+          k, std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count(),
+          x[0], x[1], x[2], x[3], robot.gap(x.data()), x[8], u[0], u[1], u[2]);
+      return u;
+    };
+    bflow::FesdOptions sim;
+    sim.formulation = form;
+    sim.elements = o.elements;
+    sim.stages = o.collocation_stages;
+    sim.steps = 1;
+    sim.lifting_depth = o.lifting_depth;
+    sim.exact_hessian = !lbfgs;
+    sim.max_nlp_iterations = 3000;
+    sim.nlp_tolerance = 1e-10;
+    Eigen::MatrixXd controls;
+    const bflow::FesdResult r = bflow::examples::with_monoped(
+        task, form, stages, [&](const auto& model, const bflow::OcpProblem&) {
+          return bflow::simulate_policy(model, p.x0, p.horizon, stages, policy, sim, p.u_lower,
+                                        p.u_upper, &controls);
+        });
+    nlohmann::ordered_json j;
+    j["status"] = bflow::to_string(r.status);
+    j["message"] = r.message;
+    j["hops"] = bflow::examples::MonopedTask::hops(r.states);
+    j["grid"] = r.grid;
+    for (Eigen::Index c = 0; c < r.states.cols(); ++c) {
+      const Eigen::VectorXd col = r.states.col(c);
+      j["x_grid"].push_back(std::vector<double>(col.data(), col.data() + col.size()));
+    }
+    for (Eigen::Index c = 0; c < controls.cols(); ++c) {
+      const Eigen::VectorXd col = controls.col(c);
+      j["u"].push_back(std::vector<double>(col.data(), col.data() + col.size()));
+    }
+    std::ofstream(simulate) << j.dump(1) << "\n";
+    std::fprintf(stderr, "%s, %d hops, written to %s\n", bflow::to_string(r.status),
+                 j["hops"].get<int>(), simulate.c_str());
+    return r.ok() ? 0 : 1;
+  }
   const bflow::OcpResult r = bflow::examples::with_monoped(
       task, form, stages,
       [&](const auto& model, const bflow::OcpProblem&) { return bflow::ocp_solve(model, p, o); });
