@@ -1,0 +1,295 @@
+"""bflow: B-derivatives of nonsmooth flows, from Python.
+
+The package wraps bflow's C++ library (the same code the ``bflow`` command runs): NumPy arrays in
+and out, bflow's bad-input errors as ValueError with the C++ message, long calls without the GIL.
+
+* ``JumpMap.from_limits(normals, field_limits)``: the B-derivative across a point where n surfaces
+  meet (one surface: the saltation matrix; several: Algorithm 2.1 of [B], O(n^2 d) per direction).
+* ``Model``: a vector field written in SymPy, compiled once (``bflow.model``).
+* ``simulate``, ``flow_derivative``: the trajectory, its events and the B-derivative of the flow.
+* ``fd``: finite differences of the same flow, to compare with.
+
+docs/python.md has a tour.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from . import _bflow
+from .model import Model, ModelError, signs
+
+__all__ = ["JumpMap", "Model", "ModelError", "signs", "simulate", "flow_derivative",
+           "FlowDerivative", "fd", "flow_options"]
+__version__ = "0.1.0"
+
+CrossingOrder = _bflow.CrossingOrder
+Event = _bflow.Event
+Notice = _bflow.Notice
+
+
+def _as_array(a, name: str, ndim: Optional[int] = None) -> np.ndarray:
+    try:
+        arr = np.asarray(a, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name} must be an array of numbers: {e}") from None
+    if ndim is not None and arr.ndim != ndim:
+        raise ValueError(f"{name} must have {ndim} dimension(s), got shape {arr.shape}")
+    return arr
+
+
+class JumpMap:
+    """The B-derivative of the flow across a point where n surfaces meet ([B] Sections 2.3, 5, 6).
+
+    Build it with ``JumpMap.from_limits(normals, field_limits)`` (normals n x d, oriented so that
+    the flow crosses every surface from - to +; field_limits d x 2^n, column ``b`` the field's
+    limit F_b for the sign word whose bit j is 1 where b_j = +) or from a model at a point
+    (``JumpMap.at(model, rho, surfaces)``). ``apply(dx)`` maps one direction (shape (d,)) or a
+    block of columns (shape (d, k)).
+    """
+
+    def __init__(self, native):
+        self._native = native
+
+    @classmethod
+    def from_limits(cls, normals, field_limits) -> "JumpMap":
+        """From the normals eta (n x d) and the field limits Gamma (d x 2^n)."""
+        eta = _as_array(normals, "normals", 2)
+        gamma = _as_array(field_limits, "field_limits", 2)
+        return cls(_bflow.JumpMap(np.asfortranarray(eta), np.asfortranarray(gamma)))
+
+    @classmethod
+    def at(cls, model: Model, rho, surfaces=None, before: Optional[str] = None) -> "JumpMap":
+        """At a point rho of a model where the given surfaces (default: all) meet.
+
+        The normals are Dh_j(rho) by Jets, oriented by the flow; the limits F_b(rho). Sides of
+        the surfaces not listed come from ``before`` (a sign word over all surfaces) or from the
+        signs of h(rho).
+        """
+        rho = _as_array(rho, "rho", 1)
+        n = model.surface_count
+        chosen = list(range(n)) if surfaces is None else [int(j) for j in surfaces]
+        for j in chosen:
+            if not 0 <= j < n:
+                raise ValueError(f"JumpMap.at: surface {j} is out of range [0, {n})")
+        h = model.surface_values(rho)
+        word = list(before) if before is not None else ["+" if v > 0 else "-" for v in h]
+        if len(word) != n:
+            raise ValueError(f"JumpMap.at: before={before!r} must name all {n} surfaces")
+        normals = model.normals(rho)[chosen, :]
+        # Orientation: the flow crosses surface j from - to + in the JumpMap's frame.
+        base = list(word)
+        for j in chosen:
+            base[j] = "-"
+        f = model.field(rho, "".join(base))
+        orient = np.sign(normals @ f)
+        if np.any(orient == 0):
+            raise ValueError(f"JumpMap.at: the field is tangent to surface(s) "
+                             f"{[chosen[k] for k in np.flatnonzero(orient == 0)]} at rho")
+        eta = normals * orient[:, None]
+        limits = np.empty((model.dim, 2 ** len(chosen)))
+        for bits in range(2 ** len(chosen)):
+            w = list(base)
+            for k, j in enumerate(chosen):
+                after = (bits >> k) & 1
+                plus = after if orient[k] > 0 else not after
+                w[j] = "+" if plus else "-"
+            limits[:, bits] = model.field(rho, "".join(w))
+        return cls.from_limits(eta, limits)
+
+    @property
+    def surfaces(self) -> int:
+        """n, the number of surfaces."""
+        return self._native.surfaces
+
+    @property
+    def dim(self) -> int:
+        """d, the dimension of the state."""
+        return self._native.dim
+
+    @property
+    def normals(self) -> np.ndarray:
+        return self._native.normals
+
+    def apply(self, dx) -> np.ndarray:
+        """B(dx): one direction (d,) or a block of columns (d, k)."""
+        a = np.asarray(dx, dtype=float)
+        if a.ndim == 1:
+            return self._native._apply_vector(a)
+        if a.ndim == 2:
+            return self._native._apply_block(np.asfortranarray(a))
+        raise ValueError(f"apply: dx must have shape (d,) or (d, k), got {a.shape}")
+
+    __call__ = apply
+
+    def order(self, dx) -> CrossingOrder:
+        """The order in which the perturbation dx crosses the surfaces, and when."""
+        return self._native.order(_as_array(dx, "dx", 1))
+
+    def active_jacobian(self, dx) -> np.ndarray:
+        """The saltation product M_sigma of the piece that is active at dx."""
+        return self._native.active_jacobian(_as_array(dx, "dx", 1))
+
+    def saltation(self, order) -> np.ndarray:
+        """M_sigma for a crossing order sigma (a permutation of 0..n-1)."""
+        return self._native.saltation([int(j) for j in order])
+
+    def pieces(self):
+        """All n! linear pieces as (order, matrix) pairs (n <= 10)."""
+        return self._native._pieces()
+
+    @property
+    def triangulation(self):
+        """The simplicial fan of [B] Section 5: a dict with zeta, zeta_image, lineality_basis,
+        scale_exponent and simplices (order, words)."""
+        zeta, image, lineality, exponent, simplices = self._native._triangulation()
+        return {"zeta": zeta, "zeta_image": image, "lineality_basis": lineality,
+                "scale_exponent": exponent, "simplices": simplices}
+
+    def __repr__(self):
+        return f"bflow.JumpMap(surfaces={self.surfaces}, dim={self.dim})"
+
+
+_OPTION_NAMES = ("rtol", "atol", "max_step", "max_steps", "backend", "grouping",
+                 "grouping_safety", "window", "near_simultaneity_band", "grazing_threshold",
+                 "max_events", "initial_sides")
+
+
+def flow_options(**options) -> "_bflow.FlowOptions":
+    """FlowOptions from keyword arguments: rtol (1e-8), atol (1e-2 rtol), max_step, max_steps,
+    backend ("dopri5", "dop853", "cvodes-bdf", "cvodes-adams"), grouping ("auto", "none",
+    "window"), grouping_safety, window, near_simultaneity_band, grazing_threshold, max_events,
+    initial_sides (a sign word)."""
+    o = _bflow.FlowOptions()
+    for key, value in options.items():
+        if key not in _OPTION_NAMES:
+            raise ValueError(f"unknown option {key!r}; the options are {', '.join(_OPTION_NAMES)}")
+        setattr(o, key, value)
+    return o
+
+
+def _model(model) -> "_bflow.Model":
+    if isinstance(model, Model):
+        return model._compiled
+    if isinstance(model, _bflow.Model):
+        return model
+    raise ValueError(f"expected a bflow.Model, got {type(model).__name__}")
+
+
+def _x0(model, x0):
+    native = _model(model)
+    x = _as_array(x0, "x0", 1)
+    if x.shape[0] != native.states:
+        raise ValueError(f"x0 has {x.shape[0]} entries, the model {native.states} states")
+    return native, x
+
+
+def simulate(model, x0, t: float, directions=None, **options):
+    """x(t) from x0, with every event, and (if given) the B-derivative applied to each column of
+    ``directions`` (d x k, or one direction (d,)). Options: see ``flow_options``."""
+    native, x = _x0(model, x0)
+    dirs = None
+    if directions is not None:
+        dirs = _as_array(directions, "directions")
+        if dirs.ndim == 1:
+            dirs = dirs[:, None]
+        dirs = np.asfortranarray(dirs)
+    return _bflow._simulate(native, x, float(t), dirs, flow_options(**options))
+
+
+class FlowDerivative:
+    """The B-derivative of the flow phi_t at x0: any direction without simulating again.
+
+    ``apply(dx)`` for one direction or a block; ``jacobian()`` only where the derivative is
+    linear (raises ValueError naming the event where it is not); ``pieces()`` all linear pieces;
+    ``crossing_orders(dx)`` and ``active_jacobian(dx)`` for the piece dx takes. ``events`` are
+    the run's events (times, surfaces, grouping), ``notices`` what the engine decided for the user,
+    ``x`` the final state, ``options`` the options used (backend, tolerances).
+    """
+
+    def __init__(self, native, trajectory, options):
+        self._native = native
+        self.trajectory = trajectory
+        self.options = options
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.trajectory.x
+
+    @property
+    def events(self):
+        return self.trajectory.events
+
+    @property
+    def notices(self):
+        return self.trajectory.notices
+
+    @property
+    def backend(self) -> str:
+        return self.options.backend
+
+    @property
+    def dim(self) -> int:
+        return self._native.dim
+
+    def apply(self, dx) -> np.ndarray:
+        a = np.asarray(dx, dtype=float)
+        if a.ndim == 1:
+            return self._native._apply_vector(a)
+        if a.ndim == 2:
+            return self._native._apply_block(np.asfortranarray(a))
+        raise ValueError(f"apply: dx must have shape (d,) or (d, k), got {a.shape}")
+
+    __call__ = apply
+
+    def jacobian(self) -> np.ndarray:
+        return self._native.jacobian()
+
+    def is_linear(self) -> bool:
+        return self._native.is_linear()
+
+    def pieces(self):
+        """Every linear piece: (orders per event, matrix) pairs."""
+        return [(p.orders, p.matrix) for p in self._native.pieces()]
+
+    def crossing_orders(self, dx):
+        return self._native.crossing_orders(_as_array(dx, "dx", 1))
+
+    def active_jacobian(self, dx) -> np.ndarray:
+        return self._native.active_jacobian(_as_array(dx, "dx", 1))
+
+    def jumps(self):
+        return [JumpMap(j) for j in self._native.jumps()]
+
+    def __repr__(self):
+        return (f"bflow.FlowDerivative(dim={self.dim}, events={len(self.events)}, "
+                f"linear={self.is_linear()}, backend={self.backend!r})")
+
+
+def flow_derivative(model, x0, t: float, **options) -> FlowDerivative:
+    """The B-derivative of the flow of ``model`` from x0 over [0, t]. Options: ``flow_options``.
+    Raises ValueError for bad input, grazing, sliding, or a run that does not reach t."""
+    native, x = _x0(model, x0)
+    o = flow_options(**options)
+    derivative, trajectory = _bflow._flow_derivative(native, x, float(t), o)
+    return FlowDerivative(derivative, trajectory, o)
+
+
+class fd:  # noqa: N801 (a namespace, as bflow::fd in C++)
+    """Finite differences of the simulated flow (every run with grouping "none")."""
+
+    @staticmethod
+    def one_sided(model, x0, t: float, dx, alpha: float, **options) -> np.ndarray:
+        """(phi_t(x0 + alpha dx) - phi_t(x0)) / alpha."""
+        native, x = _x0(model, x0)
+        return _bflow._fd_one_sided(native, x, float(t), _as_array(dx, "dx", 1), float(alpha),
+                                    flow_options(**options))
+
+    @staticmethod
+    def central(model, x0, t: float, dx, alpha: float, **options) -> np.ndarray:
+        """(phi_t(x0 + alpha dx) - phi_t(x0 - alpha dx)) / (2 alpha)."""
+        native, x = _x0(model, x0)
+        return _bflow._fd_central(native, x, float(t), _as_array(dx, "dx", 1), float(alpha),
+                                  flow_options(**options))

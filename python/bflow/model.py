@@ -1,0 +1,427 @@
+"""Models written in SymPy, compiled once into the templated functor a C++ user writes.
+
+A model is d states, n switching surfaces h(x) and the vector field F_b(x) for every sign word b
+(b_j = +1 on the + side of surface j, -1 on its - side), either as expressions in sign symbols
+(``signs(n)``) or as a dict from sign words ("+-", ...) to expressions. bflow prints it as C++
+(``field<T>`` and ``surfaces<T>`` templated on the scalar, so that Ceres Jets give DF and Dh
+exactly as for a C++ model), compiles it with the system's C++ compiler into a shared library
+and loads it. The library is cached under ``$BFLOW_CACHE_DIR`` (default ``~/.cache/bflow/models``)
+by a hash of the generated source and the compiler command: the first call with a new model
+compiles (a few seconds), later calls and other processes load it.
+
+Example (two surfaces crossed at once, [B] (3.1))::
+
+    import sympy as sp, bflow
+    x, y = sp.symbols("x y")
+    b = bflow.signs(2)
+    delta = sp.Symbol("delta")
+    model = bflow.Model([x, y], field=[1 - delta * b[0], 1 - delta * b[1]],
+                        surfaces=[x, y], parameters={delta: 0.5})
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+from typing import Dict, Mapping, Sequence, Union
+
+import sympy as sp
+from sympy.printing.c import C99CodePrinter
+
+from . import _bflow
+
+__all__ = ["Model", "signs", "ModelError", "compile_seconds"]
+
+# Functions the generated code may call: each has an overload for Ceres Jets.
+_ALLOWED_FUNCTIONS = {
+    "sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "exp", "log",
+    "sqrt", "Abs", "Pow", "Add", "Mul", "cbrt",
+}
+
+compile_seconds = {"last": 0.0}
+
+
+class ModelError(ValueError):
+    """A model that cannot be compiled: the message names the problem and the values."""
+
+
+def signs(n: int):
+    """The sign symbols b_0 ... b_{n-1} of n surfaces: +1 or -1, the side of each surface."""
+    if not isinstance(n, int) or n < 0 or n > 64:
+        raise ModelError(f"signs: the number of surfaces must be an integer in [0, 64], got {n!r}")
+    return sp.symbols(f"b_0:{n}", real=True) if n > 0 else ()
+
+
+class _Printer(C99CodePrinter):
+    """C++ for a scalar type T: every number a T, powers without integer exponents."""
+
+    def __init__(self, names: Dict[sp.Symbol, str]):
+        super().__init__()
+        self._names = names
+
+    def _print_Symbol(self, expr):
+        if expr not in self._names:
+            raise ModelError(
+                f"the symbol {expr} is neither a state, a parameter nor a sign symbol")
+        return self._names[expr]
+
+    def _print_Integer(self, expr):
+        return f"T({int(expr)}.0)"
+
+    def _print_Rational(self, expr):
+        return f"(T({int(expr.p)}.0) / T({int(expr.q)}.0))"
+
+    def _print_Float(self, expr):
+        return f"T({float(expr)!r})"
+
+    def _print_Pi(self, expr):
+        return "T(3.141592653589793)"
+
+    def _print_Exp1(self, expr):
+        return "T(2.718281828459045)"
+
+    def _print_Pow(self, expr):
+        base, e = expr.as_base_exp()
+        b = self._print(base)
+        if e == sp.S.Half:
+            return f"sqrt({b})"
+        if e == -sp.S.Half:
+            return f"(T(1.0) / sqrt({b}))"
+        if e.is_Integer:
+            n = int(e)
+            if n == 0:
+                return "T(1.0)"
+            if 0 < n <= 4:
+                return "(" + " * ".join([f"({b})"] * n) + ")"
+            if -4 <= n < 0:
+                return "(T(1.0) / (" + " * ".join([f"({b})"] * (-n)) + "))"
+            return f"pow({b}, {float(n)!r})"
+        if e.is_Number:
+            return f"pow({b}, {float(e)!r})"
+        return f"pow({b}, {self._print(e)})"
+
+    def _print_Abs(self, expr):
+        return f"abs({self._print(expr.args[0])})"
+
+
+def _check_functions(expr, where: str):
+    for node in sp.preorder_traversal(expr):
+        if isinstance(node, sp.Function) or (isinstance(node, sp.Basic) and node.is_Function):
+            name = type(node).__name__
+            if name not in _ALLOWED_FUNCTIONS:
+                raise ModelError(
+                    f"{where}: the function {name} has no Jet overload; use "
+                    + ", ".join(sorted(_ALLOWED_FUNCTIONS - {"Pow", "Add", "Mul"})))
+        if isinstance(node, (sp.Piecewise, sp.Heaviside)) or type(node).__name__ in (
+                "sign", "Max", "Min", "floor", "ceiling"):
+            raise ModelError(
+                f"{where}: {node} branches on the state; state the branches as the field of "
+                "each sign word (the surfaces decide the side)")
+
+
+def _sympify_list(values, what: str):
+    try:
+        return [sp.sympify(v) for v in values]
+    except (sp.SympifyError, TypeError) as e:
+        raise ModelError(f"{what}: {e}") from None
+
+
+class Model:
+    """A piecewise-smooth vector field with switching surfaces, compiled for bflow's engines.
+
+    Args:
+        states: the state symbols x_0 ... x_{d-1} (SymPy Symbols), in order.
+        field: the vector field: a list of d expressions in the states, the parameters and the
+            sign symbols of ``signs(n)``, or a dict from every sign word ("+-" for b_0 = +1,
+            b_1 = -1) to a list of d expressions.
+        surfaces: the n switching functions h_j(x) (expressions in states and parameters).
+        parameters: values of the parameter symbols (changed later without compiling again by
+            ``with_parameters``).
+        signs: the sign symbols used in ``field`` (default ``signs(n)``, named b_0, b_1, ...).
+
+    Raises:
+        ModelError (a ValueError) before any compiler runs: a symbol that is not a state,
+        parameter or sign symbol, a function without a Jet overload, a field of the wrong
+        length, a missing sign word, a surface count above 64.
+    """
+
+    def __init__(self, states: Sequence[sp.Symbol], field, surfaces: Sequence = (),
+                 parameters: Mapping[sp.Symbol, float] | None = None, signs=None):
+        self.states = list(states)
+        if not self.states or not all(isinstance(s, sp.Symbol) for s in self.states):
+            raise ModelError(f"states must be a non-empty list of SymPy Symbols, got {states!r}")
+        if len(set(self.states)) != len(self.states):
+            raise ModelError(f"states repeat a symbol: {self.states}")
+        d = len(self.states)
+        self.surface_exprs = _sympify_list(surfaces, "surfaces")
+        n = len(self.surface_exprs)
+        if n > 64:
+            raise ModelError(f"at most 64 surfaces, got {n}")
+        parameters = dict(parameters or {})
+        self.parameters = list(parameters.keys())
+        for p in self.parameters:
+            if not isinstance(p, sp.Symbol):
+                raise ModelError(f"parameter names must be SymPy Symbols, got {p!r}")
+        self.parameter_values = [float(parameters[p]) for p in self.parameters]
+        self.sign_symbols = list(signs) if signs is not None else list(globals()["signs"](n))
+        if len(self.sign_symbols) != n:
+            raise ModelError(
+                f"{len(self.sign_symbols)} sign symbols for {n} surfaces: give one per surface")
+        names: Dict[sp.Symbol, str] = {}
+        for i, s in enumerate(self.states):
+            names[s] = f"x[{i}]"
+        for j, p in enumerate(self.parameters):
+            if p in names:
+                raise ModelError(f"the symbol {p} is both a state and a parameter")
+            names[p] = f"T(p_[{j}])"
+        for j, s in enumerate(self.sign_symbols):
+            if s in names:
+                raise ModelError(f"the sign symbol {s} is also a state or a parameter")
+            names[s] = f"T(double(b.sign({j})))"
+        self._names = names
+
+        if isinstance(field, Mapping):
+            words = {}
+            for word, exprs in field.items():
+                w = word if isinstance(word, str) else "".join(
+                    "+" if int(v) > 0 else "-" for v in word)
+                if len(w) != n or any(c not in "+-" for c in w):
+                    raise ModelError(
+                        f"field: the sign word {word!r} must have {n} characters '+' or '-'")
+                words[w] = _sympify_list(exprs, f"field[{w!r}]")
+            missing = [w for w in _all_words(n) if w not in words]
+            if missing:
+                raise ModelError(f"field: the sign word {missing[0]!r} is missing "
+                                 f"({len(missing)} of {2 ** n} words missing)")
+            self.field_words = words
+            self.field_exprs = None
+        else:
+            self.field_exprs = _sympify_list(field, "field")
+            self.field_words = None
+        for where, exprs in self._all_exprs():
+            if len(exprs) != (d if where.startswith("field") else n):
+                raise ModelError(f"{where} has {len(exprs)} expressions, expected "
+                                 f"{d if where.startswith('field') else n}")
+            for k, e in enumerate(exprs):
+                _check_functions(e, f"{where}[{k}]")
+                if where == "surfaces":
+                    used = e.free_symbols & set(self.sign_symbols)
+                    if used:
+                        raise ModelError(f"surfaces[{k}] uses the sign symbol(s) "
+                                         f"{sorted(map(str, used))}: h(x) cannot depend on the side")
+                unknown = e.free_symbols - set(names)
+                if unknown:
+                    raise ModelError(
+                        f"{where}[{k}]: the symbol(s) {sorted(map(str, unknown))} are neither "
+                        f"states {self.states}, parameters {self.parameters} nor sign symbols")
+        self.source = self._source()
+        self._compiled = _bflow._load_model(str(_compile(self.source)), self.parameter_values)
+
+    def _all_exprs(self):
+        if self.field_exprs is not None:
+            yield "field", self.field_exprs
+        else:
+            for w, exprs in self.field_words.items():
+                yield f"field[{w!r}]", exprs
+        yield "surfaces", self.surface_exprs
+
+    def _source(self) -> str:
+        printer = _Printer(self._names)
+        d, n, P = len(self.states), len(self.surface_exprs), len(self.parameters)
+        lines = []
+
+        def assign(target, exprs, indent):
+            for k, e in enumerate(exprs):
+                lines.append(f"{indent}{target}[{k}] = {printer.doprint(e)};")
+
+        lines.append("    template <typename T>")
+        lines.append("    void field(const T* x, bflow::Signs b, T* xdot) const {")
+        lines.append("      using std::sin; using std::cos; using std::tan; using std::asin;")
+        lines.append("      using std::acos; using std::atan; using std::atan2; using std::sinh;")
+        lines.append("      using std::cosh; using std::tanh; using std::exp; using std::log;")
+        lines.append("      using std::sqrt; using std::abs; using std::pow; using std::cbrt;")
+        lines.append("      (void)b;")
+        if self.field_exprs is not None:
+            assign("xdot", self.field_exprs, "      ")
+        else:
+            lines.append("      switch (b.bits()) {")
+            for w, exprs in sorted(self.field_words.items(),
+                                   key=lambda item: _word_bits(item[0])):
+                lines.append(f"        case {_word_bits(w)}u: {{  // {w}")
+                assign("xdot", exprs, "          ")
+                lines.append("          return;")
+                lines.append("        }")
+            lines.append("        default:")
+            lines.append("          for (int i = 0; i < kStates; ++i) xdot[i] = T(0.0);")
+            lines.append("      }")
+        lines.append("    }")
+        lines.append("    template <typename T>")
+        lines.append("    void surfaces(const T* x, T* h) const {")
+        lines.append("      using std::sin; using std::cos; using std::tan; using std::asin;")
+        lines.append("      using std::acos; using std::atan; using std::atan2; using std::sinh;")
+        lines.append("      using std::cosh; using std::tanh; using std::exp; using std::log;")
+        lines.append("      using std::sqrt; using std::abs; using std::pow; using std::cbrt;")
+        lines.append("      (void)x;")
+        assign("h", self.surface_exprs, "      ")
+        lines.append("    }")
+        body = "\n".join(lines)
+        return _TEMPLATE.format(d=d, n=n, P=P, Pa=max(P, 1), body=body,
+                                states=", ".join(map(str, self.states)))
+
+    # --- what the C++ model provides
+    @property
+    def dim(self) -> int:
+        """The number of states d."""
+        return len(self.states)
+
+    @property
+    def surface_count(self) -> int:
+        """The number of switching surfaces n."""
+        return len(self.surface_exprs)
+
+    def with_parameters(self, **values) -> "Model":
+        """The same model (the same compiled library) with some parameters changed, by name."""
+        names = {str(p): k for k, p in enumerate(self.parameters)}
+        new = list(self.parameter_values)
+        for name, v in values.items():
+            if name not in names:
+                raise ModelError(f"with_parameters: no parameter {name!r}; the model has "
+                                 f"{sorted(names)}")
+            new[names[name]] = float(v)
+        clone = object.__new__(Model)
+        clone.__dict__.update(self.__dict__)
+        clone.parameter_values = new
+        clone._compiled = _bflow._load_model(self._compiled.path, new)
+        return clone
+
+    def field(self, x, sides: str):
+        """F_b(x) for the sign word ``sides`` (e.g. "+-")."""
+        return self._compiled.field(_vector(x, "x", self.dim), sides)
+
+    def surface_values(self, x):
+        """h(x)."""
+        return self._compiled.surface_values(_vector(x, "x", self.dim))
+
+    def normals(self, x):
+        """Dh(x) (n x d), by Jets."""
+        return self._compiled.normals(_vector(x, "x", self.dim))
+
+    def __reduce__(self):
+        return (_rebuild, (self.states, self.field_exprs if self.field_exprs is not None
+                           else self.field_words, self.surface_exprs,
+                           dict(zip(self.parameters, self.parameter_values)), self.sign_symbols))
+
+    def __repr__(self):
+        return (f"bflow.Model(states={self.states}, surfaces={self.surface_exprs}, "
+                f"parameters={dict(zip(map(str, self.parameters), self.parameter_values))})")
+
+
+def _rebuild(states, field, surfaces, parameters, sign_symbols):
+    return Model(states, field, surfaces, parameters, sign_symbols)
+
+
+def _vector(x, name: str, d: int):
+    import numpy as np
+    a = np.asarray(x, dtype=float)
+    if a.ndim != 1 or a.shape[0] != d:
+        raise ValueError(f"{name} must be a vector of {d} numbers, got shape {a.shape}")
+    return a
+
+
+def _all_words(n: int):
+    return ["".join("+" if (bits >> j) & 1 else "-" for j in range(n)) for bits in range(2 ** n)]
+
+
+def _word_bits(word: str) -> int:
+    return sum(1 << j for j, c in enumerate(word) if c == "+")
+
+
+_TEMPLATE = """// Generated by bflow from a SymPy model; states ({states}).
+#include <cmath>
+#include <cstdio>
+#include <exception>
+
+#include "bflow/integrators/model_adapter.h"
+
+namespace {{
+
+struct GeneratedModel {{
+  static constexpr int kStates = {d};
+  static constexpr int kSurfaces = {n};
+  double p_[{Pa}] = {{}};
+{body}
+}};
+
+}}  // namespace
+
+extern "C" bflow::SegmentModel* bflow_model_create(const double* p, int count, char* error,
+                                                   int error_size) {{
+  if (count != {P}) {{
+    std::snprintf(error, static_cast<std::size_t>(error_size),
+                  "the model has {P} parameters, %d values were given", count);
+    return nullptr;
+  }}
+  try {{
+    GeneratedModel model;
+    for (int k = 0; k < count; ++k) model.p_[k] = p[k];
+    return new bflow::ModelAdapter<GeneratedModel>(model);
+  }} catch (const std::exception& e) {{
+    std::snprintf(error, static_cast<std::size_t>(error_size), "%s", e.what());
+    return nullptr;
+  }}
+}}
+
+extern "C" void bflow_model_destroy(bflow::SegmentModel* model) {{ delete model; }}
+"""
+
+
+def _compiler():
+    return os.environ.get("CXX") or shutil.which("c++") or shutil.which("g++") or "c++"
+
+
+def _command(source: Path, output: Path):
+    include = Path(__file__).resolve().parent / "include"
+    # The compiler's own directories stay out of -isystem (it would break #include_next).
+    system = [f"-isystem{d}" for d in (_bflow._eigen_include_dir, _bflow._ceres_include_dir)
+              if d not in ("/usr/include", "/usr/local/include")]
+    return [
+        _compiler(), "-std=c++17", "-O2", "-fPIC", "-shared", "-DNDEBUG",
+        "--param=large-function-growth=1000", "--param=inline-unit-growth=400",
+        f"-I{include}", *system, str(source),
+        str(Path(__file__).resolve().parent / "lib" / "libbflow_core.a"), "-o", str(output),
+    ]
+
+
+def cache_dir() -> Path:
+    """Where compiled models are kept ($BFLOW_CACHE_DIR, default ~/.cache/bflow/models)."""
+    return Path(os.environ.get("BFLOW_CACHE_DIR", Path.home() / ".cache" / "bflow" / "models"))
+
+
+def _compile(source: str) -> Path:
+    import time
+    key = hashlib.sha256(
+        (source + "\n" + " ".join(_command(Path("s"), Path("o"))) + "\n" +
+         _bflow.__file__).encode()).hexdigest()[:24]
+    directory = cache_dir()
+    library = directory / f"model_{key}.so"
+    if library.exists():
+        compile_seconds["last"] = 0.0
+        return library
+    directory.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory(dir=directory) as work:
+        src = Path(work) / "model.cc"
+        src.write_text(source)
+        out = Path(work) / "model.so"
+        run = subprocess.run(_command(src, out), capture_output=True, text=True)
+        if run.returncode != 0:
+            raise ModelError("the C++ compiler refused the generated model:\n" +
+                             run.stderr[-4000:] + f"\n(source kept in the message above; "
+                             f"command: {' '.join(_command(src, out))})")
+        os.replace(out, library)  # atomic: another process sees the whole library or none
+    compile_seconds["last"] = time.perf_counter() - start
+    return library

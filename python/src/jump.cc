@@ -1,0 +1,75 @@
+// JumpMap from NumPy: normals (n x d) and field limits (d x 2^n, column b.bits() is F_b(rho)).
+#include <string>
+#include <vector>
+
+#include <nanobind/eigen/dense.h>
+#include <nanobind/nanobind.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+
+#include "bflow/core/jump_map.h"
+#include "bflow/core/triangulation.h"
+#include "bindings.h"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+
+namespace bflow::python {
+
+using ConstMatrix = Eigen::Ref<const Eigen::MatrixXd>;
+using ConstVector = Eigen::Ref<const Eigen::VectorXd>;
+
+void bind_jump(nb::module_& m) {
+  nb::class_<CrossingOrder>(m, "CrossingOrder",
+                            "Which surface a perturbation crosses first, and when.")
+      .def_ro("order", &CrossingOrder::order, "surface indices, first crossed first")
+      .def_ro("times", &CrossingOrder::times,
+              "times[k]: when surface order[k] is crossed (0: dx itself, on the F_{-...-} line)")
+      .def("__repr__", [](const CrossingOrder& o) {
+        std::string s = "CrossingOrder(order=[";
+        for (std::size_t k = 0; k < o.order.size(); ++k)
+          s += (k ? ", " : "") + std::to_string(o.order[k]);
+        return s + "])";
+      });
+
+  nb::class_<JumpMap>(m, "JumpMap")
+      .def(nb::init<ConstMatrix, ConstMatrix>(), "normals"_a, "field_limits"_a,
+           nb::call_guard<nb::gil_scoped_release>())
+      .def_prop_ro("surfaces", &JumpMap::surfaces)
+      .def_prop_ro("dim", &JumpMap::dim)
+      .def_prop_ro("normals", &JumpMap::normals, nb::rv_policy::copy)
+      .def(
+          "_apply_vector",
+          [](const JumpMap& j, ConstVector dx) { return Eigen::VectorXd(j.apply(dx)); }, "dx"_a)
+      .def(
+          "_apply_block",
+          [](const JumpMap& j, ConstMatrix dx) { return Eigen::MatrixXd(j.apply_block(dx)); },
+          "dx"_a, nb::call_guard<nb::gil_scoped_release>())
+      .def("order", &JumpMap::order, "dx"_a)
+      .def("active_jacobian", &JumpMap::active_jacobian, "dx"_a)
+      .def("saltation", &JumpMap::saltation, "order"_a)
+      .def("_pieces",
+           [](const JumpMap& j) {
+             nb::list out;
+             const Pieces pieces = j.pieces();
+             for (std::size_t i = 0; i < pieces.size(); ++i) {
+               out.append(nb::make_tuple(pieces.order(i), Eigen::MatrixXd(pieces.matrix(i))));
+             }
+             return out;
+           })
+      .def("_triangulation", [](const JumpMap& j) {
+        // (zeta, zeta_image, lineality basis, simplices as (order, words)), zeta in the scale
+        // 2^scale_exponent.
+        const Triangulation t = j.triangulation();
+        nb::list simplices;
+        for (const Simplex& s : t.simplices()) {
+          std::vector<std::string> words;
+          for (const Signs& w : s.words) words.push_back(w.str());
+          simplices.append(nb::make_tuple(s.order, words));
+        }
+        return nb::make_tuple(Eigen::MatrixXd(t.zeta()), Eigen::MatrixXd(t.zeta_image()),
+                              Eigen::MatrixXd(t.lineality_basis()), t.scale_exponent(), simplices);
+      });
+}
+
+}  // namespace bflow::python
