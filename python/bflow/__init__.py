@@ -22,7 +22,7 @@ from . import _bflow
 from .model import Model, ModelError, signs
 
 __all__ = ["JumpMap", "Model", "ModelError", "signs", "simulate", "flow_derivative",
-           "FlowDerivative", "fd", "flow_options"]
+           "FlowDerivative", "fd", "flow_options", "biped", "biped_initial_state"]
 __version__ = "0.1.0"
 
 CrossingOrder = _bflow.CrossingOrder
@@ -275,6 +275,20 @@ def flow_derivative(model, x0, t: float, **options) -> FlowDerivative:
     o = flow_options(**options)
     derivative, trajectory = _bflow._flow_derivative(native, x, float(t), o)
     return FlowDerivative(derivative, trajectory, o)
+
+
+def biped(**params) -> "_bflow.Model":
+    """The vertical-plane biped of [B] Section 3.2.4 (d = 6, x = (x, y, theta, xdot, ydot,
+    thetadot), two feet): the C++ scene (bflow/core/biped.h). Parameters by name: variant
+    ("conservative", "dissipative", "mode-damping", the default), m, J, g, leg_length, psi,
+    kappa, beta, thrust, thrust_speed. From ``biped_initial_state()`` both feet touch the ground
+    together at t = 0.3968."""
+    return _bflow._biped({k: str(v) for k, v in params.items()})
+
+
+def biped_initial_state() -> np.ndarray:
+    """(0, 1, 0, 0, 0, 0): at rest above the ground."""
+    return _bflow._biped_initial_state()
 
 
 class fd:  # noqa: N801 (a namespace, as bflow::fd in C++)

@@ -110,17 +110,17 @@ class _Printer(C99CodePrinter):
 
 def _check_functions(expr, where: str):
     for node in sp.preorder_traversal(expr):
+        if isinstance(node, (sp.Piecewise, sp.Heaviside)) or type(node).__name__ in (
+                "sign", "Max", "Min", "floor", "ceiling"):
+            raise ModelError(
+                f"{where}: {node} branches on the state; state the branches as the field of "
+                "each sign word (the surfaces decide the side)")
         if isinstance(node, sp.Function) or (isinstance(node, sp.Basic) and node.is_Function):
             name = type(node).__name__
             if name not in _ALLOWED_FUNCTIONS:
                 raise ModelError(
                     f"{where}: the function {name} has no Jet overload; use "
                     + ", ".join(sorted(_ALLOWED_FUNCTIONS - {"Pow", "Add", "Mul"})))
-        if isinstance(node, (sp.Piecewise, sp.Heaviside)) or type(node).__name__ in (
-                "sign", "Max", "Min", "floor", "ceiling"):
-            raise ModelError(
-                f"{where}: {node} branches on the state; state the branches as the field of "
-                "each sign word (the surfaces decide the side)")
 
 
 def _sympify_list(values, what: str):

@@ -15,16 +15,19 @@
 
 #include <nanobind/eigen/dense.h>
 #include <nanobind/nanobind.h>
+#include <nanobind/stl/map.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/pair.h>
 #include <nanobind/stl/shared_ptr.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
+#include "bflow/core/biped.h"
 #include "bflow/core/errors.h"
 #include "bflow/core/flow_derivative.h"
 #include "bflow/integrators/finite_differences.h"
 #include "bflow/integrators/hybrid_flow.h"
+#include "bflow/integrators/model_adapter.h"
 #include "bindings.h"
 
 namespace nb = nanobind;
@@ -114,6 +117,19 @@ void bind_flow(nb::module_& m) {
         return Eigen::MatrixXd(mm.model->surface_normals(x));
       });
   m.def("_load_model", &load_model, "path"_a, "parameters"_a);
+  m.def(
+      "_biped",
+      [](const std::map<std::string, std::string>& params) {
+        BipedParams p;
+        for (const auto& [key, value] : params) set_param(p, key, value);
+        validate_biped_params(p);
+        return visit_biped(p, [](const auto& scene) {
+          using Scene = std::decay_t<decltype(scene)>;
+          return Model{std::make_shared<const ModelAdapter<Scene>>(scene), "biped"};
+        });
+      },
+      "params"_a);
+  m.def("_biped_initial_state", [] { return Eigen::VectorXd(biped_initial_state()); });
 
   nb::class_<FlowOptions>(m, "FlowOptions")
       .def(nb::init<>())
