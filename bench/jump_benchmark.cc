@@ -134,6 +134,9 @@ void BM_JumpApply(benchmark::State& state) {
 void apply_args(benchmark::internal::Benchmark* b) {
   for (int n = 2; n <= kLargestTableCase; ++n) {
     for (int d : {n, 16, 64}) b->Args({n, d});
+    // The biped's size (d = 6): the C++ side of the Python call overhead
+    // (bench/python/overhead.py).
+    if (n == 2) b->Args({2, 6});
   }
   for (int n : {16, 32, 64}) {
     for (int d : {64, 256}) b->Args({n, d});
