@@ -22,7 +22,8 @@ from . import _bflow
 from .model import Model, ModelError, signs
 
 __all__ = ["JumpMap", "Model", "ModelError", "signs", "simulate", "flow_derivative",
-           "FlowDerivative", "fd", "flow_options", "biped", "biped_initial_state"]
+           "FlowDerivative", "fd", "flow_options", "biped", "biped_initial_state", "pronk",
+           "pronk_initial_state", "find_orbit", "continue_orbits", "PeriodicOrbit"]
 __version__ = "0.1.0"
 
 CrossingOrder = _bflow.CrossingOrder
@@ -157,12 +158,12 @@ _OPTION_NAMES = ("rtol", "atol", "max_step", "max_steps", "backend", "grouping",
                  "max_events", "initial_sides")
 
 
-def flow_options(**options) -> "_bflow.FlowOptions":
+def flow_options(base=None, **options) -> "_bflow.FlowOptions":
     """FlowOptions from keyword arguments: rtol (1e-8), atol (1e-2 rtol), max_step, max_steps,
     backend ("dopri5", "dop853", "cvodes-bdf", "cvodes-adams"), grouping ("auto", "none",
     "window"), grouping_safety, window, near_simultaneity_band, grazing_threshold, max_events,
-    initial_sides (a sign word)."""
-    o = _bflow.FlowOptions()
+    initial_sides (a sign word). ``base``: FlowOptions to start from (default: the defaults)."""
+    o = _bflow.FlowOptions() if base is None else base
     for key, value in options.items():
         if key not in _OPTION_NAMES:
             raise ValueError(f"unknown option {key!r}; the options are {', '.join(_OPTION_NAMES)}")
@@ -289,6 +290,91 @@ def biped(**params) -> "_bflow.Model":
 def biped_initial_state() -> np.ndarray:
     """(0, 1, 0, 0, 0, 0): at rest above the ground."""
     return _bflow._biped_initial_state()
+
+
+def pronk(**params) -> "_bflow.Model":
+    """The pronking body of bflow/core/pronk.h (d = 6, two vertical legs at its hips, flat
+    ground, the legs' thrust and a soft horizontal tether): its defaults hop stably (its orbit
+    through the apex, section "-x4", is the C++ tests' stable orbit). Parameters by name: m, J, g,
+    hip, leg_length, kappa, beta, thrust, thrust_speed, tether, tether_damping."""
+    return _bflow._pronk({k: str(v) for k, v in params.items()})
+
+
+def pronk_initial_state() -> np.ndarray:
+    """(0, 1, 0, 0, 0, 0)."""
+    return _bflow._pronk_initial_state()
+
+
+PeriodicOrbit = _bflow.PeriodicOrbit
+
+
+def _orbit_options(tolerance, max_iterations, stability, max_return_time, min_return_time,
+                   flow):
+    o = _bflow.OrbitOptions()
+    o.tolerance = float(tolerance)
+    o.max_newton_iterations = int(max_iterations)
+    o.stability = bool(stability)
+    o.max_return_time = float(max_return_time)
+    o.min_return_time = float(min_return_time)
+    o.flow = flow_options(_bflow._default_orbit_flow_options(), **flow)
+    return o
+
+
+def find_orbit(model, section: str, guess, *, tolerance: float = 1e-8, max_iterations: int = 40,
+               stability: bool = True, max_return_time: float = 100.0,
+               min_return_time: float = 0.0, **flow) -> PeriodicOrbit:
+    """A periodic orbit through the Poincare section s(x) = 0 (crossed from s < 0 to s > 0),
+    by a nonsmooth Newton method on its return map, and the stability verdict from the return
+    map's B-derivative.
+
+    Args:
+        section: "x4" (s = x_4), "-x4" (s = -x_4: x_4 from + to -, e.g. the apex of a hop),
+            "x1=0.3" (s = x_1 - 0.3), "-x1=0.3".
+        guess: a state near the orbit (projected onto the section).
+        tolerance: converged when |P(x) - x|_inf <= tolerance (1 + |x|_inf).
+        flow: FlowOptions by keyword (``flow_options``); the orbit's defaults are rtol 1e-10,
+            atol 1e-12 with the tangents in the error norm.
+
+    Returns the orbit: ``converged`` (with ``message`` when not), ``x``, ``period``,
+    ``return_map`` (DP(x*), a FlowDerivative: pieces, crossing orders), ``growth_rate_lower`` and
+    ``growth_rate_upper`` (a bracket on the growth rate of DP(x*) restricted to the section),
+    ``stability`` ("stable", "unstable", "undecided"), ``bracket`` (how each end was obtained),
+    ``events``, ``notices``, ``decisions`` (what the solver decided for you), ``steps``.
+    """
+    native, x = _x0(model, guess)
+    options = _orbit_options(tolerance, max_iterations, stability, max_return_time,
+                             min_return_time, flow)
+    return _bflow._find_orbit(native, str(section), x, options)
+
+
+def continue_orbits(make_model, section: str, values, guess, *, secant: bool = True,
+                    progress: bool = False, **orbit_options):
+    """A family of orbits over a parameter: for each value in order, ``make_model(value)`` (e.g.
+    ``lambda k: bflow.pronk(kappa=k)`` or ``model.with_parameters``), its orbit from a secant
+    prediction through the last two members found (or the last one, or ``guess``). Returns the
+    members: ``value``, ``orbit``, ``guess`` (where the accepted run started), ``predictor``,
+    ``decisions``, ``runs``. ``progress=True`` prints one line per member on stderr."""
+    import sys
+    options = _orbit_options(orbit_options.pop("tolerance", 1e-8),
+                             orbit_options.pop("max_iterations", 40),
+                             orbit_options.pop("stability", True),
+                             orbit_options.pop("max_return_time", 100.0),
+                             orbit_options.pop("min_return_time", 0.0), orbit_options)
+    values = [float(v) for v in values]
+    g = _as_array(guess, "guess", 1)
+
+    def solve(value, start):
+        native = _model(make_model(value))
+        return _bflow._find_orbit(native, str(section), start, options)
+
+    def report(index, member):
+        o = member.orbit
+        print(f"member {index + 1}/{len(values)}: value {member.value:.6g}, "
+              f"{'converged' if o.converged else 'not converged'}, period {o.period:.6g}, "
+              f"growth rate in [{o.growth_rate_lower:.4g}, {o.growth_rate_upper:.4g}], "
+              f"{o.stability}", file=sys.stderr, flush=True)
+
+    return _bflow._continue_orbits(values, g, solve, bool(secant), report if progress else None)
 
 
 class fd:  # noqa: N801 (a namespace, as bflow::fd in C++)

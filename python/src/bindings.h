@@ -6,8 +6,9 @@
 
 namespace bflow::python {
 
-void bind_jump(nanobind::module_& m);  // JumpMap, CrossingOrder (jump.cc)
-void bind_flow(nanobind::module_& m);  // Model, simulate, flow_derivative, fd (flow.cc)
+void bind_jump(nanobind::module_& m);    // JumpMap, CrossingOrder (jump.cc)
+void bind_flow(nanobind::module_& m);    // Model, simulate, flow_derivative, fd (flow.cc)
+void bind_orbits(nanobind::module_& m);  // find_periodic_orbit, continue_orbits (orbits.cc)
 
 }  // namespace bflow::python
 

@@ -25,10 +25,12 @@
 #include "bflow/core/biped.h"
 #include "bflow/core/errors.h"
 #include "bflow/core/flow_derivative.h"
+#include "bflow/core/pronk.h"
 #include "bflow/integrators/finite_differences.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
 #include "bindings.h"
+#include "model_handle.h"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -38,14 +40,6 @@ namespace {
 
 using ConstMatrix = Eigen::Ref<const Eigen::MatrixXd>;
 using ConstVector = Eigen::Ref<const Eigen::VectorXd>;
-
-/** A model behind the SegmentModel interface, with what keeps it alive. */
-struct Model {
-  std::shared_ptr<const SegmentModel> model;
-  std::string path;
-  int states() const { return model->states(); }
-  int surfaces() const { return model->surfaces(); }
-};
 
 Model load_model(const std::string& path, const std::vector<double>& parameters) {
   // The library stays loaded for the life of the process: models and results may outlive the
@@ -130,6 +124,16 @@ void bind_flow(nb::module_& m) {
       },
       "params"_a);
   m.def("_biped_initial_state", [] { return Eigen::VectorXd(biped_initial_state()); });
+  m.def(
+      "_pronk",
+      [](const std::map<std::string, std::string>& params) {
+        PronkParams p;
+        for (const auto& [key, value] : params) set_param(p, key, value);
+        validate_pronk_params(p);
+        return Model{std::make_shared<const ModelAdapter<PronkScene>>(make_pronk(p)), "pronk"};
+      },
+      "params"_a);
+  m.def("_pronk_initial_state", [] { return Eigen::VectorXd(pronk_initial_state()); });
 
   nb::class_<FlowOptions>(m, "FlowOptions")
       .def(nb::init<>())

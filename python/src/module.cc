@@ -18,4 +18,5 @@ NB_MODULE(_bflow, m) {
   });
   bflow::python::bind_jump(m);
   bflow::python::bind_flow(m);
+  bflow::python::bind_orbits(m);
 }
