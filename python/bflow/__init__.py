@@ -152,6 +152,10 @@ class JumpMap:
     def __repr__(self):
         return f"bflow.JumpMap(surfaces={self.surfaces}, dim={self.dim})"
 
+    def __reduce__(self):
+        # By its normals and the table of every word's limit (n <= 24).
+        return (JumpMap.from_limits, (self.normals, self._native._limits_table()))
+
 
 _OPTION_NAMES = ("rtol", "atol", "max_step", "max_steps", "backend", "grouping",
                  "grouping_safety", "window", "near_simultaneity_band", "grazing_threshold",
@@ -263,6 +267,9 @@ class FlowDerivative:
 
     def jumps(self):
         return [JumpMap(j) for j in self._native.jumps()]
+
+    def __reduce__(self):
+        return self._native.__reduce__()
 
     def __repr__(self):
         return (f"bflow.FlowDerivative(dim={self.dim}, events={len(self.events)}, "

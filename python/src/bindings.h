@@ -2,9 +2,20 @@
 #ifndef BFLOW_PYTHON_BINDINGS_H_
 #define BFLOW_PYTHON_BINDINGS_H_
 
+#include <string>
+
 #include <nanobind/nanobind.h>
 
 namespace bflow::python {
+
+/** Gives a result class a __reduce__ that refuses pickling with a reason and what to do. */
+template <typename Class>
+void refuse_pickle(nanobind::class_<Class>& c, const std::string& name, const std::string& advice) {
+  const std::string message = name + " does not pickle: " + advice;
+  c.def("__reduce__", [message](const Class&) -> nanobind::object {
+    throw nanobind::type_error(message.c_str());
+  });
+}
 
 void bind_jump(nanobind::module_& m);    // JumpMap, CrossingOrder (jump.cc)
 void bind_flow(nanobind::module_& m);    // Model, simulate, flow_derivative, fd (flow.cc)

@@ -97,8 +97,11 @@ Eigen::VectorXd surfaces_at(const Model& m, ConstVector x) {
 }  // namespace
 
 void bind_flow(nb::module_& m) {
-  nb::class_<Model>(m, "Model")
-      .def_prop_ro("states", &Model::states)
+  nb::class_<Model> model(m, "Model");
+  refuse_pickle(model, "a compiled or built-in model",
+                "pickle the bflow.Model written in SymPy (it pickles by its expressions), or "
+                "call bflow.biped / bflow.pronk again with the same parameters");
+  model.def_prop_ro("states", &Model::states)
       .def_prop_ro("surfaces", &Model::surfaces)
       .def_ro("path", &Model::path)
       .def("field", &field_at, "x"_a, "sides"_a)
@@ -176,8 +179,13 @@ void bind_flow(nb::module_& m) {
           },
           nb::arg("value").none());
 
-  nb::class_<EventRecord>(m, "Event", "One event: where, which surfaces, how it was grouped.")
-      .def_ro("t", &EventRecord::t, "the first crossing's located time (where the jump acts)")
+  const std::string rerun =
+      "it is part of a run's result; pickle the model, x0, t and options and run again, or keep "
+      "the numbers you need";
+  nb::class_<EventRecord> event(m, "Event",
+                                "One event: where, which surfaces, how it was grouped.");
+  refuse_pickle(event, "bflow.Event", rerun);
+  event.def_ro("t", &EventRecord::t, "the first crossing's located time (where the jump acts)")
       .def_ro("rho", &EventRecord::rho)
       .def_ro("surfaces", &EventRecord::surfaces, "surfaces crossed together, lowest first")
       .def_ro("crossing_times", &EventRecord::crossing_times,
@@ -198,8 +206,10 @@ void bind_flow(nb::module_& m) {
                ")";
       });
 
-  nb::class_<FlowNotice>(m, "Notice", "What the engine decided for the user or could not decide.")
-      .def_prop_ro("kind", [](const FlowNotice& n) { return std::string(to_string(n.kind)); })
+  nb::class_<FlowNotice> notice(m, "Notice",
+                                "What the engine decided for the user or could not decide.");
+  refuse_pickle(notice, "bflow.Notice", rerun);
+  notice.def_prop_ro("kind", [](const FlowNotice& n) { return std::string(to_string(n.kind)); })
       .def_ro("surfaces", &FlowNotice::surfaces)
       .def_ro("times", &FlowNotice::times)
       .def_ro("gap", &FlowNotice::gap)
@@ -207,8 +217,9 @@ void bind_flow(nb::module_& m) {
       .def_ro("message", &FlowNotice::message)
       .def("__repr__", [](const FlowNotice& n) { return "Notice(" + n.message + ")"; });
 
-  nb::class_<FlowResult>(m, "FlowResult")
-      .def_prop_ro("status", [](const FlowResult& r) { return std::string(to_string(r.status)); })
+  nb::class_<FlowResult> result(m, "FlowResult");
+  refuse_pickle(result, "bflow.FlowResult", rerun);
+  result.def_prop_ro("status", [](const FlowResult& r) { return std::string(to_string(r.status)); })
       .def_ro("message", &FlowResult::message)
       .def_ro("t", &FlowResult::t)
       .def_ro("x", &FlowResult::x)
@@ -224,8 +235,11 @@ void bind_flow(nb::module_& m) {
       .def_ro("orders", &FlowPiece::orders)
       .def_ro("matrix", &FlowPiece::matrix);
 
-  nb::class_<FlowDerivative>(m, "FlowDerivative")
-      .def_prop_ro("dim", &FlowDerivative::dim)
+  nb::class_<FlowDerivative> derivative(m, "FlowDerivative");
+  refuse_pickle(derivative, "bflow.FlowDerivative",
+                "it holds the run's transition matrices and jump maps; pickle the model, x0, t "
+                "and options and call flow_derivative again");
+  derivative.def_prop_ro("dim", &FlowDerivative::dim)
       .def_prop_ro("event_count", &FlowDerivative::events)
       .def_prop_ro("event_times", &FlowDerivative::event_times)
       .def_prop_ro("event_surfaces", &FlowDerivative::event_surfaces)

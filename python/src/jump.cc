@@ -7,6 +7,7 @@
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
+#include "bflow/core/errors.h"
 #include "bflow/core/jump_map.h"
 #include "bflow/core/triangulation.h"
 #include "bindings.h"
@@ -33,6 +34,19 @@ void bind_jump(nb::module_& m) {
       });
 
   nb::class_<JumpMap>(m, "JumpMap")
+      .def("_limits_table",
+           [](const JumpMap& j) {
+             // Every word's limit, column b.bits() (the table from_limits takes).
+             if (j.surfaces() > kMaxTableSurfaces) {
+               throw InvalidArgument("JumpMap: " + std::to_string(j.surfaces()) +
+                                     " surfaces, more than a table holds (" +
+                                     std::to_string(kMaxTableSurfaces) + ")");
+             }
+             Eigen::MatrixXd table(j.dim(), Eigen::Index{1} << j.surfaces());
+             for (Eigen::Index b = 0; b < table.cols(); ++b)
+               table.col(b) = j.limit(Signs(j.surfaces(), static_cast<std::uint64_t>(b)));
+             return table;
+           })
       .def(nb::init<ConstMatrix, ConstMatrix>(), "normals"_a, "field_limits"_a,
            nb::call_guard<nb::gil_scoped_release>())
       .def_prop_ro("surfaces", &JumpMap::surfaces)

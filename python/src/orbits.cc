@@ -60,8 +60,12 @@ void bind_orbits(nb::module_& m) {
       .def_ro("events", &OrbitNewtonStep::events)
       .def_ro("largest_event", &OrbitNewtonStep::largest_event);
 
-  nb::class_<PeriodicOrbit>(m, "PeriodicOrbit")
-      .def_ro("converged", &PeriodicOrbit::converged)
+  nb::class_<PeriodicOrbit> orbit(m, "PeriodicOrbit");
+  refuse_pickle(orbit, "bflow.PeriodicOrbit",
+                "it is a solver's result with its return map; pickle the model, section, guess and "
+                "options and call find_orbit again (from orbit.x it converges at once), or keep "
+                "the numbers you need");
+  orbit.def_ro("converged", &PeriodicOrbit::converged)
       .def_ro("message", &PeriodicOrbit::message)
       .def_ro("x", &PeriodicOrbit::x)
       .def_ro("period", &PeriodicOrbit::period)

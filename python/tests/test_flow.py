@@ -198,3 +198,34 @@ def test_biped_matches_the_cli(cli):
 def test_bad_input_is_refused(call, message):
     with pytest.raises(ValueError, match=message):
         call(quadrants_model())
+
+
+def test_sympy_model_matches_the_cpp_scene_through_the_cli(cli):
+    # The pwconst scene of `bflow flow` (examples/piecewise_constant.h, the linear case d = 3)
+    # and the same field written in SymPy: the same trajectory, event and derivative to 1e-12.
+    directions = [[1.0, 0.0, 0.0], [0.3, -2.0, 0.5], [-1.0, 0.25, 4.0]]
+    args = [cli, "flow", "--scene", "pwconst", "--param", "d=3", "--param", "delta=0.25",
+            "--compact"]
+    for dx in directions:
+        args += ["--dx", ",".join(repr(v) for v in dx)]
+    out = json.loads(subprocess.run(args, check=True, capture_output=True, text=True).stdout)
+    D = bflow.flow_derivative(pwconst_model(3, 0.25), out["x0"], out["t"])
+    np.testing.assert_allclose(D.x, out["x_t"], rtol=0, atol=1e-12)
+    assert [e.surfaces for e in D.events] == [e["surfaces"] for e in out["events"]]
+    assert D.events[0].t == pytest.approx(out["events"][0]["t"], abs=1e-12)
+    for dx, row in zip(directions, out["directions"]):
+        np.testing.assert_allclose(D.apply(dx), row["image"], rtol=0, atol=1e-12)
+
+
+def test_results_say_why_they_do_not_pickle():
+    import pickle
+    m = quadrants_model()
+    D = bflow.flow_derivative(m, [-0.5, -0.3], 1.0)
+    with pytest.raises(TypeError, match="FlowDerivative does not pickle: .*flow_derivative again"):
+        pickle.dumps(D)
+    with pytest.raises(TypeError, match="Event does not pickle"):
+        pickle.dumps(D.events[0])
+    # A jump of the derivative pickles (by its table) and maps as before.
+    jump = D.jumps()[0]
+    back = pickle.loads(pickle.dumps(jump))
+    np.testing.assert_array_equal(back.apply([-1.0, -0.5]), jump.apply([-1.0, -0.5]))

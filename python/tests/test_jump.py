@@ -109,3 +109,12 @@ def test_bad_direction_is_refused():
         B.apply([np.nan, 0.0])
     with pytest.raises(ValueError):
         B.apply(np.zeros((2, 2, 2)))
+
+
+def test_pickles_by_its_table():
+    import pickle
+    B = quadrants()
+    back = pickle.loads(pickle.dumps(B))
+    np.testing.assert_array_equal(back.normals, B.normals)
+    for dx in ([-1.0, -0.5], [0.3, 2.0]):
+        np.testing.assert_array_equal(back.apply(dx), B.apply(dx))

@@ -65,3 +65,10 @@ def test_bad_sections_are_refused(section, message):
 def test_bad_scene_parameters_are_refused():
     with pytest.raises(ValueError, match='"thrust"'):
         bflow.pronk(thrust=-1)
+
+
+def test_an_orbit_says_why_it_does_not_pickle():
+    import pickle
+    orbit = bflow.find_orbit(bflow.pronk(), "-x4", bflow.pronk_initial_state(), stability=False)
+    with pytest.raises(TypeError, match="PeriodicOrbit does not pickle: .*find_orbit again"):
+        pickle.dumps(orbit)
