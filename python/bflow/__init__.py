@@ -23,7 +23,8 @@ from .model import Model, ModelError, signs
 
 __all__ = ["JumpMap", "Model", "ModelError", "signs", "simulate", "flow_derivative",
            "FlowDerivative", "fd", "flow_options", "biped", "biped_initial_state", "pronk",
-           "pronk_initial_state", "find_orbit", "continue_orbits", "PeriodicOrbit"]
+           "pronk_initial_state", "find_orbit", "continue_orbits", "PeriodicOrbit",
+           "fesd_simulate", "fesd_exact", "FesdResult"]
 __version__ = "0.1.0"
 
 CrossingOrder = _bflow.CrossingOrder
@@ -382,6 +383,48 @@ def continue_orbits(make_model, section: str, values, guess, *, secant: bool = T
               f"{o.stability}", file=sys.stderr, flush=True)
 
     return _bflow._continue_orbits(values, g, solve, bool(secant), report if progress else None)
+
+
+FesdResult = _bflow.FesdResult
+_FESD_DEFAULTS = {"irma": (100.0, 20), "crossing": (1.0, 4), "sliding-enter": (1.0, 4),
+                  "sliding-leave": (2.0, 4), "spontaneous": (1.0, 4)}
+_FESD_OPTIONS = ("scheme", "stages", "elements", "standard", "formulation", "lifting_depth",
+                 "sigma_initial", "sigma_final", "sigma_factor", "nlp_tolerance",
+                 "exact_hessian", "max_nlp_iterations", "newton", "sensitivities",
+                 "linear_solver")
+
+
+def fesd_simulate(example: str, T: Optional[float] = None, x0=None, *,
+                  steps: Optional[int] = None, **options) -> FesdResult:
+    """A built-in Filippov example simulated by Finite Elements with Switch Detection
+    (docs/fesd.md): "irma" (T = 100, 20 steps by default) or one of the switching cases of
+    [F] Example 3, "crossing", "sliding-enter", "sliding-leave" (T = 2), "spontaneous"
+    (T = 1, 4 steps), whose exact solutions ``fesd_exact`` gives.
+
+    Options: scheme ("radau", "gauss"), stages (n_s, 2), elements (N_FE, 3), formulation ("step",
+    "stewart"), lifting_depth, standard, sigma_initial, sigma_final, sigma_factor,
+    nlp_tolerance, exact_hessian, max_nlp_iterations, newton, sensitivities (dx(T)/dx0, on),
+    linear_solver. Returns x_end, grid, states, step_sizes, switch_times, active_sets,
+    sensitivity and the counters of what the solver did (halved_steps, newton_steps,
+    acceptable_only_steps)."""
+    if example not in _FESD_DEFAULTS:
+        raise ValueError(f"fesd_simulate: unknown example {example!r}; the examples are "
+                         + ", ".join(_FESD_DEFAULTS))
+    t_end, default_steps = _FESD_DEFAULTS[example]
+    o = _bflow.FesdOptions()
+    o.steps = int(steps if steps is not None else default_steps)
+    for key, value in options.items():
+        if key not in _FESD_OPTIONS:
+            raise ValueError(f"unknown option {key!r}; the options are {', '.join(_FESD_OPTIONS)}")
+        setattr(o, key, value)
+    start = None if x0 is None else _as_array(x0, "x0", 1)
+    return _bflow._fesd_example(example, float(T if T is not None else t_end), start, o)
+
+
+def fesd_exact(example: str) -> dict:
+    """The exact solution of a switching case of [F] Example 3: x0, t_end, switch_times, x_end."""
+    (x0, t_end), (switches, x_end) = _bflow._fesd_exact(example)
+    return {"x0": x0, "t_end": t_end, "switch_times": switches, "x_end": x_end}
 
 
 class fd:  # noqa: N801 (a namespace, as bflow::fd in C++)

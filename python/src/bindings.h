@@ -20,6 +20,7 @@ void refuse_pickle(nanobind::class_<Class>& c, const std::string& name, const st
 void bind_jump(nanobind::module_& m);    // JumpMap, CrossingOrder (jump.cc)
 void bind_flow(nanobind::module_& m);    // Model, simulate, flow_derivative, fd (flow.cc)
 void bind_orbits(nanobind::module_& m);  // find_periodic_orbit, continue_orbits (orbits.cc)
+void bind_fesd(nanobind::module_& m);    // fesd_simulate of the built-in examples (fesd.cc)
 
 }  // namespace bflow::python
 

@@ -19,4 +19,5 @@ NB_MODULE(_bflow, m) {
   bflow::python::bind_jump(m);
   bflow::python::bind_flow(m);
   bflow::python::bind_orbits(m);
+  bflow::python::bind_fesd(m);
 }

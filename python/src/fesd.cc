@@ -1,0 +1,116 @@
+// FESD simulation of the built-in Filippov examples (IRMA and the four switching cases of [F]
+// Example 3, with their exact solutions).
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <nanobind/eigen/dense.h>
+#include <nanobind/nanobind.h>
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/pair.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+
+#include "bflow/core/errors.h"
+#include "bflow/examples/irma.h"
+#include "bflow/examples/switching_cases.h"
+#include "bflow/fesd/fesd.h"
+#include "bindings.h"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+
+namespace bflow::python {
+namespace {
+
+constexpr const char* kExamples = "irma, crossing, sliding-enter, sliding-leave, spontaneous";
+
+// Calls f(model, x0) with the example's model and its initial state.
+template <typename F>
+auto with_example(const std::string& name, F&& f) {
+  if (name == "irma") {
+    return f(adapt_step(examples::Irma{}), Eigen::VectorXd(examples::Irma::initial_state()));
+  }
+  if (name != "crossing" && name != "sliding-enter" && name != "sliding-leave" &&
+      name != "spontaneous") {
+    throw InvalidArgument("fesd_simulate: unknown example \"" + name + "\"; the examples are " +
+                          kExamples);
+  }
+  const examples::SwitchingCaseSolution exact = examples::exact_switching_case(name);
+  if (name == "crossing") return f(adapt_step(examples::CrossingCase{}), exact.x0);
+  if (name == "sliding-enter") return f(adapt_step(examples::SlidingEnterCase{}), exact.x0);
+  if (name == "sliding-leave") return f(adapt_step(examples::SlidingLeaveCase{}), exact.x0);
+  return f(adapt_step(examples::SpontaneousCase{}), exact.x0);
+}
+
+}  // namespace
+
+void bind_fesd(nb::module_& m) {
+  nb::class_<FesdOptions>(m, "FesdOptions")
+      .def(nb::init<>())
+      .def_prop_rw(
+          "scheme", [](const FesdOptions& o) { return std::string(to_string(o.scheme)); },
+          [](FesdOptions& o, const std::string& v) { o.scheme = parse_collocation_scheme(v); })
+      .def_rw("stages", &FesdOptions::stages)
+      .def_rw("elements", &FesdOptions::elements)
+      .def_rw("steps", &FesdOptions::steps)
+      .def_rw("standard", &FesdOptions::standard)
+      .def_prop_rw(
+          "formulation", [](const FesdOptions& o) { return std::string(to_string(o.formulation)); },
+          [](FesdOptions& o, const std::string& v) { o.formulation = parse_dcs_formulation(v); })
+      .def_rw("lifting_depth", &FesdOptions::lifting_depth)
+      .def_rw("sigma_initial", &FesdOptions::sigma_initial)
+      .def_rw("sigma_final", &FesdOptions::sigma_final)
+      .def_rw("sigma_factor", &FesdOptions::sigma_factor)
+      .def_rw("nlp_tolerance", &FesdOptions::nlp_tolerance)
+      .def_rw("exact_hessian", &FesdOptions::exact_hessian)
+      .def_rw("max_nlp_iterations", &FesdOptions::max_nlp_iterations)
+      .def_rw("newton", &FesdOptions::newton)
+      .def_rw("sensitivities", &FesdOptions::sensitivities)
+      .def_rw("linear_solver", &FesdOptions::linear_solver);
+
+  nb::class_<FesdResult> result(m, "FesdResult");
+  refuse_pickle(result, "bflow.FesdResult",
+                "it is a run's result; keep the arrays you need (x_end, grid, states, ...)");
+  result.def_prop_ro("status", [](const FesdResult& r) { return std::string(to_string(r.status)); })
+      .def_prop_ro("ok", &FesdResult::ok)
+      .def_ro("message", &FesdResult::message)
+      .def_ro("x_end", &FesdResult::x_end)
+      .def_ro("grid", &FesdResult::grid)
+      .def_ro("states", &FesdResult::states)
+      .def_ro("step_sizes", &FesdResult::step_sizes)
+      .def_ro("switch_times", &FesdResult::switch_times)
+      .def_ro("active_sets", &FesdResult::active_sets)
+      .def_ro("max_complementarity", &FesdResult::max_complementarity)
+      .def_ro("halved_steps", &FesdResult::halved_steps)
+      .def_ro("newton_steps", &FesdResult::newton_steps)
+      .def_ro("acceptable_only_steps", &FesdResult::acceptable_only_steps)
+      .def_ro("acceptable_only", &FesdResult::acceptable_only)
+      .def_ro("nlp_iterations", &FesdResult::nlp_iterations)
+      .def_ro("sensitivity", &FesdResult::sensitivity, "dx(T)/dx0 (d x d)");
+
+  m.def(
+      "_fesd_example",
+      [](const std::string& name, double t_end, std::optional<Eigen::VectorXd> x0,
+         const FesdOptions& options) {
+        return with_example(name, [&](const StepModel& model, const Eigen::VectorXd& start) {
+          return fesd_simulate(model, x0 ? *x0 : start, t_end, options);
+        });
+      },
+      "example"_a, "t_end"_a, "x0"_a.none(), "options"_a, nb::call_guard<nb::gil_scoped_release>());
+  m.def(
+      "_fesd_exact",
+      [](const std::string& name) {
+        if (name == "irma") {
+          throw InvalidArgument("fesd_exact: irma has no closed-form solution");
+        }
+        with_example(name, [](const StepModel&, const Eigen::VectorXd&) { return 0; });
+        const examples::SwitchingCaseSolution s = examples::exact_switching_case(name);
+        return std::make_pair(std::make_pair(s.x0, s.t_end),
+                              std::make_pair(s.switch_times, s.x_end));
+      },
+      "example"_a);
+  m.def("_irma_initial_state", [] { return Eigen::VectorXd(examples::Irma::initial_state()); });
+}
+
+}  // namespace bflow::python
