@@ -24,7 +24,7 @@ from .model import Model, ModelError, signs
 __all__ = ["JumpMap", "Model", "ModelError", "signs", "simulate", "flow_derivative",
            "FlowDerivative", "fd", "flow_options", "biped", "biped_initial_state", "pronk",
            "pronk_initial_state", "find_orbit", "continue_orbits", "PeriodicOrbit",
-           "fesd_simulate", "fesd_exact", "FesdResult"]
+           "fesd_simulate", "fesd_exact", "FesdResult", "ocp_solve", "ocp_exact", "OcpResult"]
 __version__ = "0.1.0"
 
 CrossingOrder = _bflow.CrossingOrder
@@ -425,6 +425,45 @@ def fesd_exact(example: str) -> dict:
     """The exact solution of a switching case of [F] Example 3: x0, t_end, switch_times, x_end."""
     (x0, t_end), (switches, x_end) = _bflow._fesd_exact(example)
     return {"x0": x0, "t_end": t_end, "switch_times": switches, "x_end": x_end}
+
+
+OcpResult = _bflow.OcpResult
+_OCP_OPTIONS = ("elements", "collocation_stages", "scheme", "formulation", "standard",
+                "relaxation", "sigma_initial", "sigma_final", "sigma_factor", "nlp_tolerance",
+                "complementarity_tolerance", "polish", "early_polish_sigma",
+                "max_total_iterations", "exact_hessian", "lifting_depth", "linear_solver")
+
+
+def ocp_solve(example: str, N: int = 10, *, progress: bool = False, **options) -> OcpResult:
+    """An optimal control problem of a built-in nonsmooth example through FESD (docs/ocp.md):
+    "braking-block" (the optimum slides; exact cost 2 sqrt 5 + asinh 2 - 4) or "turbo-car"
+    (time-optimal, T* = 40/3), at N control stages. Options: elements (N_FE, 3),
+    collocation_stages (2), scheme, formulation, standard, relaxation ("scholtes", "l1",
+    "elastic"), sigma_initial (100), sigma_final (1e-10), sigma_factor, nlp_tolerance,
+    complementarity_tolerance, polish, early_polish_sigma, max_total_iterations, exact_hessian,
+    lifting_depth, linear_solver. ``progress=True`` prints one line per NLP on stderr. The GIL
+    is released while IPOPT runs. ``ocp_exact`` gives the exact optimum."""
+    import sys
+    o = _bflow.OcpOptions()
+    o.stages = int(N)
+    for key, value in options.items():
+        if key not in _OCP_OPTIONS:
+            raise ValueError(f"unknown option {key!r}; the options are {', '.join(_OCP_OPTIONS)}")
+        setattr(o, key, value)
+    if progress:
+        def report(step):
+            print(f"sigma {step.sigma:.3g}{' (polish)' if step.polish else ''}: "
+                  f"{step.iterations} iterations, cost {step.objective:.10g}, "
+                  f"complementarity {step.complementarity:.2g}, {step.ipopt_status}",
+                  file=sys.stderr, flush=True)
+        o.progress = report
+    return _bflow._ocp_example(str(example), o)
+
+
+def ocp_exact(example: str) -> dict:
+    """The exact optimum of a built-in OCP example: braking-block (objective, stop_time,
+    final_position) or turbo-car (T, switch_times, control_switch_times)."""
+    return {k: (v[0] if len(v) == 1 else v) for k, v in _bflow._ocp_exact(example).items()}
 
 
 class fd:  # noqa: N801 (a namespace, as bflow::fd in C++)

@@ -21,6 +21,7 @@ void bind_jump(nanobind::module_& m);    // JumpMap, CrossingOrder (jump.cc)
 void bind_flow(nanobind::module_& m);    // Model, simulate, flow_derivative, fd (flow.cc)
 void bind_orbits(nanobind::module_& m);  // find_periodic_orbit, continue_orbits (orbits.cc)
 void bind_fesd(nanobind::module_& m);    // fesd_simulate of the built-in examples (fesd.cc)
+void bind_ocp(nanobind::module_& m);     // ocp_solve of the built-in examples (ocp.cc)
 
 }  // namespace bflow::python
 

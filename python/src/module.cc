@@ -20,4 +20,5 @@ NB_MODULE(_bflow, m) {
   bflow::python::bind_flow(m);
   bflow::python::bind_orbits(m);
   bflow::python::bind_fesd(m);
+  bflow::python::bind_ocp(m);
 }

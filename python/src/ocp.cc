@@ -1,0 +1,144 @@
+// Optimal control through FESD for the built-in examples with exact optima (the braking block
+// and the turbo car, examples/ocp_examples.h).
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <nanobind/eigen/dense.h>
+#include <nanobind/nanobind.h>
+#include <nanobind/stl/function.h>
+#include <nanobind/stl/map.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+
+#include "bflow/core/errors.h"
+#include "bflow/examples/ocp_examples.h"
+#include "bflow/ocp/ocp.h"
+#include "bindings.h"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+
+namespace bflow::python {
+
+void bind_ocp(nb::module_& m) {
+  nb::class_<OcpOptions>(m, "OcpOptions")
+      .def(nb::init<>())
+      .def_rw("stages", &OcpOptions::stages)
+      .def_rw("elements", &OcpOptions::elements)
+      .def_rw("collocation_stages", &OcpOptions::collocation_stages)
+      .def_prop_rw(
+          "scheme", [](const OcpOptions& o) { return std::string(to_string(o.scheme)); },
+          [](OcpOptions& o, const std::string& v) { o.scheme = parse_collocation_scheme(v); })
+      .def_prop_rw(
+          "formulation", [](const OcpOptions& o) { return std::string(to_string(o.formulation)); },
+          [](OcpOptions& o, const std::string& v) { o.formulation = parse_dcs_formulation(v); })
+      .def_rw("standard", &OcpOptions::standard)
+      .def_prop_rw(
+          "relaxation",
+          [](const OcpOptions& o) {
+            return std::string(o.relaxation == OcpRelaxation::kL1Penalty ? "l1"
+                               : o.relaxation == OcpRelaxation::kElastic ? "elastic"
+                                                                         : "scholtes");
+          },
+          [](OcpOptions& o, const std::string& v) {
+            if (v == "scholtes") {
+              o.relaxation = OcpRelaxation::kScholtes;
+            } else if (v == "l1") {
+              o.relaxation = OcpRelaxation::kL1Penalty;
+            } else if (v == "elastic") {
+              o.relaxation = OcpRelaxation::kElastic;
+            } else {
+              throw InvalidArgument("relaxation: unknown relaxation \"" + v +
+                                    "\"; use scholtes, l1 or elastic");
+            }
+          })
+      .def_rw("sigma_initial", &OcpOptions::sigma_initial)
+      .def_rw("sigma_final", &OcpOptions::sigma_final)
+      .def_rw("sigma_factor", &OcpOptions::sigma_factor)
+      .def_rw("nlp_tolerance", &OcpOptions::nlp_tolerance)
+      .def_rw("complementarity_tolerance", &OcpOptions::complementarity_tolerance)
+      .def_rw("polish", &OcpOptions::polish)
+      .def_rw("early_polish_sigma", &OcpOptions::early_polish_sigma)
+      .def_rw("max_total_iterations", &OcpOptions::max_total_iterations)
+      .def_rw("exact_hessian", &OcpOptions::exact_hessian)
+      .def_rw("lifting_depth", &OcpOptions::lifting_depth)
+      .def_rw("linear_solver", &OcpOptions::linear_solver)
+      .def_rw("progress", &OcpOptions::progress);
+
+  nb::class_<OcpHomotopyStep>(m, "OcpHomotopyStep", "One NLP of the homotopy.")
+      .def_ro("sigma", &OcpHomotopyStep::sigma)
+      .def_ro("objective", &OcpHomotopyStep::objective)
+      .def_ro("complementarity", &OcpHomotopyStep::complementarity)
+      .def_ro("iterations", &OcpHomotopyStep::iterations)
+      .def_ro("cpu_seconds", &OcpHomotopyStep::cpu_seconds)
+      .def_ro("ipopt_status", &OcpHomotopyStep::ipopt_status)
+      .def_ro("kkt_error", &OcpHomotopyStep::kkt_error)
+      .def_ro("polish", &OcpHomotopyStep::polish)
+      .def_ro("product_multipliers", &OcpHomotopyStep::product_multipliers)
+      .def_ro("worst_rows", &OcpHomotopyStep::worst_rows);
+
+  nb::class_<OcpResult> result(m, "OcpResult");
+  refuse_pickle(result, "bflow.OcpResult",
+                "it is a solver's result; keep the arrays you need (u, x_grid, switch_times, ...)");
+  result.def_prop_ro("status", [](const OcpResult& r) { return std::string(to_string(r.status)); })
+      .def_prop_ro("ok", &OcpResult::ok)
+      .def_ro("message", &OcpResult::message)
+      .def_ro("notes", &OcpResult::notes)
+      .def_ro("objective", &OcpResult::objective)
+      .def_ro("T", &OcpResult::T)
+      .def_ro("stage_times", &OcpResult::stage_times)
+      .def_ro("x_stages", &OcpResult::x_stages)
+      .def_ro("u", &OcpResult::u)
+      .def_ro("grid", &OcpResult::grid)
+      .def_ro("x_grid", &OcpResult::x_grid)
+      .def_ro("step_sizes", &OcpResult::step_sizes)
+      .def_ro("switch_times", &OcpResult::switch_times)
+      .def_ro("active_sets", &OcpResult::active_sets)
+      .def_ro("max_complementarity", &OcpResult::max_complementarity)
+      .def_ro("ipopt_status", &OcpResult::ipopt_status)
+      .def_ro("kkt_error", &OcpResult::kkt_error)
+      .def_ro("polished", &OcpResult::polished)
+      .def_ro("homotopy", &OcpResult::homotopy)
+      .def_ro("ipopt_iterations", &OcpResult::ipopt_iterations)
+      .def_ro("cpu_seconds", &OcpResult::cpu_seconds)
+      .def_ro("unknowns", &OcpResult::unknowns)
+      .def_ro("constraints", &OcpResult::constraints);
+
+  m.def(
+      "_ocp_example",
+      [](const std::string& name, const OcpOptions& options) {
+        if (name == "braking-block") {
+          return ocp_solve(adapt_ocp(examples::BrakingBlock{}), examples::BrakingBlock::problem(),
+                           options);
+        }
+        if (name == "turbo-car") {
+          return ocp_solve(adapt_ocp(examples::TurboCar{}), examples::TurboCar::problem(), options);
+        }
+        throw InvalidArgument("ocp_solve: unknown example \"" + name +
+                              "\"; the examples are braking-block and turbo-car (the monoped and "
+                              "the hopper: the bflow command)");
+      },
+      "example"_a, "options"_a, nb::call_guard<nb::gil_scoped_release>());
+  m.def("_ocp_exact", [](const std::string& name) {
+    std::map<std::string, std::vector<double>> exact;
+    if (name == "braking-block") {
+      using examples::BrakingBlock;
+      exact["objective"] = {BrakingBlock::optimal_cost()};
+      exact["stop_time"] = {BrakingBlock::stop_time()};
+      exact["final_position"] = {BrakingBlock::final_position()};
+    } else if (name == "turbo-car") {
+      using examples::TurboCar;
+      exact["T"] = {TurboCar::kOptimalTime};
+      exact["switch_times"] = {TurboCar::kSwitchTimes[0], TurboCar::kSwitchTimes[1]};
+      exact["control_switch_times"] = {TurboCar::kControlSwitchTimes[0],
+                                       TurboCar::kControlSwitchTimes[1]};
+    } else {
+      throw InvalidArgument("ocp_exact: unknown example \"" + name +
+                            "\"; the examples are braking-block and turbo-car");
+    }
+    return exact;
+  });
+}
+
+}  // namespace bflow::python
