@@ -24,7 +24,8 @@ from .model import Model, ModelError, signs
 __all__ = ["JumpMap", "Model", "ModelError", "signs", "simulate", "flow_derivative",
            "FlowDerivative", "fd", "flow_options", "biped", "biped_initial_state", "pronk",
            "pronk_initial_state", "find_orbit", "continue_orbits", "PeriodicOrbit",
-           "fesd_simulate", "fesd_exact", "FesdResult", "ocp_solve", "ocp_exact", "OcpResult"]
+           "fesd_simulate", "fesd_exact", "FesdResult", "ocp_solve", "ocp_exact", "OcpResult",
+           "sweep", "SweepRecord"]
 __version__ = "0.1.0"
 
 CrossingOrder = _bflow.CrossingOrder
@@ -464,6 +465,41 @@ def ocp_exact(example: str) -> dict:
     """The exact optimum of a built-in OCP example: braking-block (objective, stop_time,
     final_position) or turbo-car (T, switch_times, control_switch_times)."""
     return {k: (v[0] if len(v) == 1 else v) for k, v in _bflow._ocp_exact(example).items()}
+
+
+SweepRecord = _bflow.SweepRecord
+
+
+def sweep(model, x0, t: float, axes, directions=None, *, threads: int = 0,
+          progress: bool = True, **options):
+    """The flow and its B-derivative at every point of a grid of initial states, on ``threads``
+    threads (0: one per core), the GIL released. ``axes``: (index, lo, hi, count) per varied
+    state, count equally spaced values from lo to hi (the first axis varies slowest); the other
+    states are x0's. ``directions``: the B-derivative's images of these (k x d or one d-vector;
+    default the unit vectors). ``progress`` prints a progress line on stderr. Options: see
+    ``flow_options``.
+
+    Returns the records in grid order: ``varied``, ``status`` ("ok", or why the sample failed:
+    a failed sample does not stop the sweep), ``message``, ``x_t``, ``images`` (one per
+    direction), ``orders`` (per direction, per event: the crossing order), ``pieces``,
+    ``structure(direction)`` (e.g. "0+1 (1>0)": which surfaces cross together, in which order)."""
+    native, x = _x0(model, x0)
+    if directions is None:
+        dirs = [row for row in np.eye(native.states)]
+    else:
+        d = _as_array(directions, "directions")
+        dirs = [d] if d.ndim == 1 else [row for row in d]
+    grid = []
+    for axis in axes:
+        try:
+            index, lo, hi, count = axis
+        except (TypeError, ValueError):
+            raise ValueError(f"sweep: an axis is (index, lo, hi, count), got {axis!r}") from None
+        if int(count) < 1:
+            raise ValueError(f"sweep: the axis of x[{index}] has count {count}; at least 1")
+        grid.append((int(index), float(lo), float(hi), int(count)))
+    return _bflow._sweep(native, x, float(t), grid, [np.asarray(v, dtype=float) for v in dirs],
+                         flow_options(**options), int(threads), bool(progress))
 
 
 class fd:  # noqa: N801 (a namespace, as bflow::fd in C++)

@@ -21,4 +21,5 @@ NB_MODULE(_bflow, m) {
   bflow::python::bind_orbits(m);
   bflow::python::bind_fesd(m);
   bflow::python::bind_ocp(m);
+  bflow::python::bind_sweep(m);
 }
