@@ -19,7 +19,8 @@ def blocks(path):
 
 
 @pytest.mark.parametrize("doc", ["docs/python.md", "README.md"])
-def test_python_blocks_run_and_print_what_they_say(doc):
+def test_python_blocks_run_and_print_what_they_say(doc, monkeypatch):
+    monkeypatch.chdir(ROOT)  # the blocks read files of the repository by relative paths
     found = blocks(ROOT / doc)
     assert found, f"{doc} has no python block"
     namespace = {}
