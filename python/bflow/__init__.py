@@ -19,7 +19,15 @@ from typing import Optional
 import numpy as np
 
 from . import _bflow
-from .model import Model, ModelError, signs
+from ._errors import ModelError
+
+
+def __getattr__(name):
+    # Models written in SymPy load SymPy (half a second) only when first used.
+    if name in ("Model", "signs"):
+        from . import model
+        return getattr(model, name)
+    raise AttributeError(f"module 'bflow' has no attribute {name!r}")
 
 __all__ = ["JumpMap", "Model", "ModelError", "signs", "simulate", "flow_derivative",
            "FlowDerivative", "fd", "flow_options", "biped", "biped_initial_state", "pronk",
@@ -64,42 +72,46 @@ class JumpMap:
         return cls(_bflow.JumpMap(np.asfortranarray(eta), np.asfortranarray(gamma)))
 
     @classmethod
-    def at(cls, model: Model, rho, surfaces=None, before: Optional[str] = None) -> "JumpMap":
+    def at(cls, model, rho, surfaces=None, before: Optional[str] = None) -> "JumpMap":
         """At a point rho of a model where the given surfaces (default: all) meet.
 
         The normals are Dh_j(rho) by Jets, oriented by the flow; the limits F_b(rho). Sides of
         the surfaces not listed come from ``before`` (a sign word over all surfaces) or from the
         signs of h(rho).
         """
+        native = _model(model)
         rho = _as_array(rho, "rho", 1)
-        n = model.surface_count
+        if rho.shape[0] != native.states:
+            raise ValueError(f"JumpMap.at: rho has {rho.shape[0]} entries, the model "
+                             f"{native.states} states")
+        n = native.surfaces
         chosen = list(range(n)) if surfaces is None else [int(j) for j in surfaces]
         for j in chosen:
             if not 0 <= j < n:
                 raise ValueError(f"JumpMap.at: surface {j} is out of range [0, {n})")
-        h = model.surface_values(rho)
+        h = native.surface_values(rho)
         word = list(before) if before is not None else ["+" if v > 0 else "-" for v in h]
         if len(word) != n:
             raise ValueError(f"JumpMap.at: before={before!r} must name all {n} surfaces")
-        normals = model.normals(rho)[chosen, :]
+        normals = native.normals(rho)[chosen, :]
         # Orientation: the flow crosses surface j from - to + in the JumpMap's frame.
         base = list(word)
         for j in chosen:
             base[j] = "-"
-        f = model.field(rho, "".join(base))
+        f = native.field(rho, "".join(base))
         orient = np.sign(normals @ f)
         if np.any(orient == 0):
             raise ValueError(f"JumpMap.at: the field is tangent to surface(s) "
                              f"{[chosen[k] for k in np.flatnonzero(orient == 0)]} at rho")
         eta = normals * orient[:, None]
-        limits = np.empty((model.dim, 2 ** len(chosen)))
+        limits = np.empty((native.states, 2 ** len(chosen)))
         for bits in range(2 ** len(chosen)):
             w = list(base)
             for k, j in enumerate(chosen):
                 after = (bits >> k) & 1
                 plus = after if orient[k] > 0 else not after
                 w[j] = "+" if plus else "-"
-            limits[:, bits] = model.field(rho, "".join(w))
+            limits[:, bits] = native.field(rho, "".join(w))
         return cls.from_limits(eta, limits)
 
     @property
@@ -178,10 +190,11 @@ def flow_options(base=None, **options) -> "_bflow.FlowOptions":
 
 
 def _model(model) -> "_bflow.Model":
-    if isinstance(model, Model):
-        return model._compiled
     if isinstance(model, _bflow.Model):
         return model
+    compiled = getattr(model, "_compiled", None)  # a bflow.Model written in SymPy
+    if isinstance(compiled, _bflow.Model):
+        return compiled
     raise ValueError(f"expected a bflow.Model, got {type(model).__name__}")
 
 

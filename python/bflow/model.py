@@ -33,6 +33,7 @@ import sympy as sp
 from sympy.printing.c import C99CodePrinter
 
 from . import _bflow
+from ._errors import ModelError
 
 __all__ = ["Model", "signs", "ModelError", "compile_seconds"]
 
@@ -43,10 +44,6 @@ _ALLOWED_FUNCTIONS = {
 }
 
 compile_seconds = {"last": 0.0}
-
-
-class ModelError(ValueError):
-    """A model that cannot be compiled: the message names the problem and the values."""
 
 
 def signs(n: int):
