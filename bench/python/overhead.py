@@ -8,7 +8,8 @@ subprocesses when their build directory is given.
     python bench/python/overhead.py [--cpp-build build-bench] [--json out.json]
 
 Prints a table (median of repeated timings; the Python column through the package's public call,
-the native column through the extension's method alone) and, with --json, writes it.
+"out=" the same into a preallocated array, the native column through the extension's method
+alone) and, with --json, writes it.
 """
 
 import argparse
@@ -67,10 +68,12 @@ def main():
     jump = random_jump(2, 6)
     dx = np.random.default_rng(2).standard_normal(6)
     native = jump._native
+    out = np.empty(6)
     rows = {
         "jump apply n=2 d=6": {
             "python_us": median_seconds(lambda: jump.apply(dx), 20000) * 1e6,
             "native_us": median_seconds(lambda: native._apply_vector(dx), 20000) * 1e6,
+            "python_out_us": median_seconds(lambda: jump.apply(dx, out=out), 20000) * 1e6,
             "cpp": ("jump_benchmark", "BM_JumpApply/2/6"),
         },
     }
@@ -88,11 +91,12 @@ def main():
         if args.cpp_build:
             row["cpp_us"] = cpp_median_us(str(Path(args.cpp_build) / "bench" / binary), bench)
             row["overhead_us"] = row["python_us"] - row["cpp_us"]
-    print(f"{'call':40} {'Python us':>10} {'native us':>10} {'C++ us':>10} {'overhead us':>12}")
+    print(f"{'call':40} {'Python us':>10} {'out= us':>8} {'native us':>10} {'C++ us':>10} "
+          f"{'overhead us':>12}")
     for name, row in rows.items():
         cpp = row.get("cpp_us")
-        print(f"{name:40} {row['python_us']:10.3f} {row['native_us']:10.3f} "
-              f"{cpp if cpp is not None else float('nan'):10.3f} "
+        print(f"{name:40} {row['python_us']:10.3f} {row.get('python_out_us', float('nan')):8.3f} "
+              f"{row['native_us']:10.3f} {cpp if cpp is not None else float('nan'):10.3f} "
               f"{row.get('overhead_us', float('nan')):12.3f}")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")

@@ -128,10 +128,18 @@ class JumpMap:
     def normals(self) -> np.ndarray:
         return self._native.normals
 
-    def apply(self, dx) -> np.ndarray:
-        """B(dx): one direction (d,) or a block of columns (d, k)."""
+    def apply(self, dx, out: Optional[np.ndarray] = None) -> np.ndarray:
+        """B(dx): one direction (d,) or a block of columns (d, k). For one direction, ``out``
+        (a writable contiguous float64 array of d numbers) receives the image without a new
+        array being made, and is returned."""
         a = np.asarray(dx, dtype=float)
         if a.ndim == 1:
+            if out is not None:
+                if not (isinstance(out, np.ndarray) and out.dtype == np.float64 and out.ndim == 1
+                        and out.flags.c_contiguous and out.flags.writeable):
+                    raise ValueError("apply: out must be a writable contiguous float64 vector")
+                self._native._apply_into(a, out)
+                return out
             return self._native._apply_vector(a)
         if a.ndim == 2:
             return self._native._apply_block(np.asfortranarray(a))

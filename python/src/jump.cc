@@ -56,6 +56,16 @@ void bind_jump(nb::module_& m) {
           "_apply_vector",
           [](const JumpMap& j, ConstVector dx) { return Eigen::VectorXd(j.apply(dx)); }, "dx"_a)
       .def(
+          "_apply_into",
+          [](const JumpMap& j, ConstVector dx, Eigen::Ref<Eigen::VectorXd> out) {
+            if (out.size() != j.dim()) {
+              throw InvalidArgument("apply: out has " + std::to_string(out.size()) +
+                                    " entries, expected d = " + std::to_string(j.dim()));
+            }
+            j.apply(dx, out);
+          },
+          "dx"_a, "out"_a.noconvert())
+      .def(
           "_apply_block",
           [](const JumpMap& j, ConstMatrix dx) { return Eigen::MatrixXd(j.apply_block(dx)); },
           "dx"_a, nb::call_guard<nb::gil_scoped_release>())

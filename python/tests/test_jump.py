@@ -118,3 +118,15 @@ def test_pickles_by_its_table():
     np.testing.assert_array_equal(back.normals, B.normals)
     for dx in ([-1.0, -0.5], [0.3, 2.0]):
         np.testing.assert_array_equal(back.apply(dx), B.apply(dx))
+
+
+def test_apply_into_a_given_array():
+    B = quadrants()
+    out = np.empty(2)
+    result = B.apply([-1.0, -0.5], out=out)
+    assert result is out
+    np.testing.assert_array_equal(out, B.apply([-1.0, -0.5]))
+    with pytest.raises(ValueError, match="out must be"):
+        B.apply([-1.0, -0.5], out=np.empty(2, dtype=np.float32))
+    with pytest.raises(ValueError, match="out has 3 entries"):
+        B.apply([-1.0, -0.5], out=np.empty(3))
