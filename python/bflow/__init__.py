@@ -200,9 +200,9 @@ def flow_options(base=None, **options) -> "_bflow.FlowOptions":
 def _model(model) -> "_bflow.Model":
     if isinstance(model, _bflow.Model):
         return model
-    compiled = getattr(model, "_compiled", None)  # a bflow.Model written in SymPy
-    if isinstance(compiled, _bflow.Model):
-        return compiled
+    flow_model = getattr(model, "_flow_model", None)  # a bflow.Model written in SymPy
+    if flow_model is not None:
+        return flow_model()
     raise ValueError(f"expected a bflow.Model, got {type(model).__name__}")
 
 
@@ -416,10 +416,15 @@ _FESD_OPTIONS = ("scheme", "stages", "elements", "standard", "formulation", "lif
                  "linear_solver")
 
 
-def fesd_simulate(example: str, T: Optional[float] = None, x0=None, *,
+def fesd_simulate(model, T: Optional[float] = None, x0=None, *,
                   steps: Optional[int] = None, **options) -> FesdResult:
-    """A built-in Filippov example simulated by Finite Elements with Switch Detection
-    (docs/fesd.md): "irma" (T = 100, 20 steps by default) or one of the switching cases of
+    """A Filippov system simulated by Finite Elements with Switch Detection (docs/fesd.md), from
+    x0 over [0, T] in ``steps`` integration steps.
+
+    ``model``: a ``bflow.Model`` without controls (T and x0 required, 10 steps by default; its
+    field is the step inclusion f(x, a), a_j in gamma(h_j(x)): the field with b_j = 2 a_j - 1
+    when it is affine in each sign, else the convex combination of its 2^n sign words), or a
+    built-in example: "irma" (T = 100, 20 steps by default) or one of the switching cases of
     [F] Example 3, "crossing", "sliding-enter", "sliding-leave" (T = 2), "spontaneous"
     (T = 1, 4 steps), whose exact solutions ``fesd_exact`` gives.
 
@@ -429,10 +434,11 @@ def fesd_simulate(example: str, T: Optional[float] = None, x0=None, *,
     linear_solver. Returns x_end, grid, states, step_sizes, switch_times, active_sets,
     sensitivity and the counters of what the solver did (halved_steps, newton_steps,
     acceptable_only_steps)."""
-    if example not in _FESD_DEFAULTS:
-        raise ValueError(f"fesd_simulate: unknown example {example!r}; the examples are "
-                         + ", ".join(_FESD_DEFAULTS))
-    t_end, default_steps = _FESD_DEFAULTS[example]
+    step_model = getattr(model, "_step_model", None)
+    if step_model is None and model not in _FESD_DEFAULTS:
+        raise ValueError(f"fesd_simulate: unknown example {model!r}; give a bflow.Model or one "
+                         "of the examples " + ", ".join(_FESD_DEFAULTS))
+    t_end, default_steps = (None, 10) if step_model else _FESD_DEFAULTS[model]
     o = _bflow.FesdOptions()
     o.steps = int(steps if steps is not None else default_steps)
     for key, value in options.items():
@@ -440,7 +446,15 @@ def fesd_simulate(example: str, T: Optional[float] = None, x0=None, *,
             raise ValueError(f"unknown option {key!r}; the options are {', '.join(_FESD_OPTIONS)}")
         setattr(o, key, value)
     start = None if x0 is None else _as_array(x0, "x0", 1)
-    return _bflow._fesd_example(example, float(T if T is not None else t_end), start, o)
+    if step_model is None:
+        return _bflow._fesd_example(model, float(T if T is not None else t_end), start, o)
+    native = step_model()
+    if T is None or start is None:
+        raise ValueError("fesd_simulate: a bflow.Model needs T and x0")
+    if start.shape[0] != native.states:
+        raise ValueError(f"fesd_simulate: x0 has {start.shape[0]} entries, the model "
+                         f"{native.states} states")
+    return _bflow._fesd_model(native, float(T), start, o)
 
 
 def fesd_exact(example: str) -> dict:
@@ -456,10 +470,24 @@ _OCP_OPTIONS = ("elements", "collocation_stages", "scheme", "formulation", "stan
                 "max_total_iterations", "exact_hessian", "lifting_depth", "linear_solver")
 
 
-def ocp_solve(example: str, N: int = 10, *, progress: bool = False, **options) -> OcpResult:
-    """An optimal control problem of a built-in nonsmooth example through FESD (docs/ocp.md):
+_OCP_PROBLEM = ("x0", "T", "time_optimal", "T_min", "T_max", "x_lower", "x_upper", "u_lower",
+                "u_upper", "path_lower", "path_upper", "terminal_lower", "terminal_upper",
+                "guess", "guess_x", "guess_u")
+
+
+def ocp_solve(model, N: int = 10, *, progress: bool = False, **options) -> OcpResult:
+    """An optimal control problem through FESD (docs/ocp.md), at N control stages.
+
+    ``model``: a ``bflow.Model`` with controls (its costs and constraints are the model's), with
+    the problem's data as keywords: x0 (required), T (the horizon, required; with
+    time_optimal=True the initial guess of the free, minimised T, between T_min and T_max),
+    x_lower/x_upper (at every element boundary), u_lower/u_upper, path_lower/path_upper (default
+    g <= 0), terminal_lower/terminal_upper (default g_T = 0), guess ("constant", or "simulation":
+    guess_u simulated by FESD), guess_x, guess_u (nu x N, or one column). Or a built-in example:
     "braking-block" (the optimum slides; exact cost 2 sqrt 5 + asinh 2 - 4) or "turbo-car"
-    (time-optimal, T* = 40/3), at N control stages. Options: elements (N_FE, 3),
+    (time-optimal, T* = 40/3), whose data are built in.
+
+    Options: elements (N_FE, 3),
     collocation_stages (2), scheme, formulation, standard, relaxation ("scholtes", "l1",
     "elastic"), sigma_initial (100), sigma_final (1e-10), sigma_factor, nlp_tolerance,
     complementarity_tolerance, polish, early_polish_sigma, max_total_iterations, exact_hessian,
@@ -468,9 +496,16 @@ def ocp_solve(example: str, N: int = 10, *, progress: bool = False, **options) -
     import sys
     o = _bflow.OcpOptions()
     o.stages = int(N)
+    ocp_model = getattr(model, "_ocp_model", None)
+    data = {k: options.pop(k) for k in list(options) if k in _OCP_PROBLEM}
+    if data and ocp_model is None:
+        raise ValueError(f"ocp_solve: {sorted(data)} are data of a bflow.Model's problem; the "
+                         f"built-in example {model!r} has its own")
     for key, value in options.items():
         if key not in _OCP_OPTIONS:
-            raise ValueError(f"unknown option {key!r}; the options are {', '.join(_OCP_OPTIONS)}")
+            raise ValueError(f"unknown option {key!r}; the options are {', '.join(_OCP_OPTIONS)}"
+                             + (f"; the problem's data: {', '.join(_OCP_PROBLEM)}"
+                                if ocp_model is not None else ""))
         setattr(o, key, value)
     if progress:
         def report(step):
@@ -479,7 +514,25 @@ def ocp_solve(example: str, N: int = 10, *, progress: bool = False, **options) -
                   f"complementarity {step.complementarity:.2g}, {step.ipopt_status}",
                   file=sys.stderr, flush=True)
         o.progress = report
-    return _bflow._ocp_example(str(example), o)
+    if ocp_model is None:
+        return _bflow._ocp_example(str(model), o)
+    native = ocp_model()
+    if "x0" not in data or "T" not in data:
+        raise ValueError("ocp_solve: a bflow.Model's problem needs x0 and T (the horizon)")
+    problem = _bflow.OcpProblem()
+    for key, value in data.items():
+        if key == "T":
+            problem.horizon = float(value)
+        elif key == "guess_u":
+            u = np.asarray(value, dtype=float)
+            problem.guess_u = np.asfortranarray(u.reshape(-1, 1) if u.ndim == 1 else u)
+        elif key in ("time_optimal", "guess"):
+            setattr(problem, key, value)
+        elif key in ("T_min", "T_max"):
+            setattr(problem, key, float(value))
+        else:
+            setattr(problem, key, _as_array(np.atleast_1d(value), key, 1))
+    return _bflow._ocp_model(native, problem, o)
 
 
 def ocp_exact(example: str) -> dict:

@@ -139,6 +139,16 @@ class Model:
         parameters: values of the parameter symbols (changed later without compiling again by
             ``with_parameters``).
         signs: the sign symbols used in ``field`` (default ``signs(n)``, named b_0, b_1, ...).
+        controls: control symbols u (an optimal control model, for ``bflow.ocp_solve``): the
+            field may use them, the surfaces may not.
+        lagrange: the running cost L(x, u) of an optimal control model.
+        mayer: the terminal cost R(x(T)).
+        path: path constraints g(x, u) (bounds in ``ocp_solve``; default g <= 0).
+        terminal: terminal constraints g_T(x(T)) (default g_T = 0).
+
+    A model without controls runs on every engine: the flow and its B-derivative, orbits and
+    sweeps (compiled at construction), and FESD (``bflow.fesd_simulate``, compiled on first
+    use). A model with controls is for ``bflow.ocp_solve``.
 
     Raises:
         ModelError (a ValueError) before any compiler runs: a symbol that is not a state,
@@ -147,7 +157,9 @@ class Model:
     """
 
     def __init__(self, states: Sequence[sp.Symbol], field, surfaces: Sequence = (),
-                 parameters: Mapping[sp.Symbol, float] | None = None, signs=None):
+                 parameters: Mapping[sp.Symbol, float] | None = None, signs=None, *,
+                 controls: Sequence[sp.Symbol] = (), lagrange=None, mayer=None,
+                 path: Sequence = (), terminal: Sequence = ()):
         self.states = list(states)
         if not self.states or not all(isinstance(s, sp.Symbol) for s in self.states):
             raise ModelError(f"states must be a non-empty list of SymPy Symbols, got {states!r}")
@@ -179,7 +191,22 @@ class Model:
             if s in names:
                 raise ModelError(f"the sign symbol {s} is also a state or a parameter")
             names[s] = f"T(double(b.sign({j})))"
+        self.controls = list(controls)
+        for k, u in enumerate(self.controls):
+            if not isinstance(u, sp.Symbol):
+                raise ModelError(f"controls must be SymPy Symbols, got {u!r}")
+            if u in names:
+                raise ModelError(f"the control {u} is also a state, a parameter or a sign symbol")
+            names[u] = f"u[{k}]"
         self._names = names
+        self.lagrange_expr = None if lagrange is None else _sympify_list([lagrange], "lagrange")[0]
+        self.mayer_expr = None if mayer is None else _sympify_list([mayer], "mayer")[0]
+        self.path_exprs = _sympify_list(path, "path")
+        self.terminal_exprs = _sympify_list(terminal, "terminal")
+        if not self.controls and (self.lagrange_expr is not None or self.mayer_expr is not None
+                                  or self.path_exprs or self.terminal_exprs):
+            raise ModelError("costs and constraints (lagrange, mayer, path, terminal) belong to "
+                             "an optimal control model: give its controls")
 
         if isinstance(field, Mapping):
             words = {}
@@ -199,32 +226,60 @@ class Model:
         else:
             self.field_exprs = _sympify_list(field, "field")
             self.field_words = None
-        for where, exprs in self._all_exprs():
-            if len(exprs) != (d if where.startswith("field") else n):
-                raise ModelError(f"{where} has {len(exprs)} expressions, expected "
-                                 f"{d if where.startswith('field') else n}")
+        known = set(self.states) | set(self.parameters)
+        for where, exprs, expected, extra, forbidden in self._all_exprs():
+            if expected is not None and len(exprs) != expected:
+                raise ModelError(f"{where} has {len(exprs)} expressions, expected {expected}")
             for k, e in enumerate(exprs):
                 _check_functions(e, f"{where}[{k}]")
-                if where == "surfaces":
-                    used = e.free_symbols & set(self.sign_symbols)
+                for symbols, what, why in forbidden:
+                    used = e.free_symbols & set(symbols)
                     if used:
-                        raise ModelError(f"surfaces[{k}] uses the sign symbol(s) "
-                                         f"{sorted(map(str, used))}: h(x) cannot depend on the side")
-                unknown = e.free_symbols - set(names)
+                        raise ModelError(f"{where}[{k}] uses the {what} "
+                                         f"{sorted(map(str, used))}: {why}")
+                unknown = e.free_symbols - known - set(extra) - {
+                    s for symbols, _, _ in forbidden for s in symbols}
                 if unknown:
                     raise ModelError(
                         f"{where}[{k}]: the symbol(s) {sorted(map(str, unknown))} are neither "
-                        f"states {self.states}, parameters {self.parameters} nor sign symbols")
-        self.source = self._source()
-        self._compiled = _bflow._load_model(str(_compile(self.source)), self.parameter_values)
+                        f"states {self.states}, parameters {self.parameters}"
+                        + (f", controls {self.controls}" if self.controls else "")
+                        + " nor sign symbols")
+        self._libraries: Dict[str, str] = {}
+        self._step = None
+        self._ocp = None
+        if self.controls:
+            if n == 0:
+                raise ModelError("an optimal control model needs at least one switching surface "
+                                 "(FESD detects its switches)")
+            self.source = None
+            self._compiled = None
+            self._load_ocp()
+        else:
+            self.source = self._source()
+            self._compiled = _bflow._load_model(str(_compile(self.source)), self.parameter_values)
 
     def _all_exprs(self):
+        """(where, expressions, expected count, symbols allowed beside states and parameters,
+        [(forbidden symbols, what they are)])."""
+        d, n = len(self.states), len(self.surface_exprs)
+        signs_, controls = self.sign_symbols, self.controls
+        side = (signs_, "sign symbol(s)", f"only the field depends on the side, "
+                "h(x), costs and constraints cannot depend on the side")
         if self.field_exprs is not None:
-            yield "field", self.field_exprs
+            yield "field", self.field_exprs, d, list(signs_) + list(controls), []
         else:
             for w, exprs in self.field_words.items():
-                yield f"field[{w!r}]", exprs
-        yield "surfaces", self.surface_exprs
+                yield f"field[{w!r}]", exprs, d, list(signs_) + list(controls), []
+        control = (controls, "control(s)", "only the field, the Lagrange cost and the path "
+                   "constraints take controls")
+        yield "surfaces", self.surface_exprs, n, [], [side, control]
+        if self.lagrange_expr is not None:
+            yield "lagrange", [self.lagrange_expr], 1, controls, [side]
+        if self.mayer_expr is not None:
+            yield "mayer", [self.mayer_expr], 1, [], [side, control]
+        yield "path", self.path_exprs, None, controls, [side]
+        yield "terminal", self.terminal_exprs, None, [], [side, control]
 
     def _source(self) -> str:
         printer = _Printer(self._names)
@@ -237,10 +292,7 @@ class Model:
 
         lines.append("    template <typename T>")
         lines.append("    void field(const T* x, bflow::Signs b, T* xdot) const {")
-        lines.append("      using std::sin; using std::cos; using std::tan; using std::asin;")
-        lines.append("      using std::acos; using std::atan; using std::atan2; using std::sinh;")
-        lines.append("      using std::cosh; using std::tanh; using std::exp; using std::log;")
-        lines.append("      using std::sqrt; using std::abs; using std::pow; using std::cbrt;")
+        lines.append("  " + _USING.replace("\n", "\n  "))
         lines.append("      (void)b;")
         if self.field_exprs is not None:
             assign("xdot", self.field_exprs, "      ")
@@ -258,16 +310,155 @@ class Model:
         lines.append("    }")
         lines.append("    template <typename T>")
         lines.append("    void surfaces(const T* x, T* h) const {")
-        lines.append("      using std::sin; using std::cos; using std::tan; using std::asin;")
-        lines.append("      using std::acos; using std::atan; using std::atan2; using std::sinh;")
-        lines.append("      using std::cosh; using std::tanh; using std::exp; using std::log;")
-        lines.append("      using std::sqrt; using std::abs; using std::pow; using std::cbrt;")
+        lines.append("  " + _USING.replace("\n", "\n  "))
         lines.append("      (void)x;")
         assign("h", self.surface_exprs, "      ")
         lines.append("    }")
         body = "\n".join(lines)
         return _TEMPLATE.format(d=d, n=n, P=P, Pa=max(P, 1), body=body,
                                 states=", ".join(map(str, self.states)))
+
+    # --- FESD and optimal control: the step inclusion x' = f(x, [u,] a), a_j in gamma(h_j(x))
+    def _multilinear(self) -> bool:
+        """Whether the field, given in the signs, is affine in each sign (then f(x, a) is the
+        field with b_j = 2 a_j - 1, the step representation itself)."""
+        if self.field_exprs is None:
+            return False
+        for e in self.field_exprs:
+            for b in set(self.sign_symbols) & e.free_symbols:
+                try:
+                    poly = sp.Poly(e, b)
+                except sp.PolynomialError:
+                    return False
+                if poly.degree() > 1 or any(b in c.free_symbols for c in poly.coeffs()):
+                    return False
+        return True
+
+    def _step_struct(self) -> str:
+        """The struct a C++ user of FESD or ocp_solve writes (fesd/step_model.h, ocp/ocp.h):
+        switching c = h(x) and either f(x, [u,] a) or, for a field given per sign word (or not
+        affine in the signs), every mode f_i(x, [u]) of the dense sign matrix."""
+        d, n, P = len(self.states), len(self.surface_exprs), len(self.parameters)
+        u_arg = "const T* u, " if self.controls else ""
+        lines = [f"  static constexpr int kStates = {d};", f"  static constexpr int kSwitches = {n};"]
+        if self.controls:
+            lines.append(f"  static constexpr int kControls = {len(self.controls)};")
+        lines.append(f"  double p_[{max(P, 1)}] = {{}};")
+
+        def function(signature, names, emit):
+            printer = _Printer(names)
+            lines.append("  template <typename T>")
+            lines.append(f"  {signature} const {{")
+            lines.append(_USING)
+            emit(printer)
+            lines.append("  }")
+
+        def assign(printer, target, exprs, offset=0):
+            for k, e in enumerate(exprs):
+                lines.append(f"    {target}[{offset + k}] = {printer.doprint(e)};")
+
+        function("void switching(const T* x, T* c)", self._names,
+                 lambda pr: (lines.append("    (void)x;"), assign(pr, "c", self.surface_exprs)))
+        modes = not self._multilinear()
+        if not modes:
+            names = dict(self._names)
+            for j, b in enumerate(self.sign_symbols):
+                names[b] = f"(T(2.0) * a[{j}] - T(1.0))"
+            function(f"void field(const T* x, {u_arg}const T* a, T* xdot)", names,
+                     lambda pr: (lines.append("    (void)x; (void)a;"),
+                                 assign(pr, "xdot", self.field_exprs)))
+        else:
+            if n > 10:
+                raise ModelError(f"FESD of a field given per sign word (or not affine in the "
+                                 f"signs) takes its 2^n modes: n = {n} surfaces is above 10; "
+                                 f"write the field as expressions affine in each sign")
+            lines.insert(2, f"  static constexpr int kModes = {2 ** n};")
+
+            def emit_modes(_):
+                for r in range(2 ** n):
+                    # Row r of SignMatrix::dense(n): side + of surface j iff bit n-1-j of r is 0.
+                    word = "".join("-" if (r >> (n - 1 - j)) & 1 else "+" for j in range(n))
+                    if self.field_words is not None:
+                        exprs, names = self.field_words[word], self._names
+                    else:
+                        exprs, names = self.field_exprs, dict(self._names)
+                        for j, b in enumerate(self.sign_symbols):
+                            names[b] = "T(1.0)" if word[j] == "+" else "T(-1.0)"
+                    lines.append(f"    // {word}")
+                    assign(_Printer(names), "F", exprs, r * d)
+
+            function(f"void modes(const T* x, {u_arg}T* F)", self._names,
+                     lambda pr: (lines.append("    (void)x;"), emit_modes(pr)))
+        if self.lagrange_expr is not None:
+            function("T lagrange(const T* x, const T* u)", self._names,
+                     lambda pr: lines.append(f"    (void)x; (void)u;\n"
+                                             f"    return {pr.doprint(self.lagrange_expr)};"))
+        if self.mayer_expr is not None:
+            function("T mayer(const T* x)", self._names,
+                     lambda pr: lines.append(f"    (void)x;\n"
+                                             f"    return {pr.doprint(self.mayer_expr)};"))
+        if self.path_exprs:
+            lines.append(f"  static constexpr int kPath = {len(self.path_exprs)};")
+            function("void path(const T* x, const T* u, T* g)", self._names,
+                     lambda pr: (lines.append("    (void)x; (void)u;"),
+                                 assign(pr, "g", self.path_exprs)))
+        if self.terminal_exprs:
+            lines.append(f"  static constexpr int kTerminal = {len(self.terminal_exprs)};")
+            function("void terminal(const T* x, T* g)", self._names,
+                     lambda pr: (lines.append("    (void)x;"),
+                                 assign(pr, "g", self.terminal_exprs)))
+        if modes:
+            wrapper = ("bflow::ControlledPiecewiseSmoothAsStep" if self.controls
+                       else "bflow::PiecewiseSmoothAsStep")
+            made = f"{wrapper}<GeneratedModel>(model, bflow::SignMatrix::dense({n}))"
+            kind = f"{wrapper}<GeneratedModel>"
+        else:
+            made, kind = "model", "GeneratedModel"
+        return "\n".join(lines), kind, made
+
+    def _engine_source(self, engine: str) -> str:
+        body, kind, made = self._step_struct()
+        if engine == "step":
+            header, interface, adapter = "bflow/fesd/step_model.h", "StepModel", "StepModelAdapter"
+        else:
+            header, interface, adapter = "bflow/ocp/ocp.h", "OcpModel", "OcpModelAdapter"
+        return _ENGINE_TEMPLATE.format(
+            header=header, body=body, P=len(self.parameters), engine=engine,
+            interface=interface, adapter=f"bflow::{adapter}<{kind}>", made=made,
+            states=", ".join(map(str, self.states)))
+
+    def _engine_library(self, engine: str) -> str:
+        if engine not in self._libraries:
+            self._libraries[engine] = str(_compile(self._engine_source(engine)))
+        return self._libraries[engine]
+
+    def _step_model(self):
+        """The compiled step inclusion (FESD), compiled on first use."""
+        if self.controls:
+            raise ModelError(f"the model has controls {self.controls}: it is an optimal control "
+                             "model (bflow.ocp_solve); FESD simulates a model without controls")
+        if not self.surface_exprs:
+            raise ModelError("FESD needs at least one switching surface")
+        if self._step is None:
+            self._step = _bflow._load_step_model(self._engine_library("step"),
+                                                 self.parameter_values)
+        return self._step
+
+    def _load_ocp(self):
+        self._ocp = _bflow._load_ocp_model(self._engine_library("ocp"), self.parameter_values)
+
+    def _ocp_model(self):
+        if not self.controls:
+            raise ModelError("the model has no controls: give Model(..., controls=[u, ...]) "
+                             "to solve an optimal control problem")
+        return self._ocp
+
+    def _flow_model(self):
+        if self._compiled is None:
+            raise ModelError(f"the model has controls {self.controls}: it is an optimal control "
+                             "model for bflow.ocp_solve; the flow, orbits, sweeps and jump maps "
+                             "take a model without controls")
+        return self._compiled
 
     # --- what the C++ model provides
     @property
@@ -292,33 +483,41 @@ class Model:
         clone = object.__new__(Model)
         clone.__dict__.update(self.__dict__)
         clone.parameter_values = new
-        clone._compiled = _bflow._load_model(self._compiled.path, new)
+        clone._libraries = dict(self._libraries)
+        clone._step = None
+        if self._compiled is not None:
+            clone._compiled = _bflow._load_model(self._compiled.path, new)
+        if self.controls:
+            clone._load_ocp()
         return clone
 
     def field(self, x, sides: str):
         """F_b(x) for the sign word ``sides`` (e.g. "+-")."""
-        return self._compiled.field(_vector(x, "x", self.dim), sides)
+        return self._flow_model().field(_vector(x, "x", self.dim), sides)
 
     def surface_values(self, x):
         """h(x)."""
-        return self._compiled.surface_values(_vector(x, "x", self.dim))
+        return self._flow_model().surface_values(_vector(x, "x", self.dim))
 
     def normals(self, x):
         """Dh(x) (n x d), by Jets."""
-        return self._compiled.normals(_vector(x, "x", self.dim))
+        return self._flow_model().normals(_vector(x, "x", self.dim))
 
     def __reduce__(self):
         return (_rebuild, (self.states, self.field_exprs if self.field_exprs is not None
                            else self.field_words, self.surface_exprs,
-                           dict(zip(self.parameters, self.parameter_values)), self.sign_symbols))
+                           dict(zip(self.parameters, self.parameter_values)), self.sign_symbols,
+                           dict(controls=self.controls, lagrange=self.lagrange_expr,
+                                mayer=self.mayer_expr, path=self.path_exprs,
+                                terminal=self.terminal_exprs)))
 
     def __repr__(self):
         return (f"bflow.Model(states={self.states}, surfaces={self.surface_exprs}, "
                 f"parameters={dict(zip(map(str, self.parameters), self.parameter_values))})")
 
 
-def _rebuild(states, field, surfaces, parameters, sign_symbols):
-    return Model(states, field, surfaces, parameters, sign_symbols)
+def _rebuild(states, field, surfaces, parameters, sign_symbols, ocp=None):
+    return Model(states, field, surfaces, parameters, sign_symbols, **(ocp or {}))
 
 
 def _vector(x, name: str, d: int):
@@ -355,8 +554,8 @@ struct GeneratedModel {{
 
 }}  // namespace
 
-extern "C" bflow::SegmentModel* bflow_model_create(const double* p, int count, char* error,
-                                                   int error_size) {{
+extern "C" bflow::SegmentModel* bflow_flow_model_create(const double* p, int count,
+                                                        char* error, int error_size) {{
   if (count != {P}) {{
     std::snprintf(error, static_cast<std::size_t>(error_size),
                   "the model has {P} parameters, %d values were given", count);
@@ -372,7 +571,48 @@ extern "C" bflow::SegmentModel* bflow_model_create(const double* p, int count, c
   }}
 }}
 
-extern "C" void bflow_model_destroy(bflow::SegmentModel* model) {{ delete model; }}
+extern "C" void bflow_flow_model_destroy(bflow::SegmentModel* model) {{ delete model; }}
+"""
+
+
+_USING = """    using std::sin; using std::cos; using std::tan; using std::asin;
+    using std::acos; using std::atan; using std::atan2; using std::sinh;
+    using std::cosh; using std::tanh; using std::exp; using std::log;
+    using std::sqrt; using std::abs; using std::pow; using std::cbrt;"""
+
+_ENGINE_TEMPLATE = """// Generated by bflow from a SymPy model; states ({states}).
+#include <cmath>
+#include <cstdio>
+#include <exception>
+
+#include "{header}"
+
+namespace {{
+
+struct GeneratedModel {{
+{body}
+}};
+
+}}  // namespace
+
+extern "C" bflow::{interface}* bflow_{engine}_model_create(const double* p, int count,
+                                                           char* error, int error_size) {{
+  if (count != {P}) {{
+    std::snprintf(error, static_cast<std::size_t>(error_size),
+                  "the model has {P} parameters, %d values were given", count);
+    return nullptr;
+  }}
+  try {{
+    GeneratedModel model;
+    for (int k = 0; k < count; ++k) model.p_[k] = p[k];
+    return new {adapter}({made});
+  }} catch (const std::exception& e) {{
+    std::snprintf(error, static_cast<std::size_t>(error_size), "%s", e.what());
+    return nullptr;
+  }}
+}}
+
+extern "C" void bflow_{engine}_model_destroy(bflow::{interface}* model) {{ delete model; }}
 """
 
 

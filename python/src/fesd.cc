@@ -1,5 +1,6 @@
 // FESD simulation of the built-in Filippov examples (IRMA and the four switching cases of [F]
-// Example 3, with their exact solutions).
+// Example 3, with their exact solutions) and of models compiled from SymPy (bflow_step_model_*,
+// model_handle.h).
 #include <string>
 #include <utility>
 #include <vector>
@@ -8,6 +9,7 @@
 #include <nanobind/nanobind.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/pair.h>
+#include <nanobind/stl/shared_ptr.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
@@ -16,6 +18,7 @@
 #include "bflow/examples/switching_cases.h"
 #include "bflow/fesd/fesd.h"
 #include "bindings.h"
+#include "model_handle.h"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -46,6 +49,23 @@ auto with_example(const std::string& name, F&& f) {
 }  // namespace
 
 void bind_fesd(nb::module_& m) {
+  nb::class_<StepModel>(m, "_StepModel", "A compiled step inclusion (FESD's StepModel).")
+      .def_prop_ro("states", &StepModel::states)
+      .def_prop_ro("switches", &StepModel::switches)
+      .def_prop_ro("modes", &StepModel::modes);
+  m.def(
+      "_load_step_model",
+      [](const std::string& path, const std::vector<double>& parameters) {
+        return std::const_pointer_cast<StepModel>(
+            load_compiled<StepModel>(path, "step", parameters));
+      },
+      "path"_a, "parameters"_a);
+  m.def(
+      "_fesd_model",
+      [](const std::shared_ptr<StepModel>& model, double t_end, const Eigen::VectorXd& x0,
+         const FesdOptions& options) { return fesd_simulate(*model, x0, t_end, options); },
+      "model"_a, "t_end"_a, "x0"_a, "options"_a, nb::call_guard<nb::gil_scoped_release>());
+
   nb::class_<FesdOptions>(m, "FesdOptions")
       .def(nb::init<>())
       .def_prop_rw(

@@ -1,11 +1,10 @@
 // Models compiled at run time (python/bflow/model.py), the hybrid flow driver and finite
 // differences. A compiled model is a shared library that exports
-//   bflow::SegmentModel* bflow_model_create(const double* parameters, int count,
+//   bflow::SegmentModel* bflow_flow_model_create(const double* parameters, int count,
 //                                           char* error, int error_size);
-//   void bflow_model_destroy(bflow::SegmentModel*);
+//   void bflow_flow_model_destroy(bflow::SegmentModel*);
 // and holds the user's functor behind bflow::ModelAdapter, so every engine sees it exactly as it
 // sees a C++ model (Jets for DF and Dh).
-#include <dlfcn.h>
 
 #include <memory>
 #include <optional>
@@ -42,29 +41,7 @@ using ConstMatrix = Eigen::Ref<const Eigen::MatrixXd>;
 using ConstVector = Eigen::Ref<const Eigen::VectorXd>;
 
 Model load_model(const std::string& path, const std::vector<double>& parameters) {
-  // The library stays loaded for the life of the process: models and results may outlive the
-  // Python object that loaded it.
-  void* library = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
-  if (library == nullptr) {
-    throw InvalidArgument("cannot load the compiled model " + path + ": " + dlerror());
-  }
-  using Create = SegmentModel* (*)(const double*, int, char*, int);
-  using Destroy = void (*)(SegmentModel*);
-  const auto create = reinterpret_cast<Create>(dlsym(library, "bflow_model_create"));
-  const auto destroy = reinterpret_cast<Destroy>(dlsym(library, "bflow_model_destroy"));
-  if (create == nullptr || destroy == nullptr) {
-    throw InvalidArgument("the library " + path +
-                          " is not a bflow model (bflow_model_create or bflow_model_destroy "
-                          "missing)");
-  }
-  char error[512] = {0};
-  SegmentModel* raw = create(parameters.data(), static_cast<int>(parameters.size()), error,
-                             static_cast<int>(sizeof error));
-  if (raw == nullptr) throw InvalidArgument(error);
-  return Model{
-      std::shared_ptr<const SegmentModel>(
-          raw, [destroy](const SegmentModel* p) { destroy(const_cast<SegmentModel*>(p)); }),
-      path};
+  return Model{load_compiled<SegmentModel>(path, "flow", parameters), path};
 }
 
 Eigen::VectorXd field_at(const Model& m, ConstVector x, const std::string& sides) {

@@ -1,11 +1,17 @@
-// A model behind the SegmentModel interface, with what keeps it alive: the Python package's
-// bflow._bflow.Model (flow.cc), shared by the bindings of the flow and of orbits.
+// Models behind the engines' virtual interfaces, with what keeps them alive: the Python
+// package's bflow._bflow.Model (a SegmentModel, flow.cc), shared by the bindings of the flow, of
+// orbits and of sweeps; and the loader of the libraries bflow.Model compiles from SymPy (one per
+// engine: the flow's SegmentModel, FESD's StepModel, ocp_solve's OcpModel).
 #ifndef BFLOW_PYTHON_MODEL_HANDLE_H_
 #define BFLOW_PYTHON_MODEL_HANDLE_H_
 
+#include <dlfcn.h>
+
 #include <memory>
 #include <string>
+#include <vector>
 
+#include "bflow/core/errors.h"
 #include "bflow/integrators/segment.h"
 
 namespace bflow::python {
@@ -16,6 +22,37 @@ struct Model {
   int states() const { return model->states(); }
   int surfaces() const { return model->surfaces(); }
 };
+
+/** The Interface object of the compiled library at path, made by its extern "C" functions
+    bflow_<engine>_model_create(parameters, count, error, size) and _destroy. The library stays
+    loaded for the life of the process: models and results may outlive the Python object that
+    loaded it.
+    @throws InvalidArgument if the library cannot be loaded, lacks the functions, or refuses the
+    parameters (its message). */
+template <typename Interface>
+std::shared_ptr<const Interface> load_compiled(const std::string& path, const std::string& engine,
+                                               const std::vector<double>& parameters) {
+  void* library = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
+  if (library == nullptr) {
+    throw InvalidArgument("cannot load the compiled model " + path + ": " + dlerror());
+  }
+  using Create = Interface* (*)(const double*, int, char*, int);
+  using Destroy = void (*)(Interface*);
+  const std::string create_name = "bflow_" + engine + "_model_create";
+  const std::string destroy_name = "bflow_" + engine + "_model_destroy";
+  const auto create = reinterpret_cast<Create>(dlsym(library, create_name.c_str()));
+  const auto destroy = reinterpret_cast<Destroy>(dlsym(library, destroy_name.c_str()));
+  if (create == nullptr || destroy == nullptr) {
+    throw InvalidArgument("the library " + path + " is not a bflow " + engine + " model (" +
+                          create_name + " or " + destroy_name + " missing)");
+  }
+  char error[512] = {0};
+  Interface* raw = create(parameters.data(), static_cast<int>(parameters.size()), error,
+                          static_cast<int>(sizeof error));
+  if (raw == nullptr) throw InvalidArgument(error);
+  return std::shared_ptr<const Interface>(
+      raw, [destroy](const Interface* p) { destroy(const_cast<Interface*>(p)); });
+}
 
 }  // namespace bflow::python
 

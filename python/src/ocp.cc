@@ -1,5 +1,6 @@
 // Optimal control through FESD for the built-in examples with exact optima (the braking block
-// and the turbo car, examples/ocp_examples.h).
+// and the turbo car, examples/ocp_examples.h) and for models compiled from SymPy
+// (bflow_ocp_model_*, model_handle.h) with the problem's data as an OcpProblem.
 #include <string>
 #include <utility>
 #include <vector>
@@ -8,6 +9,7 @@
 #include <nanobind/nanobind.h>
 #include <nanobind/stl/function.h>
 #include <nanobind/stl/map.h>
+#include <nanobind/stl/shared_ptr.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
@@ -15,6 +17,7 @@
 #include "bflow/examples/ocp_examples.h"
 #include "bflow/ocp/ocp.h"
 #include "bindings.h"
+#include "model_handle.h"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -104,6 +107,59 @@ void bind_ocp(nb::module_& m) {
       .def_ro("cpu_seconds", &OcpResult::cpu_seconds)
       .def_ro("unknowns", &OcpResult::unknowns)
       .def_ro("constraints", &OcpResult::constraints);
+
+  nb::class_<OcpModel>(m, "_OcpModel", "A compiled optimal control model (OcpModel).")
+      .def_prop_ro("states", &OcpModel::states)
+      .def_prop_ro("controls", &OcpModel::controls)
+      .def_prop_ro("switches", &OcpModel::switches)
+      .def_prop_ro("path_constraints", &OcpModel::path_constraints)
+      .def_prop_ro("terminal_constraints", &OcpModel::terminal_constraints);
+  m.def(
+      "_load_ocp_model",
+      [](const std::string& path, const std::vector<double>& parameters) {
+        return std::const_pointer_cast<OcpModel>(load_compiled<OcpModel>(path, "ocp", parameters));
+      },
+      "path"_a, "parameters"_a);
+
+  nb::class_<OcpProblem>(m, "OcpProblem", "The data of an optimal control problem (ocp.h).")
+      .def(nb::init<>())
+      .def_rw("x0", &OcpProblem::x0)
+      .def_rw("horizon", &OcpProblem::horizon)
+      .def_rw("time_optimal", &OcpProblem::time_optimal)
+      .def_rw("T_min", &OcpProblem::T_min)
+      .def_rw("T_max", &OcpProblem::T_max)
+      .def_rw("x_lower", &OcpProblem::x_lower)
+      .def_rw("x_upper", &OcpProblem::x_upper)
+      .def_rw("u_lower", &OcpProblem::u_lower)
+      .def_rw("u_upper", &OcpProblem::u_upper)
+      .def_rw("path_lower", &OcpProblem::path_lower)
+      .def_rw("path_upper", &OcpProblem::path_upper)
+      .def_rw("terminal_lower", &OcpProblem::terminal_lower)
+      .def_rw("terminal_upper", &OcpProblem::terminal_upper)
+      .def_prop_rw(
+          "guess",
+          [](const OcpProblem& p) {
+            return std::string(p.guess == OcpGuess::kSimulation  ? "simulation"
+                               : p.guess == OcpGuess::kReference ? "reference"
+                                                                 : "constant");
+          },
+          [](OcpProblem& p, const std::string& v) {
+            if (v == "constant") {
+              p.guess = OcpGuess::kConstant;
+            } else if (v == "simulation") {
+              p.guess = OcpGuess::kSimulation;
+            } else {
+              throw InvalidArgument("guess: unknown guess \"" + v +
+                                    "\"; use constant or simulation");
+            }
+          })
+      .def_rw("guess_x", &OcpProblem::guess_x)
+      .def_rw("guess_u", &OcpProblem::guess_u);
+  m.def(
+      "_ocp_model",
+      [](const std::shared_ptr<OcpModel>& model, const OcpProblem& problem,
+         const OcpOptions& options) { return ocp_solve(*model, problem, options); },
+      "model"_a, "problem"_a, "options"_a, nb::call_guard<nb::gil_scoped_release>());
 
   m.def(
       "_ocp_example",

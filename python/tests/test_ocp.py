@@ -1,5 +1,5 @@
-"""Optimal control of the built-in examples from Python, against their exact optima and the C++
-API's results through `bflow ocp`."""
+"""Optimal control from Python: the built-in examples against their exact optima and the C++
+API's results through `bflow ocp`, and the same problems written in SymPy against both."""
 
 import json
 import math
@@ -7,6 +7,7 @@ import subprocess
 
 import numpy as np
 import pytest
+import sympy as sp
 
 import bflow
 
@@ -44,5 +45,76 @@ def test_turbo_car_reaches_the_exact_optimal_time():
     (lambda: bflow.ocp_solve("turbo-car", N=0), "stages"),
 ])
 def test_bad_input_is_refused(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
+
+
+# --- optimal control of models written in SymPy (examples/ocp_examples.h, the same problems)
+p, v, u = sp.symbols("p v u")
+b0 = bflow.signs(1)[0]
+
+
+def turbo_car(**extra):
+    # v' = (1 + 2a) u, a in gamma(v - 10): a = (1 + b) / 2 gives (2 + b) u.
+    return bflow.Model([p, v], field=[v, (2 + b0) * u], surfaces=[v - 10], controls=[u],
+                       terminal=[p - 200, v], **extra)
+
+
+TURBO_DATA = dict(x0=[0, 0], T=15.0, time_optimal=True, x_lower=[-1e19, -20],
+                  x_upper=[1e19, 20], u_lower=[-5], u_upper=[5])
+
+
+def test_a_sympy_turbo_car_reaches_the_exact_optimal_time_as_the_builtin():
+    exact = bflow.ocp_exact("turbo-car")
+    builtin = bflow.ocp_solve("turbo-car", N=5)
+    r = bflow.ocp_solve(turbo_car(), N=5, **TURBO_DATA)
+    assert r.ok and r.polished
+    assert r.T == pytest.approx(exact["T"], abs=1e-9)
+    np.testing.assert_allclose(r.switch_times, exact["switch_times"], atol=1e-9)
+    assert r.T == pytest.approx(builtin.T, abs=1e-10)
+    np.testing.assert_allclose(r.u, builtin.u, atol=1e-7)
+
+
+def test_a_sympy_braking_block_given_per_sign_word_matches_the_builtin():
+    # x'' = u - sign(v) per sign word (the modes of the dense sign matrix), L = v^2 + u^2.
+    model = bflow.Model([p, v], field={"+": [v, u - 1], "-": [v, u + 1]}, surfaces=[v],
+                        controls=[u], lagrange=v ** 2 + u ** 2)
+    exact = bflow.ocp_exact("braking-block")
+    builtin = bflow.ocp_solve("braking-block", N=10)
+    r = bflow.ocp_solve(model, N=10, x0=[0, 2], T=3.0)
+    assert r.status == builtin.status == "solved"
+    assert r.objective == pytest.approx(builtin.objective, rel=1e-9)
+    # docs/ocp.md: the error at N = 10 is 1.128e-2.
+    assert r.objective - exact["objective"] == pytest.approx(1.128e-2, rel=1e-3)
+
+
+@pytest.mark.parametrize("build, message", [
+    (lambda: bflow.Model([p, v], field=[v, u], surfaces=[v - u], controls=[u]),
+     r"surfaces\[0\] uses the control"),
+    (lambda: bflow.Model([p, v], field=[v, u], surfaces=[v], controls=[u], mayer=u ** 2),
+     r"mayer\[0\] uses the control"),
+    (lambda: bflow.Model([p, v], field=[v, 1], surfaces=[v], lagrange=v ** 2),
+     "give its controls"),
+    (lambda: bflow.Model([p, v], field=[v, u], surfaces=[], controls=[u]),
+     "at least one switching surface"),
+    (lambda: bflow.Model([p, v], field=[v, u], surfaces=[v], controls=[u],
+                         terminal=[p * b0]), "cannot depend on the side"),
+])
+def test_bad_sympy_ocp_models_are_refused_before_compiling(build, message):
+    with pytest.raises(bflow.ModelError, match=message):
+        build()
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: bflow.ocp_solve(turbo_car(), N=5, T=15.0), "needs x0 and T"),
+    (lambda: bflow.ocp_solve(turbo_car(), N=5, **dict(TURBO_DATA, u_lower=[-5, 0])),
+     "u_lower"),
+    (lambda: bflow.ocp_solve("turbo-car", N=5, x0=[0, 0]), "has its own"),
+    (lambda: bflow.fesd_simulate(turbo_car(), T=1.0, x0=[0, 0]), "optimal control model"),
+    (lambda: bflow.flow_derivative(turbo_car(), [0, 0], 1.0), "optimal control model"),
+    (lambda: bflow.ocp_solve(bflow.Model([p, v], field=[v, 1 - b0], surfaces=[v]), N=5,
+                             x0=[0, 1], T=1.0), "no controls"),
+])
+def test_bad_sympy_ocp_input_is_refused(call, message):
     with pytest.raises(ValueError, match=message):
         call()
