@@ -12,6 +12,9 @@ of its methods, the tables taking each tool's fastest at every error:
             tangents, dopri5 (the default), dop853 and CVODES Adams (forward sensitivities with
             root-finding); the jumps by the saltation matrix or Algorithm 2.1, automatic
             grouping and the default error control (the defaults); one untimed run first.
+            From Python (bflow-python): the same call, bflow.simulate, in a Python process
+            timed by the same harness as heyoka, diffrax and SciPy, on the problem written in
+            SymPy (flow_problems' field with SymPy symbols, compiled before the timing).
   heyoka    a Taylor integrator of the variational equations (var_ode_sys), one terminal event
             per surface, the sides as parameters, compiled once per tolerance and re-set for
             every run; at each event the saltation matrix I + (F+ - F-) Dh^T / (Dh . F-)
@@ -553,6 +556,52 @@ def run_bflow(job):
     return out
 
 
+def bflow_python_model(name):
+    """The problem as a bflow.Model written in SymPy: flow_problems' field and surfaces with
+    SymPy symbols for x, bflow.signs(n) for the sides and SymPy for m (compiled once, cached)."""
+    import sympy
+    import bflow
+    p = fp.PROBLEMS[name]
+    x = list(sympy.symbols(f"x0:{p['d']}"))
+    s = list(bflow.signs(p["n"]))
+    return bflow.Model(x, field=fp.field(name, x, s, sympy), surfaces=fp.surfaces(name, x, sympy))
+
+
+def run_bflow_python(job):
+    """bflow's Python package in this process, timed as every Python tool: bflow.simulate with
+    the unit vectors (or the test directions) as directions, on the problem written in SymPy
+    (compiled before the timing; the compile time is in the row), dopri5 and the defaults."""
+    import bflow
+    name, p = job["problem"], fp.PROBLEMS[job["problem"]]
+    start = time.perf_counter()
+    model = bflow_python_model(name)
+    compile_s = time.perf_counter() - start
+    x0 = np.array(job["x0"], dtype=float)
+    directions = (np.array(job["directions"]).T if job.get("directions")
+                  else np.eye(p["d"]))
+    harness = _time_empty(job["repeat"])
+    out = []
+    for rtol in job["tolerances"]:
+        def call():
+            return bflow.simulate(model, x0, p["t"], directions, backend=job["backend"],
+                                  rtol=rtol, atol=ATOL_PER_RTOL * rtol)
+        cpu, runs, r = _time(call, job["repeat"])
+        if not r.ok:
+            out.append({"tol": rtol, "status": "error", "message": r.message})
+            continue
+        row = {"tol": rtol, "cpu_s": cpu, "runs": runs, "harness_s": harness,
+               "compile_s": compile_s, "x": np.asarray(r.x).tolist(), "steps": r.steps,
+               "events": [{"t": e.t, "surfaces": list(e.surfaces)} for e in r.events],
+               "notices": [n.message for n in r.notices], "status": "solved"}
+        v = np.asarray(r.v)
+        if job.get("directions"):
+            row["images"] = v.T.tolist()
+        else:
+            row["jacobian"] = v.tolist()
+        out.append(row)
+    return out
+
+
 def run_hybrid_tools(job):
     """hybrid-tools 0.1.0 at simultaneous events: its simulator's loop (HybridSimulator.
     simulate_timestep: solve_ivp with the guards as events, the first guard in its order that
@@ -645,7 +694,8 @@ def run_hybrid_tools(job):
 
 
 WORKERS = {"reference-heyoka": reference_heyoka, "heyoka": run_heyoka, "scipy": run_scipy,
-           "diffrax": run_diffrax, "bflow": run_bflow, "hybrid-tools": run_hybrid_tools}
+           "diffrax": run_diffrax, "bflow": run_bflow, "bflow-python": run_bflow_python,
+           "hybrid-tools": run_hybrid_tools}
 
 
 def worker(job):
@@ -705,6 +755,7 @@ def _tools(simultaneous, quick):
     tools = [("bflow", "bflow dopri5", {"backend": "dopri5"}),
              ("bflow", "bflow dop853", {"backend": "dop853"}),
              ("bflow", "bflow CVODES Adams", {"backend": "cvodes-adams"}),
+             ("bflow-python", "bflow from Python (SymPy model), dopri5", {"backend": "dopri5"}),
              ("heyoka", "heyoka", {}),
              ("diffrax", "diffrax Tsit5", {"solver": "Tsit5"}),
              ("diffrax", "diffrax Dopri8", {"solver": "Dopri8"}),
@@ -829,6 +880,8 @@ def run(ctx):
             if tool == "bflow":
                 job.update(program=ctx.flow_program, timeout=ctx.timeout)
                 version = ctx.bflow_version
+            elif tool == "bflow-python":
+                version = f"{ctx.bflow_version}, Python package"
             elif tool == "diffrax":
                 version = f"diffrax {versions.get('diffrax')}, jax {versions.get('jax')}"
             elif tool == "heyoka":
@@ -866,6 +919,10 @@ def run(ctx):
 def _settings(tool, extra, tol):
     if tool == "bflow":
         return f"{extra['backend']}, rtol {tol:g}, atol {ATOL_PER_RTOL * tol:g}, defaults"
+    if tool == "bflow-python":
+        return (f"bflow.simulate, {extra['backend']}, rtol {tol:g}, atol "
+                f"{ATOL_PER_RTOL * tol:g}, defaults; the model written in SymPy, compiled "
+                "before the timing")
     if tool == "heyoka":
         return (f"double, tol {tol:g}, variational equations, saltation by hand; the "
                 "integrator compiled once and re-set for every run")

@@ -300,6 +300,26 @@ void CoordinateSection::check(int states) const {
   }
 }
 
+void HyperplaneSection::check(int states) const {
+  if (normal.size() != states) {
+    throw InvalidArgument("HyperplaneSection: the normal has " + std::to_string(normal.size()) +
+                          " entries, the model " + std::to_string(states) + " states");
+  }
+  for (Eigen::Index i = 0; i < normal.size(); ++i) {
+    if (!std::isfinite(normal[i])) {
+      throw InvalidArgument("HyperplaneSection: normal[" + std::to_string(i) + "] is " +
+                            format_number(normal[i]) + "; it must be finite");
+    }
+  }
+  if (!std::isfinite(offset)) {
+    throw InvalidArgument("HyperplaneSection: the offset is " + format_number(offset) +
+                          "; it must be finite");
+  }
+  if (normal.cwiseAbs().maxCoeff() == 0.0) {
+    throw InvalidArgument("HyperplaneSection: the normal is zero: no hyperplane");
+  }
+}
+
 CoordinateSection parse_coordinate_section(const std::string& text, int states) {
   auto fail = [&](const std::string& why) {
     throw InvalidArgument("section \"" + shortened(text) + "\": " + why +

@@ -14,6 +14,7 @@ docs/python.md has a tour.
 
 from __future__ import annotations
 
+import sys
 from typing import Optional
 
 import numpy as np
@@ -350,7 +351,27 @@ def _orbit_options(tolerance, max_iterations, stability, max_return_time, min_re
     return o
 
 
-def find_orbit(model, section: str, guess, *, tolerance: float = 1e-8, max_iterations: int = 40,
+def _section(model, states: int, section):
+    """The native Poincare section: a coordinate's text, a hyperplane (normal, offset), or an
+    expression in the states of a model written in SymPy."""
+    if isinstance(section, str):
+        return _bflow._coordinate_section(section, states)
+    symbolic = sys.modules.get("sympy")
+    if symbolic is not None and isinstance(section, symbolic.Basic):
+        compile_section = getattr(model, "_section", None)
+        if compile_section is None:
+            raise ValueError("a section written in SymPy needs a bflow.Model written in SymPy "
+                             "(its states are the section's symbols); for this model give a "
+                             "coordinate (\"-x4\") or a hyperplane (normal, offset)")
+        return compile_section(section)
+    if isinstance(section, tuple) and len(section) == 2:
+        normal, offset = section
+        return _bflow._hyperplane_section(_as_array(normal, "section normal", 1), float(offset))
+    raise ValueError(f"section: expected a coordinate's text (\"-x4\", \"x1=0.3\"), a hyperplane "
+                     f"(normal, offset) or a SymPy expression s(x), got {section!r}")
+
+
+def find_orbit(model, section, guess, *, tolerance: float = 1e-8, max_iterations: int = 40,
                stability: bool = True, max_return_time: float = 100.0,
                min_return_time: float = 0.0, **flow) -> PeriodicOrbit:
     """A periodic orbit through the Poincare section s(x) = 0 (crossed from s < 0 to s > 0),
@@ -359,7 +380,9 @@ def find_orbit(model, section: str, guess, *, tolerance: float = 1e-8, max_itera
 
     Args:
         section: "x4" (s = x_4), "-x4" (s = -x_4: x_4 from + to -, e.g. the apex of a hop),
-            "x1=0.3" (s = x_1 - 0.3), "-x1=0.3".
+            "x1=0.3" (s = x_1 - 0.3), "-x1=0.3"; a hyperplane ``(normal, offset)``,
+            s = normal . x - offset; or, for a model written in SymPy, an expression s(x) in its
+            states and parameters (compiled once, its gradient by Jets).
         guess: a state near the orbit (projected onto the section).
         tolerance: converged when |P(x) - x|_inf <= tolerance (1 + |x|_inf).
         flow: FlowOptions by keyword (``flow_options``); the orbit's defaults are rtol 1e-10,
@@ -374,10 +397,10 @@ def find_orbit(model, section: str, guess, *, tolerance: float = 1e-8, max_itera
     native, x = _x0(model, guess)
     options = _orbit_options(tolerance, max_iterations, stability, max_return_time,
                              min_return_time, flow)
-    return _bflow._find_orbit(native, str(section), x, options)
+    return _bflow._find_orbit(native, _section(model, native.states, section), x, options)
 
 
-def continue_orbits(make_model, section: str, values, guess, *, secant: bool = True,
+def continue_orbits(make_model, section, values, guess, *, secant: bool = True,
                     progress: bool = False, **orbit_options):
     """A family of orbits over a parameter: for each value in order, ``make_model(value)`` (e.g.
     ``lambda k: bflow.pronk(kappa=k)`` or ``model.with_parameters``), its orbit from a secant
@@ -394,8 +417,9 @@ def continue_orbits(make_model, section: str, values, guess, *, secant: bool = T
     g = _as_array(guess, "guess", 1)
 
     def solve(value, start):
-        native = _model(make_model(value))
-        return _bflow._find_orbit(native, str(section), start, options)
+        model = make_model(value)
+        native = _model(model)
+        return _bflow._find_orbit(native, _section(model, native.states, section), start, options)
 
     def report(index, member):
         o = member.orbit
@@ -546,10 +570,11 @@ SweepRecord = _bflow.SweepRecord
 
 def sweep(model, x0, t: float, axes, directions=None, *, threads: int = 0,
           progress: bool = True, **options):
-    """The flow and its B-derivative at every point of a grid of initial states, on ``threads``
-    threads (0: one per core), the GIL released. ``axes``: (index, lo, hi, count) per varied
-    state, count equally spaced values from lo to hi (the first axis varies slowest); the other
-    states are x0's. ``directions``: the B-derivative's images of these (k x d or one d-vector;
+    """The flow and its B-derivative at every point of a grid of initial states and parameters,
+    on ``threads`` threads (0: one per core), the GIL released. ``axes``: (index, lo, hi, count)
+    per varied state, or (name, lo, hi, count) per varied parameter (of a SymPy model, or of the
+    biped or the pronk), count equally spaced values from lo to hi (the first axis varies
+    slowest); the other states are x0's and the other parameters the model's. ``directions``: the B-derivative's images of these (k x d or one d-vector;
     default the unit vectors). ``progress`` prints a progress line on stderr. Options: see
     ``flow_options``.
 
@@ -566,14 +591,22 @@ def sweep(model, x0, t: float, axes, directions=None, *, threads: int = 0,
     grid = []
     for axis in axes:
         try:
-            index, lo, hi, count = axis
+            what, lo, hi, count = axis
         except (TypeError, ValueError):
-            raise ValueError(f"sweep: an axis is (index, lo, hi, count), got {axis!r}") from None
-        if int(count) < 1:
-            raise ValueError(f"sweep: the axis of x[{index}] has count {count}; at least 1")
-        grid.append((int(index), float(lo), float(hi), int(count)))
+            raise ValueError("sweep: an axis is (index, lo, hi, count) or (parameter name, lo, "
+                             f"hi, count), got {axis!r}") from None
+        if isinstance(what, _parameter_name_types()):
+            grid.append((-1, str(what), float(lo), float(hi), int(count)))
+        else:
+            grid.append((int(what), "", float(lo), float(hi), int(count)))
     return _bflow._sweep(native, x, float(t), grid, [np.asarray(v, dtype=float) for v in dirs],
                          flow_options(**options), int(threads), bool(progress))
+
+
+def _parameter_name_types():
+    """What names a parameter axis: a string, or a SymPy Symbol (without importing SymPy)."""
+    symbol = sys.modules.get("sympy")
+    return (str, symbol.Symbol) if symbol is not None else (str,)
 
 
 class fd:  # noqa: N801 (a namespace, as bflow::fd in C++)

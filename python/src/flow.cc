@@ -6,6 +6,7 @@
 // and holds the user's functor behind bflow::ModelAdapter, so every engine sees it exactly as it
 // sees a C++ model (Jets for DF and Dh).
 
+#include <algorithm>
 #include <memory>
 #include <optional>
 #include <string>
@@ -40,8 +41,38 @@ namespace {
 using ConstMatrix = Eigen::Ref<const Eigen::MatrixXd>;
 using ConstVector = Eigen::Ref<const Eigen::VectorXd>;
 
-Model load_model(const std::string& path, const std::vector<double>& parameters) {
-  return Model{load_compiled<SegmentModel>(path, "flow", parameters), path};
+Model load_model(const std::string& path, const std::vector<double>& parameters,
+                 const std::vector<std::string>& names) {
+  Model m{load_compiled<SegmentModel>(path, "flow", parameters), path, {}};
+  m.with_parameters = [path, parameters, names](const ParameterValues& changes) {
+    std::vector<double> values = parameters;
+    for (const auto& [name, value] : changes) {
+      const auto at = std::find(names.begin(), names.end(), name);
+      if (at == names.end()) {
+        std::string known;
+        for (const std::string& n : names) known += (known.empty() ? "" : ", ") + n;
+        throw InvalidArgument("the model has no parameter \"" + name +
+                              "\" (its parameters: " + (known.empty() ? "none" : known) + ")");
+      }
+      values[static_cast<std::size_t>(at - names.begin())] = value;
+    }
+    return load_compiled<SegmentModel>(path, "flow", values);
+  };
+  return m;
+}
+
+template <typename Params, typename Make>
+Model builtin_scene(const std::map<std::string, std::string>& params, const std::string& name,
+                    Make make) {
+  Params base;
+  for (const auto& [key, value] : params) set_param(base, key, value);
+  Model m{make(base), name, {}};
+  m.with_parameters = [base, make](const ParameterValues& changes) {
+    Params p = base;
+    for (const auto& [key, value] : changes) set_param(p, key, format_number(value));
+    return make(p);
+  };
+  return m;
 }
 
 Eigen::VectorXd field_at(const Model& m, ConstVector x, const std::string& sides) {
@@ -90,16 +121,16 @@ void bind_flow(nb::module_& m) {
         }
         return Eigen::MatrixXd(mm.model->surface_normals(x));
       });
-  m.def("_load_model", &load_model, "path"_a, "parameters"_a);
+  m.def("_load_model", &load_model, "path"_a, "parameters"_a, "names"_a);
   m.def(
       "_biped",
       [](const std::map<std::string, std::string>& params) {
-        BipedParams p;
-        for (const auto& [key, value] : params) set_param(p, key, value);
-        validate_biped_params(p);
-        return visit_biped(p, [](const auto& scene) {
-          using Scene = std::decay_t<decltype(scene)>;
-          return Model{std::make_shared<const ModelAdapter<Scene>>(scene), "biped"};
+        return builtin_scene<BipedParams>(params, "biped", [](const BipedParams& p) {
+          validate_biped_params(p);
+          return visit_biped(p, [](const auto& scene) -> std::shared_ptr<const SegmentModel> {
+            using Scene = std::decay_t<decltype(scene)>;
+            return std::make_shared<const ModelAdapter<Scene>>(scene);
+          });
         });
       },
       "params"_a);
@@ -107,10 +138,11 @@ void bind_flow(nb::module_& m) {
   m.def(
       "_pronk",
       [](const std::map<std::string, std::string>& params) {
-        PronkParams p;
-        for (const auto& [key, value] : params) set_param(p, key, value);
-        validate_pronk_params(p);
-        return Model{std::make_shared<const ModelAdapter<PronkScene>>(make_pronk(p)), "pronk"};
+        return builtin_scene<PronkParams>(params, "pronk", [](const PronkParams& p) {
+          validate_pronk_params(p);
+          return std::shared_ptr<const SegmentModel>(
+              std::make_shared<const ModelAdapter<PronkScene>>(make_pronk(p)));
+        });
       },
       "params"_a);
   m.def("_pronk_initial_state", [] { return Eigen::VectorXd(pronk_initial_state()); });

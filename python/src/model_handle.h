@@ -7,8 +7,10 @@
 
 #include <dlfcn.h>
 
+#include <functional>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "bflow/core/errors.h"
@@ -16,9 +18,15 @@
 
 namespace bflow::python {
 
+/** Parameter values by name, the overrides of one sample of a parameter sweep. */
+using ParameterValues = std::vector<std::pair<std::string, double>>;
+
 struct Model {
   std::shared_ptr<const SegmentModel> model;
   std::string path;  ///< the compiled library, or the built-in scene's name
+  /** The same model with some parameters changed (thread-safe; throws InvalidArgument naming an
+      unknown parameter or a bad value); empty for a model without parameters. */
+  std::function<std::shared_ptr<const SegmentModel>(const ParameterValues&)> with_parameters;
   int states() const { return model->states(); }
   int surfaces() const { return model->surfaces(); }
 };

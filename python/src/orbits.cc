@@ -1,7 +1,9 @@
-// Periodic orbits through a Poincare section given as a coordinate (parse_coordinate_section's
-// text: "-x4", "x1=0.3"), their stability bracket and verdict, and families over a parameter.
+// Periodic orbits through a Poincare section (a coordinate's level in parse_coordinate_section's
+// text: "-x4", "x1=0.3"; a hyperplane; or s(x) compiled from SymPy, bflow_section_model_*),
+// their stability bracket and verdict, and families over a parameter.
 #include <complex>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -9,6 +11,7 @@
 #include <nanobind/nanobind.h>
 #include <nanobind/stl/complex.h>
 #include <nanobind/stl/function.h>
+#include <nanobind/stl/shared_ptr.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
@@ -83,12 +86,36 @@ void bind_orbits(nb::module_& m) {
       .def_ro("steps", &PeriodicOrbit::steps)
       .def_ro("decisions", &PeriodicOrbit::decisions);
 
+  nb::class_<PoincareSection>(m, "_Section", "A Poincare section s(x) = 0, crossed upwards.")
+      .def("value", [](const PoincareSection& s, const Eigen::VectorXd& x) { return s.value(x); })
+      .def("gradient",
+           [](const PoincareSection& s, const Eigen::VectorXd& x) { return s.gradient(x); });
+  m.def(
+      "_coordinate_section",
+      [](const std::string& text, int states) -> std::shared_ptr<PoincareSection> {
+        return std::make_shared<SectionAdapter<CoordinateSection>>(
+            parse_coordinate_section(text, states));
+      },
+      "text"_a, "states"_a);
+  m.def(
+      "_hyperplane_section",
+      [](const Eigen::VectorXd& normal, double offset) -> std::shared_ptr<PoincareSection> {
+        return std::make_shared<SectionAdapter<HyperplaneSection>>(
+            HyperplaneSection{normal, offset});
+      },
+      "normal"_a, "offset"_a);
+  m.def(
+      "_load_section",
+      [](const std::string& path, const std::vector<double>& parameters) {
+        return std::const_pointer_cast<PoincareSection>(
+            load_compiled<PoincareSection>(path, "section", parameters));
+      },
+      "path"_a, "parameters"_a);
   m.def(
       "_find_orbit",
-      [](const Model& model, const std::string& section_text,
+      [](const Model& model, const std::shared_ptr<PoincareSection>& section,
          const Eigen::Ref<const Eigen::VectorXd>& guess, const OrbitOptions& options) {
-        const CoordinateSection section = parse_coordinate_section(section_text, model.states());
-        return find_periodic_orbit(*model.model, section, guess, options);
+        return find_periodic_orbit(*model.model, *section, guess, options);
       },
       "model"_a, "section"_a, "guess"_a, "options"_a, nb::call_guard<nb::gil_scoped_release>());
 

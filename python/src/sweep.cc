@@ -43,7 +43,7 @@ void bind_sweep(nb::module_& m) {
   m.def(
       "_sweep",
       [](const Model& model, const Eigen::Ref<const Eigen::VectorXd>& x0, double t,
-         const std::vector<std::tuple<int, double, double, std::uint64_t>>& axes,
+         const std::vector<std::tuple<int, std::string, double, double, std::int64_t>>& axes,
          const std::vector<Eigen::VectorXd>& directions, const FlowOptions& flow, int threads,
          bool progress) {
         if (x0.size() != model.states()) {
@@ -52,7 +52,26 @@ void bind_sweep(nb::module_& m) {
                                 " states");
         }
         std::vector<SweepAxis> grid_axes;
-        for (const auto& [index, lo, hi, count] : axes) {
+        bool varies_parameters = false;
+        for (const auto& [index, parameter, lo, hi, signed_count] : axes) {
+          if (signed_count < 0) {
+            throw InvalidArgument(
+                "sweep: the axis " +
+                (parameter.empty() ? "x[" + std::to_string(index) + "]" : parameter) +
+                " has a count of " + std::to_string(signed_count) + "; it needs >= 1");
+          }
+          const auto count = static_cast<std::uint64_t>(signed_count);
+          if (!parameter.empty()) {
+            if (!model.with_parameters) {
+              throw InvalidArgument("sweep: the axis of \"" + parameter +
+                                    "\" varies a "
+                                    "parameter, and the model " +
+                                    model.path + " has no parameters to vary");
+            }
+            grid_axes.push_back(SweepAxis::parameter_axis(parameter, lo, hi, count));
+            varies_parameters = true;
+            continue;
+          }
           if (index < 0 || index >= model.states()) {
             throw InvalidArgument("sweep: the axis of x[" + std::to_string(index) +
                                   "] is outside the model's " + std::to_string(model.states()) +
@@ -93,12 +112,30 @@ void bind_sweep(nb::module_& m) {
           };
         }
         const Eigen::VectorXd start = x0;
+        // The parameters of sample i, by name (none without parameter axes).
+        const auto parameters_of = [&grid](std::uint64_t i) {
+          ParameterValues changes;
+          const std::vector<double> values = grid.values(i);
+          for (std::size_t a = 0; a < grid.axes().size(); ++a) {
+            if (grid.axes()[a].kind == SweepAxis::Kind::kParameter) {
+              changes.emplace_back(grid.axes()[a].parameter, values[a]);
+            }
+          }
+          return changes;
+        };
+        // A parameter the model does not have is refused before any sample runs.
+        if (varies_parameters) model.with_parameters(parameters_of(0));
         run_ordered<FlowSampleRecord>(
             0, grid.samples(),
             [&](std::uint64_t i) {
               Eigen::VectorXd x = start;
               grid.apply_states(i, x);
-              return evaluate_flow_sample(*model.model, x, request, i, grid.values(i));
+              if (!varies_parameters) {
+                return evaluate_flow_sample(*model.model, x, request, i, grid.values(i));
+              }
+              const std::shared_ptr<const SegmentModel> changed =
+                  model.with_parameters(parameters_of(i));
+              return evaluate_flow_sample(*changed, x, request, i, grid.values(i));
             },
             [&](std::uint64_t i, const std::string& what) {
               return FlowSampleRecord::error(i, grid.values(i), what);

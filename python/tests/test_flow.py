@@ -229,3 +229,20 @@ def test_results_say_why_they_do_not_pickle():
     jump = D.jumps()[0]
     back = pickle.loads(pickle.dumps(jump))
     np.testing.assert_array_equal(back.apply([-1.0, -0.5]), jump.apply([-1.0, -0.5]))
+
+
+def test_central_differences_average_the_two_sides_of_a_nonlinear_b_derivative():
+    # At the quadrants' simultaneous crossing the B-derivative is piecewise linear: +dx and -dx
+    # cross the surfaces in opposite orders, so the central difference is (D dx - D(-dx)) / 2,
+    # not D dx. The flow is piecewise linear, so the exact flow's differences agree to rounding.
+    m = quadrants_model()
+    x0 = -quadrant_field([-1, -1]) / 2
+    dx = np.array([1.0, -0.3])
+    alpha = 1e-6
+    D = bflow.flow_derivative(m, x0, 1.0, rtol=1e-12)
+    central = bflow.fd.central(m, x0, 1.0, dx, alpha, rtol=1e-12)
+    exact = (exact_pwconst_flow(x0 + alpha * dx, 1.0, quadrant_field)
+             - exact_pwconst_flow(x0 - alpha * dx, 1.0, quadrant_field)) / (2 * alpha)
+    np.testing.assert_allclose(central, exact, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(central, (D.apply(dx) - D.apply(-dx)) / 2, rtol=0, atol=1e-8)
+    assert np.max(np.abs(central - D.apply(dx))) > 1e-2

@@ -130,3 +130,28 @@ def test_apply_into_a_given_array():
         B.apply([-1.0, -0.5], out=np.empty(2, dtype=np.float32))
     with pytest.raises(ValueError, match="out has 3 entries"):
         B.apply([-1.0, -0.5], out=np.empty(3))
+
+
+def test_at_orients_surfaces_crossed_from_plus_to_minus():
+    # The quadrants mirrored through the origin, F'_b = -F_{-b}: their flow is x -> -phi(-x), so
+    # they cross both surfaces from + to - where the quadrants cross from - to +, and their jump
+    # map is J'(dx) = -J(-dx). A jump map that took every crossing as - to + would not be.
+    import sympy as sp
+    x, y = sp.symbols("x y")
+    words = {"--": [1.0, 0.6], "+-": [0.5, 1.0], "-+": [1.0, 1.2], "++": [0.5, 1.6]}
+    flip = {"-": "+", "+": "-"}
+    quadrants = bflow.Model([x, y], field=words, surfaces=[x, y])
+    mirrored = bflow.Model([x, y], surfaces=[x, y], field={
+        "".join(flip[c] for c in w): [-v for v in f] for w, f in words.items()})
+    J = bflow.JumpMap.at(quadrants, [0.0, 0.0])
+    K = bflow.JumpMap.at(mirrored, [0.0, 0.0])
+    for dx in ([1.0, -0.3], [-0.2, 1.0], [0.7, 0.7], [-1.0, 0.1]):
+        dx = np.array(dx)
+        np.testing.assert_allclose(K.apply(dx), -J.apply(-dx), rtol=0, atol=1e-14)
+        assert K.order(dx).order == J.order(-dx).order
+    # And the mirrored flow's B-derivative across that point, from the event-driven engine.
+    x0 = np.array([0.5, 0.3])  # -F'_++ / 2: both surfaces at t = 1/2
+    D = bflow.flow_derivative(mirrored, x0, 0.5 + 1e-9, rtol=1e-12)
+    assert D.events[0].surfaces == [0, 1]
+    for dx in ([1.0, -0.3], [-0.2, 1.0]):
+        np.testing.assert_allclose(D.apply(dx), K.apply(np.array(dx)), rtol=0, atol=1e-7)

@@ -72,3 +72,66 @@ def test_an_orbit_says_why_it_does_not_pickle():
     orbit = bflow.find_orbit(bflow.pronk(), "-x4", bflow.pronk_initial_state(), stability=False)
     with pytest.raises(TypeError, match="PeriodicOrbit does not pickle: .*find_orbit again"):
         pickle.dumps(orbit)
+
+
+# --- sections other than a coordinate's level
+def relay_van_der_pol():
+    # x' = y, y' = -x + (1 - x^2) y - 0.2 sign(x): a limit cycle that crosses x = 0 twice per
+    # period, transversally.
+    import sympy as sp
+    x, y = sp.symbols("x y")
+    b = bflow.signs(1)[0]
+    return bflow.Model([x, y], field=[y, -x + (1 - x ** 2) * y - sp.Rational(1, 5) * b],
+                       surfaces=[x]), x, y
+
+
+def test_sections_written_three_ways_find_the_same_orbit():
+    model, x, y = relay_van_der_pol()
+    # s = x + y, crossed upwards, as a hyperplane and as a SymPy expression: the same function,
+    # so the same Newton steps and the same orbit.
+    plane = bflow.find_orbit(model, ([1.0, 1.0], 0.0), [-1.0, 1.0])
+    sympy_section = bflow.find_orbit(model, x + y, [-1.0, 1.0])
+    assert plane.converged and sympy_section.converged
+    np.testing.assert_allclose(sympy_section.x, plane.x, rtol=0, atol=1e-12)
+    assert sympy_section.period == pytest.approx(plane.period, rel=1e-12)
+    assert abs(plane.x[0] + plane.x[1]) < 1e-9
+    # Through y = 0 (a coordinate's level) the orbit is the same curve: its period and the
+    # multiplier of the return map (a 1 x 1 map on the section) do not depend on the section.
+    level = bflow.find_orbit(model, "x1", [-2.0, 0.0])
+    assert level.converged
+    assert level.period == pytest.approx(plane.period, rel=1e-8)
+    for o in (plane, sympy_section):
+        assert o.growth_rate_upper == pytest.approx(level.growth_rate_upper, rel=1e-6)
+        assert o.stability == level.stability == "stable"
+
+
+def test_a_sympy_section_with_a_parameter():
+    import sympy as sp
+    model, x, y = relay_van_der_pol()
+    c = sp.Symbol("c")
+    with_c = bflow.Model(model.states, field=model.field_exprs, surfaces=[x],
+                         parameters={c: 0.0})
+    orbit = bflow.find_orbit(with_c, x + y - c, [-1.0, 1.0])
+    plane = bflow.find_orbit(model, ([1.0, 1.0], 0.0), [-1.0, 1.0])
+    np.testing.assert_allclose(orbit.x, plane.x, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("section, message", [
+    (([1.0, 0.0, 0.0], 0.0), "normal has 3 entries, the model 2 states"),
+    (([0.0, 0.0], 0.0), "normal is zero"),
+    (([1.0, float("nan")], 0.0), r"normal\[1\] is nan"),
+    (3.0, "expected a coordinate's text"),
+])
+def test_bad_hyperplanes_are_refused(section, message):
+    model, _, _ = relay_van_der_pol()
+    with pytest.raises(ValueError, match=message):
+        bflow.find_orbit(model, section, [-1.0, 1.0])
+
+
+def test_a_sympy_section_needs_a_sympy_model_and_its_symbols():
+    import sympy as sp
+    with pytest.raises(ValueError, match="needs a bflow.Model written in SymPy"):
+        bflow.find_orbit(bflow.pronk(), sp.Symbol("z"), bflow.pronk_initial_state())
+    model, x, _ = relay_van_der_pol()
+    with pytest.raises(bflow.ModelError, match=r"\['z'\] are neither states"):
+        bflow.find_orbit(model, x + sp.Symbol("z"), [-1.0, 1.0])

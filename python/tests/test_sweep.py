@@ -56,9 +56,66 @@ def test_a_failed_sample_is_a_record():
 
 @pytest.mark.parametrize("axes, message", [
     ([(2, 0.0, 1.0, 3)], r"x\[2\] is outside"),
-    ([(0, 0.0, 1.0, 0)], "count 0"),
+    ([(0, 0.0, 1.0, 0)], "x\\[0\\] has a count of 0"),
+    ([(0, 0.0, 1.0, -2)], "x\\[0\\] has a count of -2"),
     ([(0, 0.0)], "axis is"),
 ])
 def test_bad_axes_are_refused(axes, message):
     with pytest.raises(ValueError, match=message):
         bflow.sweep(quadrants(), [-0.5, -0.3], 1.0, axes, progress=False)
+
+
+# --- parameter axes
+delta = sp.Symbol("delta")
+
+
+def one_surface():
+    # x' = 1 - delta sign(x): from x0 < 0 the surface x = 0 is crossed at t_c = -x0 / (1 + delta),
+    # then x(t) = (1 - delta)(t - t_c) and dx(t)/dx0 = (1 - delta) / (1 + delta).
+    b = bflow.signs(1)[0]
+    return bflow.Model([x], field=[1 - delta * b], surfaces=[x], parameters={delta: 0.3})
+
+
+@pytest.mark.parametrize("name", ["delta", delta])
+def test_a_parameter_axis_against_the_closed_form(name):
+    records = bflow.sweep(one_surface(), [-1.0], 1.0, [(name, 0.1, 0.5, 5), (0, -1.0, -0.8, 3)],
+                          progress=False)
+    assert len(records) == 15
+    for r in records:
+        d, x0 = r.varied
+        assert r.ok
+        assert r.x_t[0] == pytest.approx((1 - d) * (1 + x0 / (1 + d)), abs=1e-12)
+        assert r.images[0][0] == pytest.approx((1 - d) / (1 + d), abs=1e-12)
+    # The first axis varies slowest: delta = 0.2 from the fourth record on.
+    assert records[3].varied == pytest.approx([0.2, -1.0])
+
+
+def test_a_biped_parameter_axis_matches_the_command(cli):
+    import json
+    import subprocess
+    dx = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0]
+    records = bflow.sweep(bflow.biped(), bflow.biped_initial_state(), 0.6,
+                          [("kappa", 5e3, 2e4, 4)], directions=[dx], rtol=1e-10, progress=False)
+    out = subprocess.run([cli, "sweep", "--scene", "biped", "--vary-param", "kappa=5e3:2e4:4",
+                          "--dx", ",".join(map(str, dx)), "--rtol", "1e-10", "--quiet"],
+                         check=True, capture_output=True, text=True).stdout.splitlines()
+    lines = [json.loads(line) for line in out[1:]]
+    assert len(records) == len(lines) == 4
+    for r, line in zip(records, lines):
+        assert r.varied == pytest.approx(line["varied"], rel=1e-15)
+        np.testing.assert_allclose(r.x_t, line["x_t"], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(r.images[0], line["images"][0], rtol=0, atol=1e-12)
+    # kappa changes the flow: the samples differ.
+    assert abs(records[0].x_t[1] - records[-1].x_t[1]) > 1e-6
+
+
+@pytest.mark.parametrize("model, x0, axes, message", [
+    (one_surface, [-1.0], [("kappa", 0.0, 1.0, 2)],
+     r"no parameter \"kappa\" \(its parameters: delta\)"),
+    (quadrants, [-0.5, -0.3], [("delta", 0.0, 1.0, 2)], "has no parameter"),
+    (bflow.biped, bflow.biped_initial_state(), [("stiffness", 1.0, 2.0, 2)],
+     "unknown biped parameter"),
+])
+def test_bad_parameter_axes_are_refused(model, x0, axes, message):
+    with pytest.raises(ValueError, match=message):
+        bflow.sweep(model(), x0, 0.5, axes, progress=False)

@@ -17,9 +17,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <string>
+#include <utility>
 #include <vector>
 
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <Eigen/Dense>
 
@@ -27,6 +30,7 @@
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
 #include "bflow/orbits/periodic_orbit.h"
+#include "support/error_message.h"
 #include "support/vertical_hop.h"
 
 namespace bflow {
@@ -49,6 +53,7 @@ OrbitOptions accurate() {
   return options;
 }
 
+using ::testing::HasSubstr;
 using testing::Hop;
 
 // The vertical hop of support/vertical_hop.h with this body's numbers.
@@ -356,6 +361,40 @@ TEST(PronkOrbitSections, ASectionCrossedDownwardsIsFoundFromTheGuessAtRest) {
       << o.decisions.front();
   std::printf("section y = 0.9 downwards: ydot %.10f (hand %.10f), period %.10f (hand %.10f)\n",
               o.x[4], -std::sqrt(2.0 * p.g * (hand.apex - 0.9)), o.period, hand.time);
+}
+
+// The same section as a hyperplane, s = -e_1 . x + 0.9: the same function of x, so the same
+// Newton steps and the same orbit, bit for bit up to the order of the sums.
+TEST(PronkOrbitSections, AHyperplaneSectionFindsTheSameHopAsTheCoordinateLevel) {
+  const PronkParams p;
+  const auto model = adapt(make_pronk(p));
+  const PeriodicOrbit level =
+      find_periodic_orbit(model, CoordinateSection{1, 0.9, -1.0}, guess(), accurate());
+  Eigen::VectorXd normal = Eigen::VectorXd::Zero(6);
+  normal[1] = -1.0;
+  const PeriodicOrbit plane =
+      find_periodic_orbit(model, HyperplaneSection{normal, -0.9}, guess(), accurate());
+  ASSERT_TRUE(level.converged && plane.converged) << plane.message;
+  EXPECT_LT((plane.x - level.x).lpNorm<Eigen::Infinity>(), 1e-12);
+  EXPECT_NEAR(plane.period, level.period, 1e-12);
+  EXPECT_NEAR(plane.growth_rate_upper, level.growth_rate_upper, 1e-12);
+  EXPECT_EQ(plane.stability, level.stability);
+}
+
+TEST(PronkOrbitSections, BadHyperplanesAreRefusedWithTheirValues) {
+  const auto model = adapt(make_pronk(PronkParams{}));
+  const auto message = [&](Eigen::VectorXd normal, double offset) {
+    return testing::message_of([&] {
+      find_periodic_orbit(model, HyperplaneSection{std::move(normal), offset}, guess());
+    });
+  };
+  EXPECT_THAT(message(Eigen::VectorXd::Ones(5), 0.0),
+              HasSubstr("the normal has 5 entries, the model 6 states"));
+  EXPECT_THAT(message(Eigen::VectorXd::Zero(6), 0.0), HasSubstr("the normal is zero"));
+  Eigen::VectorXd bad = Eigen::VectorXd::Ones(6);
+  bad[3] = std::numeric_limits<double>::infinity();
+  EXPECT_THAT(message(bad, 0.0), HasSubstr("normal[3] is inf"));
+  EXPECT_THAT(message(Eigen::VectorXd::Ones(6), std::nan("")), HasSubstr("the offset is nan"));
 }
 
 // At a loose Newton tolerance the hop is still a hop. Its trajectory stays within 3.1 of x (the

@@ -164,6 +164,22 @@ struct CoordinateSection {
   void check(int states) const;
 };
 
+/** s(x) = normal . x - offset: the hyperplane normal . x = offset, crossed in the direction of
+    the normal (e.g. normal (1, 1), offset 0: the diagonal x_0 + x_1 = 0, crossed upwards). */
+struct HyperplaneSection {
+  Eigen::VectorXd normal;
+  double offset = 0.0;
+  template <typename T>
+  T operator()(const T* x) const {
+    T s = T(-offset);
+    for (Eigen::Index i = 0; i < normal.size(); ++i) s += T(normal[i]) * x[i];
+    return s;
+  }
+  /** @throws InvalidArgument unless the normal has `states` finite entries, not all zero, and
+      the offset is finite. */
+  void check(int states) const;
+};
+
 /** Parses "x4" (s = x_4), "-x4" (s = -x_4), "x1=0.3" (s = x_1 - 0.3), "-x1=0.3".
     @throws InvalidArgument quoting the text when it is none of these or index >= states. */
 CoordinateSection parse_coordinate_section(const std::string& text, int states);
