@@ -499,7 +499,11 @@ _OCP_PROBLEM = ("x0", "T", "time_optimal", "T_min", "T_max", "x_lower", "x_upper
                 "guess", "guess_x", "guess_u")
 
 
-def ocp_solve(model, N: int = 10, *, progress: bool = False, **options) -> OcpResult:
+_CONTACT_DEFAULTS = {"monoped": (30, "step"), "hopper": (50, "stewart")}
+
+
+def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
+              setup: Optional[str] = None, **options) -> OcpResult:
     """An optimal control problem through FESD (docs/ocp.md), at N control stages.
 
     ``model``: a ``bflow.Model`` with controls (its costs and constraints are the model's), with
@@ -509,7 +513,11 @@ def ocp_solve(model, N: int = 10, *, progress: bool = False, **options) -> OcpRe
     g <= 0), terminal_lower/terminal_upper (default g_T = 0), guess ("constant", or "simulation":
     guess_u simulated by FESD), guess_x, guess_u (nu x N, or one column). Or a built-in example:
     "braking-block" (the optimum slides; exact cost 2 sqrt 5 + asinh 2 - 4) or "turbo-car"
-    (time-optimal, T* = 40/3), whose data are built in.
+    (time-optimal, T* = 40/3), whose data are built in (N = 10 by default); or a contact
+    example through time-freezing, "monoped" (nosnoc's benchmark, N = 30 by default, ``setup``
+    "nosnoc" or "strict") or "hopper" (five jumps, N = 50 by default, a multiple of 5), each
+    starting from the options it comes with (the bflow ocp command's defaults), which keywords
+    override; their full runs take minutes to an hour (docs/ocp.md).
 
     Options: elements (N_FE, 3),
     collocation_stages (2), scheme, formulation, standard, relaxation ("scholtes", "l1",
@@ -518,9 +526,19 @@ def ocp_solve(model, N: int = 10, *, progress: bool = False, **options) -> OcpRe
     lifting_depth, linear_solver. ``progress=True`` prints one line per NLP on stderr. The GIL
     is released while IPOPT runs. ``ocp_exact`` gives the exact optimum."""
     import sys
-    o = _bflow.OcpOptions()
-    o.stages = int(N)
     ocp_model = getattr(model, "_ocp_model", None)
+    contact = ocp_model is None and model in _CONTACT_DEFAULTS
+    if setup is not None and model != "monoped":
+        raise ValueError(f"ocp_solve: only the monoped has setups (nosnoc, strict), not "
+                         f"{model!r}")
+    if contact:
+        default_n, default_formulation = _CONTACT_DEFAULTS[model]
+        o = _bflow._contact_options(model, int(N if N is not None else default_n),
+                                    setup or "nosnoc",
+                                    options.pop("formulation", default_formulation))
+    else:
+        o = _bflow.OcpOptions()
+        o.stages = int(N if N is not None else 10)
     data = {k: options.pop(k) for k in list(options) if k in _OCP_PROBLEM}
     if data and ocp_model is None:
         raise ValueError(f"ocp_solve: {sorted(data)} are data of a bflow.Model's problem; the "
@@ -538,6 +556,8 @@ def ocp_solve(model, N: int = 10, *, progress: bool = False, **options) -> OcpRe
                   f"complementarity {step.complementarity:.2g}, {step.ipopt_status}",
                   file=sys.stderr, flush=True)
         o.progress = report
+    if contact:
+        return _bflow._contact_solve(model, setup or "nosnoc", o)
     if ocp_model is None:
         return _bflow._ocp_example(str(model), o)
     native = ocp_model()

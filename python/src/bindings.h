@@ -22,7 +22,9 @@ void bind_flow(nanobind::module_& m);    // Model, simulate, flow_derivative, fd
 void bind_orbits(nanobind::module_& m);  // find_periodic_orbit, continue_orbits (orbits.cc)
 void bind_fesd(nanobind::module_& m);    // fesd_simulate of the built-in examples (fesd.cc)
 void bind_ocp(nanobind::module_& m);     // ocp_solve of the built-in examples (ocp.cc)
-void bind_sweep(nanobind::module_& m);   // sweeps over initial states (sweep.cc)
+void bind_contact_examples(
+    nanobind::module_& m);              // the monoped and the hopper (contact_examples.cc)
+void bind_sweep(nanobind::module_& m);  // sweeps over initial states (sweep.cc)
 
 }  // namespace bflow::python
 

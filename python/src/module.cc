@@ -21,5 +21,6 @@ NB_MODULE(_bflow, m) {
   bflow::python::bind_orbits(m);
   bflow::python::bind_fesd(m);
   bflow::python::bind_ocp(m);
+  bflow::python::bind_contact_examples(m);
   bflow::python::bind_sweep(m);
 }

@@ -172,8 +172,7 @@ void bind_ocp(nb::module_& m) {
           return ocp_solve(adapt_ocp(examples::TurboCar{}), examples::TurboCar::problem(), options);
         }
         throw InvalidArgument("ocp_solve: unknown example \"" + name +
-                              "\"; the examples are braking-block and turbo-car (the monoped and "
-                              "the hopper: the bflow command)");
+                              "\"; the examples are braking-block, turbo-car, monoped and hopper");
       },
       "example"_a, "options"_a, nb::call_guard<nb::gil_scoped_release>());
   m.def("_ocp_exact", [](const std::string& name) {

@@ -30,6 +30,34 @@ def test_braking_block_as_in_the_cli_and_second_order_in_n(cli):
     assert min(abs(t - exact["stop_time"]) for t in fine.switch_times) < 2e-3
 
 
+def cli_ocp(cli, *args):
+    # The command exits with 1 when the homotopy stops short of the complementarity tolerance,
+    # and still prints the result.
+    out = subprocess.run([cli, "ocp", "--compact", "--quiet", *args], check=False,
+                         capture_output=True, text=True).stdout
+    return json.loads(out)
+
+
+@pytest.mark.parametrize("name, python, command", [
+    # One NLP each, at a relaxation that stops short of the tolerance, as tests/cli's cases: the
+    # monoped's nosnoc setup at N = 3, sigma = 1; the hopper at N = 5 stopped at sigma = 100.
+    ("monoped", dict(N=3, sigma_initial=1.0, sigma_final=1.0),
+     ["--N", "3", "--sigma0", "1", "--sigma-final", "1"]),
+    ("hopper", dict(N=5, sigma_final=100.0), ["--N", "5", "--sigma-final", "100"]),
+])
+def test_contact_examples_as_in_the_cli(cli, name, python, command):
+    r = bflow.ocp_solve(name, **python)
+    out = cli_ocp(cli, "--example", name, *command)
+    assert r.status == out["status"] == "complementarity_not_reached"
+    assert r.ipopt_iterations == out["ipopt_iterations"]
+    # x_stages is d x (N + 1) and u nu x N; the command writes them stage by stage.
+    np.testing.assert_allclose(r.x_stages.T, out["x"], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(r.u.T, out["u"], rtol=0, atol=1e-12)
+    # Time-freezing: the clock (state 8) ends each stage at its physical time.
+    assert np.array(out["x"])[-1][8] == pytest.approx(
+        {"monoped": 3.0, "hopper": 5.0}[name], abs=1e-3)
+
+
 def test_turbo_car_reaches_the_exact_optimal_time():
     exact = bflow.ocp_exact("turbo-car")
     r = bflow.ocp_solve("turbo-car", N=5)
@@ -39,7 +67,10 @@ def test_turbo_car_reaches_the_exact_optimal_time():
 
 
 @pytest.mark.parametrize("call, message", [
-    (lambda: bflow.ocp_solve("monoped"), "the bflow command"),
+    (lambda: bflow.ocp_solve("pendulum"), "braking-block, turbo-car, monoped and hopper"),
+    (lambda: bflow.ocp_solve("hopper", N=7), "multiple of 5"),
+    (lambda: bflow.ocp_solve("hopper", N=5, setup="strict"), "only the monoped has setups"),
+    (lambda: bflow.ocp_solve("monoped", N=3, setup="loose"), "unknown monoped setup"),
     (lambda: bflow.ocp_solve("turbo-car", N=5, relaxation="smooth"), "unknown relaxation"),
     (lambda: bflow.ocp_solve("turbo-car", N=5, stage=5), "unknown option 'stage'"),
     (lambda: bflow.ocp_solve("turbo-car", N=0), "stages"),
