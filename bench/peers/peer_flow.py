@@ -974,6 +974,7 @@ TARGETS = [1e-5, 1e-8, 1e-11]
 # The ratio table's columns: (header, [(row label, its name in the cell, CPU key)]); a column of
 # several rows takes, at each error, the fastest of them and names it.
 RATIO_COLUMNS = [
+    ("bflow from Python", [("bflow from Python (SymPy model), dopri5", None, "cpu_s")]),
     ("bflow CVODES Adams", [("bflow CVODES Adams", None, "cpu_s")]),
     ("heyoka, its integration", [("heyoka", None, "integration_cpu_s")]),
     ("heyoka, whole run", [("heyoka", None, "cpu_s")]),
@@ -1152,6 +1153,7 @@ def _piece_table(name, ref, flow_rows):
 
 
 STYLE = {"bflow dopri5": ("C0", "o-"), "bflow dop853": ("C4", "P-"),
+         "bflow from Python (SymPy model), dopri5": ("C9", "*:"),
          "hybrid-tools": ("C5", "X"),
          "bflow CVODES Adams": ("C0", "s--"),
          "heyoka": ("C1", "^-"), "heyoka, its integration": ("C1", "^:"),
