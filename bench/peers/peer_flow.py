@@ -756,6 +756,7 @@ def _tools(simultaneous, quick):
              ("bflow", "bflow dop853", {"backend": "dop853"}),
              ("bflow", "bflow CVODES Adams", {"backend": "cvodes-adams"}),
              ("bflow-python", "bflow from Python (SymPy model), dopri5", {"backend": "dopri5"}),
+             ("bflow-python", "bflow from Python (SymPy model), dop853", {"backend": "dop853"}),
              ("heyoka", "heyoka", {}),
              ("diffrax", "diffrax Tsit5", {"solver": "Tsit5"}),
              ("diffrax", "diffrax Dopri8", {"solver": "Dopri8"}),
@@ -974,7 +975,9 @@ TARGETS = [1e-5, 1e-8, 1e-11]
 # The ratio table's columns: (header, [(row label, its name in the cell, CPU key)]); a column of
 # several rows takes, at each error, the fastest of them and names it.
 RATIO_COLUMNS = [
-    ("bflow from Python", [("bflow from Python (SymPy model), dopri5", None, "cpu_s")]),
+    ("bflow from Python (dopri5, dop853)",
+     [("bflow from Python (SymPy model), dopri5", "dopri5", "cpu_s"),
+      ("bflow from Python (SymPy model), dop853", "dop853", "cpu_s")]),
     ("bflow CVODES Adams", [("bflow CVODES Adams", None, "cpu_s")]),
     ("heyoka, its integration", [("heyoka", None, "integration_cpu_s")]),
     ("heyoka, whole run", [("heyoka", None, "cpu_s")]),
@@ -1154,6 +1157,7 @@ def _piece_table(name, ref, flow_rows):
 
 STYLE = {"bflow dopri5": ("C0", "o-"), "bflow dop853": ("C4", "P-"),
          "bflow from Python (SymPy model), dopri5": ("C9", "*:"),
+         "bflow from Python (SymPy model), dop853": ("C9", "h:"),
          "hybrid-tools": ("C5", "X"),
          "bflow CVODES Adams": ("C0", "s--"),
          "heyoka": ("C1", "^-"), "heyoka, its integration": ("C1", "^:"),
