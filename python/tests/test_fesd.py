@@ -70,12 +70,14 @@ def crossing_model(field):
     return bflow.Model([sx], field=field, surfaces=[sx])
 
 
-@pytest.mark.parametrize("field", [
-    [2 - b0],                    # affine in the sign: f(x, a) = 2 - (2a - 1)
-    {"+": [1], "-": [3]},        # per sign word: the two modes and the dense sign matrix
-    [2 - b0 ** 3],               # not affine in the sign as written: its two sign words
+@pytest.mark.parametrize("field, modes", [
+    ([2 - b0], False),               # affine in the sign: f(x, a) = 2 - (2a - 1)
+    ({"+": [1], "-": [3]}, True),    # per sign word: the two modes and the dense sign matrix
+    ([2 - b0 ** 3], True),           # not affine in the sign as written: its two sign words
 ])
-def test_a_sympy_crossing_matches_the_builtin_case_and_the_exact_switch(field):
+def test_a_sympy_crossing_matches_the_builtin_case_and_the_exact_switch(field, modes):
+    # b^3 is not (2a - 1)^3 between the sides: only the modes give the step inclusion.
+    assert crossing_model(field)._step_model().modes == (2 if modes else 0)
     exact = bflow.fesd_exact("crossing")
     builtin = bflow.fesd_simulate("crossing")
     r = bflow.fesd_simulate(crossing_model(field), T=exact["t_end"], x0=exact["x0"], steps=4)
