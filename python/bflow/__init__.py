@@ -52,6 +52,50 @@ def _as_array(a, name: str, ndim: Optional[int] = None) -> np.ndarray:
     return arr
 
 
+def _set_option(obj, key: str, value, where: str) -> None:
+    """obj.key = value, a value of the wrong type or out of the C++ range a ValueError naming
+    the option and the value (not nanobind's "incompatible function arguments")."""
+    current = getattr(obj, key)
+    kind = type(current)
+    if isinstance(current, bool):
+        ok = isinstance(value, (bool, np.bool_))
+        value = bool(value) if ok else value
+        expected = "True or False"
+    elif isinstance(current, int):
+        ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+        if ok and not -2 ** 63 <= int(value) < 2 ** 63:
+            raise ValueError(f"{where}: option {key}={value!r} is out of range")
+        value = int(value) if ok else value
+        expected = "an integer"
+    elif isinstance(current, float):
+        ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+            value, (bool, np.bool_))
+        value = float(value) if ok else value
+        expected = "a number"
+    elif isinstance(current, str):
+        ok = isinstance(value, str)
+        expected = "a string"
+    else:
+        ok, expected = True, kind.__name__
+    if not ok:
+        raise ValueError(f"{where}: option {key}={value!r} must be {expected}, not "
+                         f"{type(value).__name__}")
+    try:
+        setattr(obj, key, value)
+    except TypeError as e:
+        raise ValueError(f"{where}: option {key}={value!r} is out of the range of its C++ type "
+                         f"({e})".replace("\n", " ")) from None
+
+
+def _count(value, name: str, where: str, lo: int = 1, hi: int = 2 ** 31 - 1) -> int:
+    """An integer count (N, steps, threads, ...) in [lo, hi], else a ValueError naming it."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{where}: {name} must be an integer, got {value!r}")
+    if not lo <= int(value) <= hi:
+        raise ValueError(f"{where}: {name}={value!r} is outside [{lo}, {hi}]")
+    return int(value)
+
+
 class JumpMap:
     """The B-derivative of the flow across a point where n surfaces meet ([B] Sections 2.3, 5, 6).
 
@@ -194,7 +238,7 @@ def flow_options(base=None, **options) -> "_bflow.FlowOptions":
     for key, value in options.items():
         if key not in _OPTION_NAMES:
             raise ValueError(f"unknown option {key!r}; the options are {', '.join(_OPTION_NAMES)}")
-        setattr(o, key, value)
+        _set_option(o, key, value, "flow options")
     return o
 
 
@@ -464,11 +508,11 @@ def fesd_simulate(model, T: Optional[float] = None, x0=None, *,
                          "of the examples " + ", ".join(_FESD_DEFAULTS))
     t_end, default_steps = (None, 10) if step_model else _FESD_DEFAULTS[model]
     o = _bflow.FesdOptions()
-    o.steps = int(steps if steps is not None else default_steps)
+    o.steps = _count(steps if steps is not None else default_steps, "steps", "fesd_simulate")
     for key, value in options.items():
         if key not in _FESD_OPTIONS:
             raise ValueError(f"unknown option {key!r}; the options are {', '.join(_FESD_OPTIONS)}")
-        setattr(o, key, value)
+        _set_option(o, key, value, "fesd_simulate")
     start = None if x0 is None else _as_array(x0, "x0", 1)
     if step_model is None:
         return _bflow._fesd_example(model, float(T if T is not None else t_end), start, o)
@@ -533,12 +577,13 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
                          f"{model!r}")
     if contact:
         default_n, default_formulation = _CONTACT_DEFAULTS[model]
-        o = _bflow._contact_options(model, int(N if N is not None else default_n),
+        o = _bflow._contact_options(model, _count(N if N is not None else default_n, "N",
+                                                  "ocp_solve"),
                                     setup or "nosnoc",
                                     options.pop("formulation", default_formulation))
     else:
         o = _bflow.OcpOptions()
-        o.stages = int(N if N is not None else 10)
+        o.stages = _count(N if N is not None else 10, "N", "ocp_solve")
     data = {k: options.pop(k) for k in list(options) if k in _OCP_PROBLEM}
     if data and ocp_model is None:
         raise ValueError(f"ocp_solve: {sorted(data)} are data of a bflow.Model's problem; the "
@@ -548,7 +593,7 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
             raise ValueError(f"unknown option {key!r}; the options are {', '.join(_OCP_OPTIONS)}"
                              + (f"; the problem's data: {', '.join(_OCP_PROBLEM)}"
                                 if ocp_model is not None else ""))
-        setattr(o, key, value)
+        _set_option(o, key, value, "ocp_solve")
     if progress:
         def report(step):
             print(f"sigma {step.sigma:.3g}{' (polish)' if step.polish else ''}: "
