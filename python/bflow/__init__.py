@@ -289,25 +289,35 @@ class FlowDerivative:
 
     @property
     def x(self) -> np.ndarray:
+        """x(t), the final state of the run."""
         return self.trajectory.x
 
     @property
     def events(self):
+        """The run's events in time order (``Event``: t, rho, surfaces crossed together, their
+        crossing times, how they were grouped)."""
         return self.trajectory.events
 
     @property
     def notices(self):
+        """What the engine decided for the user (``Notice``: a grouping of near-simultaneous
+        crossings, a step accepted loosely, ...), each with its numbers."""
         return self.trajectory.notices
 
     @property
     def backend(self) -> str:
+        """The integrator that ran ("dopri5", "dop853", "cvodes-bdf", "cvodes-adams")."""
         return self.options.backend
 
     @property
     def dim(self) -> int:
+        """d, the dimension of the state."""
         return self._native.dim
 
     def apply(self, dx) -> np.ndarray:
+        """D phi_t(x0; dx): the image of one direction (shape (d,)) or of each column of a block
+        (shape (d, k)), through every event's jump in its own crossing order. A direction of the
+        wrong size is a ValueError."""
         a = np.asarray(dx, dtype=float)
         if a.ndim == 1:
             return self._native._apply_vector(a)
@@ -318,9 +328,13 @@ class FlowDerivative:
     __call__ = apply
 
     def jacobian(self) -> np.ndarray:
+        """The d x d Jacobian, where the B-derivative is linear (no event with more than one
+        piece); else a ValueError naming the event where it is not (use ``apply`` or
+        ``pieces``)."""
         return self._native.jacobian()
 
     def is_linear(self) -> bool:
+        """Whether the B-derivative is linear (one piece): then ``jacobian()`` exists."""
         return self._native.is_linear()
 
     def pieces(self):
@@ -328,12 +342,17 @@ class FlowDerivative:
         return [(p.orders, p.matrix) for p in self._native.pieces()]
 
     def crossing_orders(self, dx):
+        """Per event, the order in which the perturbation dx crosses its surfaces and when
+        (``CrossingOrder``): which piece dx takes."""
         return self._native.crossing_orders(_as_array(dx, "dx", 1))
 
     def active_jacobian(self, dx) -> np.ndarray:
+        """The d x d matrix of the linear piece that is active at dx (apply(dx) equals it
+        times dx)."""
         return self._native.active_jacobian(_as_array(dx, "dx", 1))
 
     def jumps(self):
+        """Each event's jump map (``JumpMap``), in time order."""
         return [JumpMap(j) for j in self._native.jumps()]
 
     def __reduce__(self):
