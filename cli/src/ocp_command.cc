@@ -617,6 +617,15 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
     o.elements = options.nfe;
     o.collocation_stages = options.stages;
     o.standard = options.standard;
+    if (o.standard) {
+      // The example's settings for FESD's free element lengths and cross complementarity, which
+      // standard time-stepping has no use for (its lengths are fixed, its products point by
+      // point): left out, the same solve. A --cross given with --standard is refused by
+      // ocp_solve.
+      if (!options.cross) o.cross_complementarity = CrossComplementarity::kElementSums;
+      o.step_deviation_weight = 0.0;
+      o.equilibration_weight = 0.0;
+    }
     if (options.sigma0) o.sigma_initial = *options.sigma0;
     if (options.sigma_final) o.sigma_final = *options.sigma_final;
     if (options.tol) o.nlp_tolerance = *options.tol;

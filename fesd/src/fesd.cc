@@ -28,6 +28,8 @@ const char* to_string(FesdStatus status) {
       return "step failed";
     case FesdStatus::kInvalidModel:
       return "invalid model";
+    case FesdStatus::kCancelled:
+      return "cancelled";
   }
   return "unknown";
 }
@@ -367,13 +369,44 @@ void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorX
   if (!(t_end > 0.0) || !std::isfinite(t_end)) {
     throw InvalidArgument("fesd: T must be finite and > 0, got " + format_number(t_end));
   }
-  if (!(o.sigma_initial > 0.0) || !(o.sigma_final > 0.0) || o.sigma_final > o.sigma_initial ||
-      !(o.sigma_factor > 0.0 && o.sigma_factor < 1.0)) {
+  if (o.steps >= 1 && o.elements >= 1) {
+    // An element's length lies in [0, 2 T / (N_sim N_FE)], a bound IPOPT takes as none from
+    // 1e19 on; below the smallest normal double the lengths and their squares (the step
+    // equilibration) lose their digits.
+    const double step = t_end / o.steps, element = step / o.elements;
+    if (!(step <= kFesdMaxStepLength) || !(element >= std::numeric_limits<double>::min())) {
+      throw InvalidArgument(
+          "fesd: T = " + format_number(t_end) + " over N_sim = " + std::to_string(o.steps) +
+          " steps of N_FE = " + std::to_string(o.elements) + " elements gives steps of " +
+          format_number(step) + " and elements of " + format_number(element) +
+          ", which cannot be integrated: need T / N_sim <= " + format_number(kFesdMaxStepLength) +
+          " and T / (N_sim N_FE) >= " + format_number(std::numeric_limits<double>::min()));
+    }
+  }
+  if (!std::isfinite(o.sigma_initial) || !(o.sigma_initial > 0.0) || !(o.sigma_final > 0.0) ||
+      o.sigma_final > o.sigma_initial || !(o.sigma_factor > 0.0 && o.sigma_factor < 1.0)) {
     throw InvalidArgument(
         "fesd: need 0 < sigma_final <= sigma_initial and 0 < sigma_factor < 1, "
         "got sigma_initial = " +
         format_number(o.sigma_initial) + ", sigma_final = " + format_number(o.sigma_final) +
         ", sigma_factor = " + format_number(o.sigma_factor));
+  }
+  if (!(o.nlp_tolerance > 0.0) || !std::isfinite(o.nlp_tolerance) || o.max_nlp_iterations < 1) {
+    throw InvalidArgument(
+        "fesd: need a finite nlp_tolerance > 0 and max_nlp_iterations >= 1, got "
+        "nlp_tolerance = " +
+        format_number(o.nlp_tolerance) +
+        ", max_nlp_iterations = " + std::to_string(o.max_nlp_iterations));
+  }
+  if (o.print_level < 0 || o.print_level > 12) {
+    throw InvalidArgument("fesd: print_level = " + std::to_string(o.print_level) +
+                          " is not one of IPOPT's levels 0..12");
+  }
+  if (!std::isfinite(o.exact_hessian_scale) || (o.exact_hessian_scale != 1.0 && !o.exact_hessian)) {
+    throw InvalidArgument("fesd: exact_hessian_scale = " + format_number(o.exact_hessian_scale) +
+                          (std::isfinite(o.exact_hessian_scale)
+                               ? " scales the exact Hessian, but exact_hessian is off"
+                               : " must be finite"));
   }
 }
 
@@ -558,7 +591,22 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   std::deque<std::pair<double, int>> pending(static_cast<std::size_t>(options.steps),
                                              std::make_pair(step, 0));
   double t0 = 0.0;
+  int taken = 0;
+  // The steps done so far as the result, ended by a cancellation at t0.
+  const auto cancelled_result = [&]() {
+    result.status = FesdStatus::kCancelled;
+    result.message += std::string(result.message.empty() ? "" : "; ") +
+                      "fesd: cancelled at t = " + format_number(t0) + " after " +
+                      std::to_string(taken) + " integration steps; the result covers [0, " +
+                      format_number(t0) + "]";
+    result.x_end = x;
+    result.states.resize(l.d, static_cast<Eigen::Index>(states.size()));
+    for (std::size_t k = 0; k < states.size(); ++k)
+      result.states.col(static_cast<Eigen::Index>(k)) = states[k];
+    return result;
+  };
   while (!pending.empty()) {
+    if (options.cancelled && options.cancelled()) return cancelled_result();
     const auto [length, halvings] = pending.front();
     pending.pop_front();
     fesd::TranscriptionSetup setup;
@@ -650,6 +698,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
     if (!solved_by_newton) {
       const fesd::HomotopyOutcome outcome = solver.run(nlp, rules);
       iterations = outcome.iterations;
+      if (outcome.cancelled) return cancelled_result();
       if (!outcome.done && halvings < kMaxHalvings) {
         pending.push_front({length / 2, halvings + 1});
         pending.push_front({length / 2, halvings + 1});
@@ -717,6 +766,19 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
       }
     }
     x = w.segment(l.var(l.elements - 1, l.off_x), l.d);
+    if (options.progress) {
+      FesdStepReport report;
+      report.index = taken;
+      report.planned = options.steps;
+      report.t = t0;
+      report.length = length;
+      report.halvings = halvings;
+      report.newton = solved_by_newton;
+      report.nlp_iterations = iterations;
+      report.complementarity = residual;
+      options.progress(report);
+    }
+    ++taken;
     t0 += length;
   }
   result.x_end = x;

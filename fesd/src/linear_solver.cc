@@ -2,6 +2,7 @@
 
 #include <dlfcn.h>
 
+#include <mutex>
 #include <string>
 
 #include "bflow/core/text.h"
@@ -42,6 +43,12 @@ const SolverInfo& solver_info(const std::string& name, const std::string& who) {
 
 }  // namespace
 
+std::recursive_mutex& ipopt_mutex() {
+  // Never destroyed: a thread may still solve while the process exits.
+  static std::recursive_mutex* const mutex = new std::recursive_mutex;
+  return *mutex;
+}
+
 std::string linear_solver_list() {
   std::string list;
   const std::size_t n = sizeof(kLinearSolvers) / sizeof(kLinearSolvers[0]);
@@ -58,6 +65,7 @@ std::string linear_solver_library(const std::string& name, const std::string& wh
 std::string linear_solver_load_error(const std::string& name, const std::string& library) {
   const SolverInfo& s = solver_info(name, "linear_solver_load_error");
   if (*s.routine == '\0') return "";
+  const std::lock_guard<std::recursive_mutex> lock(ipopt_mutex());
   dlerror();  // clear an earlier error
   void* handle = dlopen(library.c_str(), RTLD_NOW | RTLD_LOCAL);
   if (handle == nullptr) {

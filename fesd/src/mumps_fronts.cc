@@ -8,6 +8,7 @@
 #include <atomic>
 #include <cstdio>
 #include <cstdlib>
+#include <mutex>
 
 #include "bflow/fesd/linear_solver.h"
 
@@ -50,6 +51,8 @@ extern "C" void dmumps_c(DMUMPS_STRUC_C* id) {
     std::fputs("bflow: dmumps_c called, but no MUMPS library is loaded\n", stderr);
     std::abort();
   }
+  // MUMPS's module variables are shared by its instances (bflow::ipopt_mutex).
+  const std::lock_guard<std::recursive_mutex> lock(bflow::ipopt_mutex());
   const bool analysis = id->job == 1 || id->job == 4 || id->job == 6;
   if (analysis && bflow::amalgamate && bflow::takes_keep_197(*id)) {
     id->keep[196] = 1;

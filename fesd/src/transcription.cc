@@ -15,6 +15,7 @@
 
 #include <IpIpoptApplication.hpp>
 #include <IpIpoptCalculatedQuantities.hpp>
+#include <IpIpoptData.hpp>
 #include <IpSolveStatistics.hpp>
 #include <IpTNLP.hpp>
 
@@ -201,6 +202,15 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   void widen_structure() { build_structure(true); }
   // The starting point of the NLP about to be solved, kept so that it can be solved again.
   void keep_start() { start_ = {w_, z_l_, z_u_, lambda_}; }
+  // Polled by IPOPT after every iteration (intermediate_callback); true ends the NLP with
+  // User_Requested_Stop.
+  void set_cancel(const std::function<bool()>* cancelled) { cancelled_ = cancelled; }
+  bool intermediate_callback(Ipopt::AlgorithmMode, Ipopt::Index, Ipopt::Number, Ipopt::Number,
+                             Ipopt::Number, Ipopt::Number, Ipopt::Number, Ipopt::Number,
+                             Ipopt::Number, Ipopt::Number, Ipopt::Index, const Ipopt::IpoptData*,
+                             Ipopt::IpoptCalculatedQuantities*) override {
+    return cancelled_ == nullptr || !*cancelled_ || !(*cancelled_)();
+  }
   void back_to_start() {
     w_ = start_[0];
     z_l_ = start_[1];
@@ -421,6 +431,98 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     return worst;
   }
 
+  // Constraint row `row` by kind and place, e.g. "element 17 (stage 5) end row of state 8".
+  std::string row_name(int row) const {
+    const int per = l_.rows_per_element(), s = l_.s, d = l_.d;
+    std::string what;
+    if (row < rows_elements_) {
+      const int e = row / per, r = row % per;
+      what = "element " + std::to_string(e) + " (stage " + std::to_string(e / l_.per_stage) + ") ";
+      if (r < s * d) {
+        what += "collocation row of point " + std::to_string(r / d) + ", state " +
+                std::to_string(r % d);
+      } else if (r < s * d + d) {
+        what += "end row of state " + std::to_string(r - s * d);
+      } else if (r < l_.equalities) {
+        const int a = r - s * d - d;
+        what += "algebraic row " + std::to_string(a % l_.neq) + " of point " +
+                std::to_string(a / l_.neq);
+      } else {
+        what += "complementarity row " + std::to_string(r - l_.equalities);
+      }
+    } else if (row < rows_elements_ + rows_sums_) {
+      what = "stage " + std::to_string(row - rows_elements_) + "'s sum of element lengths";
+    } else if (row < rows_elements_ + rows_sums_ + rows_path_) {
+      const int b = (row - rows_elements_ - rows_sums_) / std::max(npath_, 1);
+      what = "path constraint " +
+             std::to_string((row - rows_elements_ - rows_sums_) % std::max(npath_, 1)) +
+             " at element boundary " + std::to_string(b);
+    } else if (row < constraints_) {
+      what =
+          "terminal constraint " + std::to_string(row - rows_elements_ - rows_sums_ - rows_path_);
+    } else {
+      const int e = equal_[static_cast<std::size_t>(row - constraints_)];
+      what = "polish: equal lengths of elements " + std::to_string(e - 1) + " and " +
+             std::to_string(e);
+    }
+    return what;
+  }
+
+  // "" when the objective, its gradient, the constraints and their Jacobian (and, with the
+  // exact Hessian, the Lagrangian's Hessian at unit multipliers) are finite at w; else the
+  // first that is not, named by row or unknown, with its value.
+  std::string non_finite_at(const double* w) {
+    ensure_structure();
+    Ipopt::Index n = variables(), m = constraints(), nnz_jac = 0, nnz_hess = 0;
+    IndexStyleEnum style;
+    get_nlp_info(n, m, nnz_jac, nnz_hess, style);
+    const auto text = [](double v) { return format_number(v); };
+    double f = 0.0;
+    eval_f(n, w, true, f);
+    if (!std::isfinite(f)) return "the objective is " + text(f);
+    std::vector<double> grad(static_cast<std::size_t>(n));
+    eval_grad_f(n, w, true, grad.data());
+    for (int i = 0; i < n; ++i) {
+      if (!std::isfinite(grad[static_cast<std::size_t>(i)])) {
+        return "the objective's derivative in unknown " + std::to_string(i) + " is " +
+               text(grad[static_cast<std::size_t>(i)]);
+      }
+    }
+    std::vector<double> g(static_cast<std::size_t>(m));
+    eval_g(n, w, true, m, g.data());
+    for (int r = 0; r < m; ++r) {
+      if (!std::isfinite(g[static_cast<std::size_t>(r)])) {
+        return "the " + row_name(r) + " is " + text(g[static_cast<std::size_t>(r)]);
+      }
+    }
+    std::vector<Ipopt::Index> rows(static_cast<std::size_t>(nnz_jac)),
+        cols(static_cast<std::size_t>(nnz_jac));
+    std::vector<double> values(static_cast<std::size_t>(nnz_jac));
+    eval_jac_g(n, w, true, m, nnz_jac, rows.data(), cols.data(), nullptr);
+    eval_jac_g(n, w, true, m, nnz_jac, nullptr, nullptr, values.data());
+    for (std::size_t k = 0; k < values.size(); ++k) {
+      if (!std::isfinite(values[k])) {
+        return "the derivative of the " + row_name(rows[k]) + " in unknown " +
+               std::to_string(cols[k]) + " is " + text(values[k]);
+      }
+    }
+    if (p_.exact_hessian && nnz_hess > 0) {
+      std::vector<Ipopt::Index> hr(static_cast<std::size_t>(nnz_hess)),
+          hc(static_cast<std::size_t>(nnz_hess));
+      std::vector<double> h(static_cast<std::size_t>(nnz_hess));
+      const std::vector<double> ones(static_cast<std::size_t>(m), 1.0);
+      eval_h(n, w, true, 1.0, m, ones.data(), true, nnz_hess, hr.data(), hc.data(), nullptr);
+      eval_h(n, w, true, 1.0, m, ones.data(), true, nnz_hess, nullptr, nullptr, h.data());
+      for (std::size_t k = 0; k < h.size(); ++k) {
+        if (!std::isfinite(h[k])) {
+          return "the second derivative in unknowns " + std::to_string(hr[k]) + " and " +
+                 std::to_string(hc[k]) + " is " + text(h[k]);
+        }
+      }
+    }
+    return "";
+  }
+
   // The rows the current point violates most (at most `count`, largest first), named by kind
   // and place, e.g. "element 17 (stage 5) end row of state 8: 0.012"; "" when none is violated.
   std::string worst_rows(int count) {
@@ -437,41 +539,8 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     std::partial_sort(worst.begin(), worst.begin() + static_cast<std::ptrdiff_t>(shown),
                       worst.end(), std::greater<>());
     std::string out;
-    const int per = l_.rows_per_element(), s = l_.s, d = l_.d;
     for (std::size_t k = 0; k < shown; ++k) {
-      const int row = worst[k].second;
-      std::string what;
-      if (row < rows_elements_) {
-        const int e = row / per, r = row % per;
-        what =
-            "element " + std::to_string(e) + " (stage " + std::to_string(e / l_.per_stage) + ") ";
-        if (r < s * d) {
-          what += "collocation row of point " + std::to_string(r / d) + ", state " +
-                  std::to_string(r % d);
-        } else if (r < s * d + d) {
-          what += "end row of state " + std::to_string(r - s * d);
-        } else if (r < l_.equalities) {
-          const int a = r - s * d - d;
-          what += "algebraic row " + std::to_string(a % l_.neq) + " of point " +
-                  std::to_string(a / l_.neq);
-        } else {
-          what += "complementarity row " + std::to_string(r - l_.equalities);
-        }
-      } else if (row < rows_elements_ + rows_sums_) {
-        what = "stage " + std::to_string(row - rows_elements_) + "'s sum of element lengths";
-      } else if (row < rows_elements_ + rows_sums_ + rows_path_) {
-        const int b = (row - rows_elements_ - rows_sums_) / std::max(npath_, 1);
-        what = "path constraint " +
-               std::to_string((row - rows_elements_ - rows_sums_) % std::max(npath_, 1)) +
-               " at element boundary " + std::to_string(b);
-      } else if (row < constraints_) {
-        what =
-            "terminal constraint " + std::to_string(row - rows_elements_ - rows_sums_ - rows_path_);
-      } else {
-        const int e = equal_[static_cast<std::size_t>(row - constraints_)];
-        what = "polish: equal lengths of elements " + std::to_string(e - 1) + " and " +
-               std::to_string(e);
-      }
+      const std::string what = row_name(worst[k].second);
       char value[32];
       std::snprintf(value, sizeof value, ": %.4g", worst[k].first);
       out += (out.empty() ? "" : "; ") + what + value;
@@ -826,12 +895,20 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     return true;
   }
 
-  void finalize_solution(Ipopt::SolverReturn, Ipopt::Index n, const Ipopt::Number* x,
+  void finalize_solution(Ipopt::SolverReturn status, Ipopt::Index n, const Ipopt::Number* x,
                          const Ipopt::Number* z_l, const Ipopt::Number* z_u, Ipopt::Index m,
                          const Ipopt::Number*, const Ipopt::Number* lambda, Ipopt::Number,
-                         const Ipopt::IpoptData*, Ipopt::IpoptCalculatedQuantities* cq) override {
+                         const Ipopt::IpoptData* data,
+                         Ipopt::IpoptCalculatedQuantities* cq) override {
     kkt_error_ = constraint_violation_ = std::numeric_limits<double>::infinity();
-    if (cq != nullptr) {
+    // When IPOPT stops before its first iterate is complete (a function or derivative not
+    // finite at the start, too few degrees of freedom, ...), its quantities are not computed,
+    // and asking for them reads vectors that hold no values (SIGSEGV in IpBlasDasum).
+    const bool stopped_at_start = status == Ipopt::INVALID_NUMBER_DETECTED ||
+                                  status == Ipopt::TOO_FEW_DEGREES_OF_FREEDOM ||
+                                  status == Ipopt::INTERNAL_ERROR ||
+                                  status == Ipopt::INVALID_OPTION || status == Ipopt::OUT_OF_MEMORY;
+    if (cq != nullptr && data != nullptr && Ipopt::IsValid(data->curr()) && !stopped_at_start) {
       kkt_error_ = cq->curr_nlp_error();
       constraint_violation_ = cq->unscaled_curr_nlp_constraint_violation(Ipopt::NORM_MAX);
     }
@@ -1062,6 +1139,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   double kkt_error_ = std::numeric_limits<double>::infinity();
   double constraint_violation_ = std::numeric_limits<double>::infinity();
   std::array<Eigen::VectorXd, 4> saved_;
+  const std::function<bool()>* cancelled_ = nullptr;
 };
 
 double process_cpu_seconds() {
@@ -1095,6 +1173,9 @@ double Transcription::equilibration(const Eigen::VectorXd& w) const {
 double Transcription::complementarity(const Eigen::VectorXd& w) const {
   return handle_->nlp->complementarity(w.data());
 }
+std::string Transcription::non_finite_at(const Eigen::VectorXd& w) const {
+  return handle_->nlp->non_finite_at(w.data());
+}
 double Transcription::start_v(int k) const { return handle_->nlp->start_v(k); }
 std::vector<double> Transcription::element_inputs(const Eigen::VectorXd& w, int e) const {
   std::vector<double> in;
@@ -1124,18 +1205,28 @@ struct HomotopySolver::Impl {
   std::string linear_solver;  // the one in use: settings' or the caller's string option
   Ipopt::SmartPtr<Ipopt::IpoptApplication> app;
 
-  // One NLP at the options set on `app`, recorded in `steps`.
+  ~Impl() {
+    // Releasing the application ends its MUMPS instance (dmumps_c with JOB = -2).
+    const std::lock_guard<std::recursive_mutex> lock(ipopt_mutex());
+    app = nullptr;
+  }
+
+  // One NLP at the options set on `app`, recorded in `steps`. IPOPT and MUMPS run under the
+  // process's lock, one NLP at a time (ipopt_mutex, linear_solver.h).
   HomotopyStep solve(Transcription::Nlp& nlp, double sigma, bool polish, int index,
                      Ipopt::ApplicationReturnStatus& status) {
     apply_ipopt_options(*app, settings, settings.who);
+    const std::lock_guard<std::recursive_mutex> lock(ipopt_mutex());
     const double start = process_cpu_seconds();
+    nlp.set_cancel(settings.cancelled ? &settings.cancelled : nullptr);
     const ScopedMumpsAmalgamation fronts(settings.mumps_amalgamation && linear_solver == "mumps");
     nlp.keep_start();
     nlp.clear_missed();
     status = app->OptimizeTNLP(&nlp);
     int earlier_iterations = 0;
     bool widened = false;
-    if (status != Ipopt::Invalid_Option && nlp.structure_missed() && !nlp.full_structure()) {
+    if (status != Ipopt::Invalid_Option && status != Ipopt::User_Requested_Stop &&
+        nlp.structure_missed() && !nlp.full_structure()) {
       // An entry left out of the structure was not zero: the derivatives IPOPT used were
       // wrong, so the NLP again from its start with every candidate declared.
       earlier_iterations =
@@ -1176,6 +1267,7 @@ struct HomotopySolver::Impl {
 
 HomotopySolver::HomotopySolver(const IpoptSettings& settings) : impl_(new Impl) {
   impl_->settings = settings;
+  const std::lock_guard<std::recursive_mutex> lock(ipopt_mutex());
   impl_->app = IpoptApplicationFactory();
   impl_->app->RethrowNonIpoptException(false);
   // Before IPOPT sees it: a solver missing from its library makes IPOPT 3.11 return
@@ -1264,6 +1356,14 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
     out.iterations += step.iterations;
     out.steps.push_back(step);
     if (on_step) on_step(step);
+    if (status == Ipopt::User_Requested_Stop) {
+      out.cancelled = true;
+      out.failed_status = step.ipopt_status;
+      out.failed_sigma = sigma;
+      out.failed_complementarity = step.complementarity;
+      if (out.any_solved) nlp.restore();
+      return out;
+    }
     // A square problem (every unknown pinned) is reported as Feasible_Point_Found.
     const bool solved = status == Ipopt::Solve_Succeeded ||
                         status == Ipopt::Solved_To_Acceptable_Level ||

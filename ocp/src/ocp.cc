@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <limits>
 #include <string>
 #include <utility>
 #include <vector>
@@ -30,6 +31,8 @@ const char* to_string(OcpStatus status) {
       return "infeasible";
     case OcpStatus::kBudgetExhausted:
       return "budget_exhausted";
+    case OcpStatus::kCancelled:
+      return "cancelled";
   }
   return "unknown";
 }
@@ -89,23 +92,46 @@ class ControlsAsStates final : public StepModel {
 
 std::string number(double value) { return format_number(value); }
 
-void check_vector(const Eigen::VectorXd& v, int size, const char* name, bool allow_empty = true) {
+// What the entries of a vector may be: any number but NaN (bounds, where infinity means
+// "unbounded"; its direction is checked by check_bounds), finite, or finite and >= 0 (weights).
+enum class Entries { kNotNan, kFinite, kWeights };
+
+void check_vector(const Eigen::VectorXd& v, int size, const char* name, bool allow_empty = true,
+                  Entries entries = Entries::kFinite) {
   if (v.size() == 0 && allow_empty) return;
   if (v.size() != size) {
     throw InvalidArgument(std::string("ocp: ") + name + " has " + std::to_string(v.size()) +
                           " entries, expected " + std::to_string(size));
   }
   for (Eigen::Index k = 0; k < v.size(); ++k) {
-    if (std::isnan(v[k])) {
-      throw InvalidArgument(std::string("ocp: ") + name + "[" + std::to_string(k) + "] is nan");
+    const bool bad = std::isnan(v[k]) || (entries != Entries::kNotNan && !std::isfinite(v[k])) ||
+                     (entries == Entries::kWeights && v[k] < 0.0);
+    if (bad) {
+      throw InvalidArgument(std::string("ocp: ") + name + "[" + std::to_string(k) +
+                            "] = " + number(v[k]) + " must be " +
+                            (entries == Entries::kNotNan   ? "a number"
+                             : entries == Entries::kFinite ? "finite"
+                                                           : "finite and >= 0"));
     }
   }
 }
 
 void check_bounds(const Eigen::VectorXd& lower, const Eigen::VectorXd& upper, int size,
                   const char* lower_name, const char* upper_name) {
-  check_vector(lower, size, lower_name);
-  check_vector(upper, size, upper_name);
+  check_vector(lower, size, lower_name, true, Entries::kNotNan);
+  check_vector(upper, size, upper_name, true, Entries::kNotNan);
+  for (Eigen::Index k = 0; k < lower.size(); ++k) {
+    if (lower[k] == std::numeric_limits<double>::infinity()) {
+      throw InvalidArgument(std::string("ocp: ") + lower_name + "[" + std::to_string(k) +
+                            "] = inf: a lower bound may be -inf (unbounded), not +inf");
+    }
+  }
+  for (Eigen::Index k = 0; k < upper.size(); ++k) {
+    if (upper[k] == -std::numeric_limits<double>::infinity()) {
+      throw InvalidArgument(std::string("ocp: ") + upper_name + "[" + std::to_string(k) +
+                            "] = -inf: an upper bound may be inf (unbounded), not -inf");
+    }
+  }
   for (int k = 0; k < size && lower.size() > 0 && upper.size() > 0; ++k) {
     if (lower[k] > upper[k]) {
       throw InvalidArgument(std::string("ocp: ") + lower_name + "[" + std::to_string(k) +
@@ -118,13 +144,19 @@ void check_bounds(const Eigen::VectorXd& lower, const Eigen::VectorXd& upper, in
 void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o) {
   const int d = model.states(), nu = model.controls();
   check_vector(p.x0, d, "x0", false);
-  if (!p.x0.allFinite()) throw InvalidArgument("ocp: x0 is not finite");
   if (!(p.horizon > 0.0) || !std::isfinite(p.horizon)) {
     throw InvalidArgument("ocp: the horizon must be positive and finite, got " + number(p.horizon));
   }
-  if (p.time_optimal && (!(p.T_min <= p.T_max) || !(p.T_max > 0.0) || std::isnan(p.T_min))) {
+  if (p.time_optimal &&
+      (!(p.T_min <= p.T_max) || !(p.T_max > 0.0) || !std::isfinite(p.T_min) || !(p.T_min >= 0.0))) {
     throw InvalidArgument("ocp: T_min = " + number(p.T_min) + ", T_max = " + number(p.T_max) +
-                          " is no interval of positive times");
+                          " is no interval of positive times (T_min finite and >= 0, T_max "
+                          "above it, inf for none)");
+  }
+  if (!p.time_optimal && (p.T_min != 0.0 || p.T_max != std::numeric_limits<double>::infinity())) {
+    throw InvalidArgument("ocp: T_min = " + number(p.T_min) + ", T_max = " + number(p.T_max) +
+                          " bound a free horizon, but time_optimal is not set (the horizon " +
+                          number(p.horizon) + " is fixed)");
   }
   check_bounds(p.x_lower, p.x_upper, d, "x_lower", "x_upper");
   if (p.clock_state < -1 || p.clock_state >= d) {
@@ -151,10 +183,25 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
   check_bounds(p.path_lower, p.path_upper, model.path_constraints(), "path_lower", "path_upper");
   check_bounds(p.terminal_lower, p.terminal_upper, model.terminal_constraints(), "terminal_lower",
                "terminal_upper");
-  check_vector(p.track_Q, d, "track_Q");
-  check_vector(p.track_R, nu, "track_R");
-  check_vector(p.track_Q_terminal, d, "track_Q_terminal");
+  check_vector(p.track_Q, d, "track_Q", true, Entries::kWeights);
+  check_vector(p.track_R, nu, "track_R", true, Entries::kWeights);
+  check_vector(p.track_Q_terminal, d, "track_Q_terminal", true, Entries::kWeights);
   check_vector(p.u_ref, nu, "u_ref");
+  const bool tracking =
+      p.track_Q.size() > 0 || p.track_R.size() > 0 || p.track_Q_terminal.size() > 0;
+  if (p.track_time_scale >= 0 && p.track_Q.size() == 0 && p.track_R.size() == 0) {
+    throw InvalidArgument("ocp: track_time_scale = " + std::to_string(p.track_time_scale) +
+                          " scales the stage tracking, but neither track_Q nor track_R is given");
+  }
+  if (o.tracking == OcpTracking::kStageEnds && !tracking) {
+    throw InvalidArgument(
+        "ocp: tracking at the stage ends is chosen, but no track_Q, track_R or track_Q_terminal "
+        "is given");
+  }
+  if (p.x_bounds_at_stage_points && p.x_lower.size() == 0 && p.x_upper.size() == 0) {
+    throw InvalidArgument(
+        "ocp: x_bounds_at_stage_points is set, but there are no x bounds (x_lower, x_upper)");
+  }
   if ((p.track_Q.size() > 0 || p.track_Q_terminal.size() > 0) && !p.x_ref) {
     throw InvalidArgument("ocp: track_Q or track_Q_terminal is given without x_ref");
   }
@@ -172,8 +219,23 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
                           std::to_string(p.guess_u.cols()) + ", expected " + std::to_string(nu) +
                           " x 1 or " + std::to_string(nu) + " x " + std::to_string(o.stages));
   }
+  for (Eigen::Index k = 0; k < p.guess_u.size(); ++k) {
+    const double v = p.guess_u.data()[k];
+    if (!std::isfinite(v)) {
+      throw InvalidArgument("ocp: guess_u(" + std::to_string(k % std::max<Eigen::Index>(nu, 1)) +
+                            ", " + std::to_string(k / std::max<Eigen::Index>(nu, 1)) +
+                            ") = " + number(v) + " must be finite");
+    }
+  }
   if (p.guess == OcpGuess::kReference && !p.guess_trajectory) {
     throw InvalidArgument("ocp: the reference guess needs guess_trajectory");
+  }
+  if (p.guess != OcpGuess::kReference && p.guess_trajectory) {
+    throw InvalidArgument(
+        "ocp: guess_trajectory is given, but the guess is not the reference guess");
+  }
+  if (p.guess != OcpGuess::kSimulation && p.guess_policy) {
+    throw InvalidArgument("ocp: guess_policy is given, but the guess is not the simulated guess");
   }
   if (o.stages < 1 || o.elements < 1) {
     throw InvalidArgument("ocp: N = " + std::to_string(o.stages) + " control stages and N_FE = " +
@@ -223,9 +285,35 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
         "ocp: tracking at the stage ends weighs by the fixed stage length T / N (time_optimal "
         "is set)");
   }
-  if (!std::isfinite(o.exact_hessian_scale)) {
+  if (!std::isfinite(o.exact_hessian_scale) || (o.exact_hessian_scale != 1.0 && !o.exact_hessian)) {
     throw InvalidArgument("ocp: exact_hessian_scale = " + number(o.exact_hessian_scale) +
-                          " must be finite");
+                          (std::isfinite(o.exact_hessian_scale)
+                               ? " scales the exact Hessian, but exact_hessian is off"
+                               : " must be finite"));
+  }
+  if (!std::isfinite(o.sigma_final) || !std::isfinite(o.complementarity_tolerance) ||
+      !std::isfinite(o.nlp_tolerance) || !std::isfinite(o.equilibration_weight)) {
+    throw InvalidArgument("ocp: sigma_final = " + number(o.sigma_final) +
+                          ", complementarity_tolerance = " + number(o.complementarity_tolerance) +
+                          ", nlp_tolerance = " + number(o.nlp_tolerance) +
+                          ", equilibration_weight = " + number(o.equilibration_weight) +
+                          ": each must be finite");
+  }
+  if (o.print_level < 0 || o.print_level > 12) {
+    throw InvalidArgument("ocp: print_level = " + std::to_string(o.print_level) +
+                          " is not one of IPOPT's levels 0..12");
+  }
+  // Options that only act on FESD's free element lengths and cross complementarity.
+  if (o.standard && o.cross_complementarity != CrossComplementarity::kElementSums) {
+    throw InvalidArgument(
+        std::string("ocp: cross complementarity ") + to_string(o.cross_complementarity) +
+        " belongs to FESD, but standard time-stepping is asked for (one product per point and "
+        "pair, no cross complementarity)");
+  }
+  if (o.standard && (o.equilibration_weight > 0.0 || o.step_deviation_weight > 0.0)) {
+    throw InvalidArgument("ocp: equilibration_weight = " + number(o.equilibration_weight) +
+                          ", step_deviation_weight = " + number(o.step_deviation_weight) +
+                          " weigh the element lengths, which standard time-stepping fixes");
   }
   // Before the simulated guess: HomotopySolver checks it again, for every solver it builds.
   check_linear_solver(o.linear_solver, "ocp");
@@ -252,7 +340,10 @@ class OcpTerms final : public fesd::TranscriptionTerms {
     if (p_.x_ref) {
       for (int k = 0; k < stages; ++k) {
         Eigen::VectorXd r = p_.x_ref((k + (at_ends_ ? 1.0 : 0.5)) * p_.horizon / stages);
-        check_vector(r, d, "x_ref(t)", false);
+        check_vector(
+            r, d,
+            ("x_ref(" + number((k + (at_ends_ ? 1.0 : 0.5)) * p_.horizon / stages) + ")").c_str(),
+            false);
         x_ref_.push_back(r);
       }
       x_ref_end_ = p_.x_ref(p_.horizon);
@@ -412,6 +503,15 @@ FesdResult simulate_policy(const OcpModel& model, const Eigen::Ref<const Eigen::
       throw InvalidArgument("simulate_policy: " + std::string(what) + " has " +
                             std::to_string(bounds->size()) + " entries, expected " +
                             std::to_string(nu));
+    }
+  }
+  for (int j = 0; j < nu; ++j) {
+    const double lo = u_lower.size() > 0 ? u_lower[j] : -kInfinity;
+    const double hi = u_upper.size() > 0 ? u_upper[j] : kInfinity;
+    if (std::isnan(lo) || std::isnan(hi) || lo > hi) {
+      throw InvalidArgument("simulate_policy: u_lower[" + std::to_string(j) + "] = " + number(lo) +
+                            ", u_upper[" + std::to_string(j) + "] = " + number(hi) +
+                            " is no interval");
     }
   }
   options.sensitivities = false;
@@ -622,6 +722,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     sim.steps = 1;
     sim.newton = true;
     sim.linear_solver = options.linear_solver;
+    sim.cancelled = options.cancelled;
     if (problem.guess_policy) {
       int clamped = 0;
       simulation =
@@ -669,6 +770,16 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     ends = [x](int) { return std::make_pair(x, x); };
   }
   nlp.set_guess(u_guess, ends, lengths);
+  // IPOPT cannot start where the problem's functions are not finite (a guess whose model values
+  // overflow, e.g. u = 1e308), and it does not say so: refused here, naming where.
+  if (const std::string bad = nlp.non_finite_at(nlp.solution()); !bad.empty()) {
+    const char* kind = simulated                               ? "simulated"
+                       : problem.guess == OcpGuess::kReference ? "reference"
+                                                               : "constant";
+    throw InvalidArgument(std::string("ocp: at the initial guess (") + kind +
+                          "; guess_x, guess_u, x0) " + bad +
+                          ": the model cannot be evaluated there; give a guess where it is finite");
+  }
   // The elastic slack is IPOPT's last unknown.
   result.unknowns = l.variables() + (options.relaxation == OcpRelaxation::kElastic ? 1 : 0);
   result.constraints = nlp.constraints();
@@ -711,20 +822,25 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   };
   const fesd::HomotopyOutcome outcome = solver.run(nlp, rules, on_step);
   if (!outcome.done) {
-    result.status = outcome.budget_exhausted ? OcpStatus::kBudgetExhausted
-                    : outcome.infeasible     ? OcpStatus::kInfeasible
-                                             : OcpStatus::kNlpFailed;
-    result.message = outcome.budget_exhausted
-                         ? "the budget of " + std::to_string(options.max_total_iterations) +
-                               " IPOPT iterations (max_total_iterations) ran out at sigma = " +
-                               number(outcome.failed_sigma) + " (complementarity residual " +
-                               number(outcome.failed_complementarity) + ")"
-                         : "IPOPT returned " + outcome.failed_status +
-                               " at sigma = " + number(outcome.failed_sigma) +
-                               " (complementarity residual " +
-                               number(outcome.failed_complementarity) + ")";
+    result.status = outcome.cancelled          ? OcpStatus::kCancelled
+                    : outcome.budget_exhausted ? OcpStatus::kBudgetExhausted
+                    : outcome.infeasible       ? OcpStatus::kInfeasible
+                                               : OcpStatus::kNlpFailed;
+    result.message =
+        outcome.cancelled ? "cancelled (OcpOptions::cancelled) during the NLP at sigma = " +
+                                number(outcome.failed_sigma)
+        : outcome.budget_exhausted
+            ? "the budget of " + std::to_string(options.max_total_iterations) +
+                  " IPOPT iterations (max_total_iterations) ran out at sigma = " +
+                  number(outcome.failed_sigma) + " (complementarity residual " +
+                  number(outcome.failed_complementarity) + ")"
+            : "IPOPT returned " + outcome.failed_status +
+                  " at sigma = " + number(outcome.failed_sigma) + " (complementarity residual " +
+                  number(outcome.failed_complementarity) + ")";
     if (outcome.any_solved) {
       result.message += "; the result is the solution at sigma = " + number(outcome.last_sigma);
+    } else if (outcome.cancelled) {
+      result.message += "; no NLP was solved: the result is that NLP's last iterate";
     }
   }
 

@@ -829,3 +829,27 @@ TEST(OcpCommandTest, ALongLinearSolverNameIsQuotedBounded) {
 
 }  // namespace
 }  // namespace bflow::cli
+
+namespace bflow::cli {
+namespace {
+
+// Contradictory options are refused by ocp_solve's checks, before anything is solved: cross
+// complementarity belongs to FESD, --standard asks for plain time-stepping (this ran and exited
+// 0). --standard alone is not refused.
+TEST(OcpCommandTest, CrossComplementarityWithStandardIsRefused) {
+  const Outcome o = command_line(
+      {"ocp", "--example", "turbo-car", "--cross", "point-sums", "--standard", "--quiet"});
+  EXPECT_EQ(o.code, kExitBadInput);
+  EXPECT_TRUE(o.json.is_null());
+  EXPECT_EQ(o.err,
+            "error: ocp: cross complementarity point-sums belongs to FESD, but standard "
+            "time-stepping is asked for (one product per point and pair, no cross "
+            "complementarity)\n");
+  const Outcome standard =
+      command_line({"ocp", "--example", "turbo-car", "--N", "5", "--standard", "--quiet"});
+  EXPECT_NE(standard.code, kExitBadInput) << standard.err;
+  EXPECT_FALSE(standard.json.is_null());
+}
+
+}  // namespace
+}  // namespace bflow::cli

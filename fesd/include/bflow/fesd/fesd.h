@@ -49,6 +49,7 @@
 #define BFLOW_FESD_FESD_H_
 
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <string>
 #include <utility>
@@ -82,6 +83,18 @@ inline const char* to_string(CrossComplementarity cross) {
   if (cross == CrossComplementarity::kPointSums) return "point-sums";
   return cross == CrossComplementarity::kPointPairs ? "point-pairs" : "element-sums";
 }
+
+/** One integration step taken by fesd_simulate, as FesdOptions::progress receives it. */
+struct FesdStepReport {
+  int index = 0;        ///< 0, 1, ...: the steps taken (halves of a halved step count apart)
+  int planned = 0;      ///< N_sim, the steps of the run before any halving
+  double t = 0.0;       ///< the step's start
+  double length = 0.0;  ///< its length (T / N_sim, halved `halvings` times)
+  int halvings = 0;
+  bool newton = false;     ///< solved by Newton's method on a guessed active set
+  int nlp_iterations = 0;  ///< IPOPT iterations of its homotopy (0 for Newton)
+  double complementarity = 0.0;
+};
 
 struct FesdOptions {
   CollocationScheme scheme = CollocationScheme::kRadauIIA;
@@ -134,9 +147,18 @@ struct FesdOptions {
       multiplied by this (1 in any real use), so a test can show that IPOPT's second-order
       derivative checker reports a wrong Hessian. */
   double exact_hessian_scale = 1.0;
+  /** Polled before every integration step and after every IPOPT iteration; true ends the run
+      with FesdStatus::kCancelled and the steps done so far (e.g. a Ctrl-C check). Called on
+      the thread that runs fesd_simulate, inside IPOPT's callback under ipopt_mutex()
+      (linear_solver.h): it must not wait for another thread's FESD or OCP solve. */
+  std::function<bool()> cancelled;
+  /** Called after every integration step taken (e.g. a progress line on stderr). */
+  std::function<void(const FesdStepReport&)> progress;
 };
 
-enum class FesdStatus { kConverged, kStepFailed, kInvalidModel };
+/** cancelled: FesdOptions::cancelled asked to stop; the result covers [0, t] of the steps done
+    (x_end the state there, no sensitivity) and `message` says where it stopped. */
+enum class FesdStatus { kConverged, kStepFailed, kInvalidModel, kCancelled };
 const char* to_string(FesdStatus status);
 
 struct FesdResult {
@@ -191,6 +213,10 @@ inline constexpr std::int64_t kFesdMaxIndex = std::numeric_limits<int>::max();
     (10 unknowns per element), N_FE = 281 for IRMA (58 per element). */
 inline constexpr double kFesdMaxMemoryBytes = 4294967296.0;
 
+/** The longest integration step T / N_sim fesd_simulate takes (1e18): an element's length is
+    bounded by 2 T / (N_sim N_FE), and IPOPT takes a bound from 1e19 on as none. */
+inline constexpr double kFesdMaxStepLength = 1e18;
+
 /** The size of the problem fesd_simulate builds, in 64 bits, from the model's dimensions and
     the options alone (nothing is allocated). Per collocation point: `point_variables` z,
     `point_equalities` and `point_pairs` complementarity pairs, which are [F] Table 4's n_alg,
@@ -242,8 +268,15 @@ struct FesdProblemSize {
     than 10 switching functions), quoting the values. */
 FesdProblemSize fesd_problem_size(const StepModel& model, const FesdOptions& options);
 
-/** Integrates x' in f(x, a) from x0 over [0, t_end] by FESD.
-    @throws InvalidArgument for bad options or a non-finite x0 (quoting the values), and, before
+/** Integrates x' in f(x, a) from x0 over [0, t_end] by FESD. Thread-safe; IPOPT solves run
+    one at a time in a process (ipopt_mutex(), linear_solver.h): concurrent runs give the
+    results each gives alone, their IPOPT parts taking turns NLP by NLP (Newton-solved steps
+    run in parallel).
+    @throws InvalidArgument for bad options (NaN or infinite numbers among them; exact_hessian_scale
+    other than 1 without exact_hessian), a non-finite x0, a T that is not positive and finite or
+    whose steps T / N_sim are above 1e18 (2 T / (N_sim N_FE) bounds an element's length, and
+    IPOPT takes bounds from 1e19 on as none) or whose element length T / (N_sim N_FE) is below
+    the smallest normal double (quoting the values), and, before
     allocating anything, for a problem whose fesd_problem_size() exceeds kFesdMaxIndex or
     kFesdMaxMemoryBytes (naming N_FE, or N_sim when the run's results are what does not fit). */
 FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,

@@ -13,6 +13,7 @@
 #ifndef BFLOW_FESD_LINEAR_SOLVER_H_
 #define BFLOW_FESD_LINEAR_SOLVER_H_
 
+#include <mutex>
 #include <string>
 
 #include "bflow/core/errors.h"
@@ -87,6 +88,18 @@ class ScopedMumpsAmalgamation {
 
 /** The MUMPS analyses of this process that ran with KEEP(197) = 1 set by bflow. */
 long mumps_amalgamated_analyses();
+
+/** The process's one lock around IPOPT and MUMPS. MUMPS keeps state in Fortran module variables
+    shared by all its instances (its load balancing, DMUMPS_LOAD_INIT, allocates them in every
+    factorisation), so two factorisations at once corrupt each other, and IPOPT 3.11 does not
+    promise more. bflow holds this lock in IpoptApplicationFactory and Initialize, around every
+    OptimizeTNLP (one NLP of a homotopy or one polish: solves of other threads interleave
+    between them, each thread's results unchanged), when an IpoptApplication is released, in the
+    dmumps_c interposer (every MUMPS call, whoever makes it) and in check_linear_solver's dlopen.
+    It is recursive: the dmumps_c calls inside an OptimizeTNLP take it again on the same thread.
+    A single-threaded run pays one uncontended lock per NLP and per MUMPS call. Code that calls
+    IPOPT or MUMPS itself, beside bflow, in a program with several threads takes it too. */
+std::recursive_mutex& ipopt_mutex();
 
 }  // namespace bflow
 

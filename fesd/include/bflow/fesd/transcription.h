@@ -203,6 +203,10 @@ class Transcription {
   double equilibration(const Eigen::VectorXd& w) const;
   /** The largest aggregated complementarity product at w. */
   double complementarity(const Eigen::VectorXd& w) const;
+  /** "" when IPOPT can start at w: the objective, its gradient, the constraints, their Jacobian
+      and (exact Hessian) the Lagrangian's Hessian at unit multipliers are finite there; else
+      the first that is not, named by row (element, stage, kind) or unknown, with its value. */
+  std::string non_finite_at(const Eigen::VectorXd& w) const;
   /** The sides of every switching function on element e (+1, -1, 0 sliding), from the largest
       v of each pair over its points, with `tol` as zero. */
   std::vector<int> sides(const Eigen::VectorXd& w, int e, double tol) const;
@@ -240,10 +244,14 @@ struct IpoptSettings {
   std::vector<std::pair<std::string, std::string>> ipopt_string_options;
   std::vector<std::pair<std::string, double>> ipopt_numeric_options;
   std::vector<std::pair<std::string, int>> ipopt_integer_options;
+  /** Polled after every IPOPT iteration (IPOPT's intermediate callback, under ipopt_mutex):
+      true stops the NLP (User_Requested_Stop) and with it the homotopy
+      (HomotopyOutcome::cancelled). It must not wait for another thread's IPOPT solve. */
+  std::function<bool()> cancelled;
 };
 
 /** IpoptSettings from FesdOptions or OcpOptions (their print_level, exact_hessian,
-    max_nlp_iterations, linear_solver, mumps_amalgamation and ipopt_*_options). */
+    max_nlp_iterations, linear_solver, mumps_amalgamation, ipopt_*_options and cancelled). */
 template <typename Options>
 IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
   IpoptSettings s;
@@ -256,6 +264,7 @@ IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
   s.ipopt_string_options = options.ipopt_string_options;
   s.ipopt_numeric_options = options.ipopt_numeric_options;
   s.ipopt_integer_options = options.ipopt_integer_options;
+  s.cancelled = options.cancelled;
   return s;
 }
 
@@ -386,6 +395,10 @@ struct HomotopyOutcome {
   double failed_sigma = 0.0, failed_complementarity = 0.0;
   /** The homotopy ended because HomotopyRules::max_total_iterations ran out. */
   bool budget_exhausted = false;
+  /** IpoptSettings::cancelled asked to stop: the NLP at failed_sigma was cut short; the
+      transcription holds the last solved NLP's solution (any_solved) or that NLP's last
+      iterate. */
+  bool cancelled = false;
   /** sigma of every NLP that failed and handed its last iterate on (continue_after_failure). */
   std::vector<double> continued;
   /** HomotopyRules::early_polish_sigma: the homotopy ended with a kept polish of the NLP at

@@ -478,6 +478,11 @@ struct OcpOptions {
   bool mumps_amalgamation = true;
   /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
   std::function<void(const OcpHomotopyStep&)> progress;
+  /** Polled after every IPOPT iteration (and by the simulated guess before each of its steps);
+      true ends the homotopy with OcpStatus::kCancelled, the result from the last solved NLP
+      (e.g. a Ctrl-C check). Called on the thread that runs ocp_solve, inside IPOPT's callback
+      under ipopt_mutex() (linear_solver.h): it must not wait for another thread's solve. */
+  std::function<bool()> cancelled;
   /** IPOPT options set after bflow's own (mu_strategy adaptive, bound_relax_factor 0 and those
       of the homotopy; fesd::set_ipopt_defaults), so they win. On large problems MUMPS factorizes
       20-36 % faster with {"mumps_pivot_order", 0} (AMD) and {"mumps_mem_percent", 200}
@@ -509,6 +514,9 @@ enum class OcpStatus {
   kInfeasible,      ///< IPOPT found the NLP locally infeasible
   /** OcpOptions::max_total_iterations ran out before the homotopy ended (result: last good). */
   kBudgetExhausted,
+  /** OcpOptions::cancelled asked to stop (result: the last solved NLP's, else the NLP's last
+      iterate, or the guess when none had started). */
+  kCancelled,
 };
 const char* to_string(OcpStatus status);  ///< "solved", "complementarity_not_reached", ...
 
@@ -565,10 +573,21 @@ struct OcpProblemSize {
 OcpProblemSize ocp_problem_size(const OcpModel& model, const OcpOptions& options);
 
 /** Solves the OCP. Progress goes to options.progress; IPOPT prints only at print_level > 0.
+    Thread-safe; IPOPT solves run one at a time in a process: the lock (ipopt_mutex(),
+    linear_solver.h) is held for one NLP of the homotopy at a time, so concurrent calls take
+    turns NLP by NLP, each with the result it gives alone.
     @throws InvalidArgument for inconsistent data (sizes of x0, bounds, guesses, references;
-    lower > upper; non-finite x0; tracking with a free horizon; options out of range; a problem
-    whose ocp_problem_size() has an excess), quoting the values. An NLP that IPOPT cannot solve is a
-   status, not an exception. */
+    lower > upper; a NaN anywhere; an infinite x0, guess, reference, weight, horizon or T_min, a
+    lower bound of +inf or an upper bound of -inf (infinity means "unbounded" only); weights
+    below 0; tracking with a free horizon; options out of range), for contradictory options
+    (standard time-stepping with cross complementarity other than element sums, with an
+    equilibration or step-deviation weight; exact_hessian_scale without exact_hessian;
+    x_bounds_at_stage_points without x bounds; track_time_scale or stage-end tracking without
+    tracking; T_min or T_max with a fixed horizon; guess_policy without the simulated guess,
+    guess_trajectory without the reference guess), for a guess at which the NLP's objective,
+    constraints or derivatives are not finite (naming the row: element, stage and kind, or the
+    unknown), and for a problem whose ocp_problem_size() has an excess, quoting the values. An
+    NLP that IPOPT cannot solve is a status, not an exception. */
 OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem,
                     const OcpOptions& options = {});
 
