@@ -313,29 +313,65 @@ TEST(OcpRelaxations, ElasticModeReachesTheExactOptima) {
 }
 
 // The multipliers of the relaxed products against the optimal cost's slope in sigma (the
-// envelope theorem: dJ/dsigma = -sum mu), by central differences of single NLPs at sigma +- 1 %
-// on the braking block (N = 10). Measured: sum mu 3.68738e-3 against 3.68732e-3 at sigma = 0.1
-// (1.5e-5 relative), 4.0304e-3 against 4.0288e-3 at 1e-3 (4e-4); bound 1e-3 relative.
+// envelope theorem: dJ/dsigma = -sum mu), on the braking block (N = 10) by central differences
+// of single NLPs at sigma +- d and sigma +- 2 d, d = 10 % of sigma. The reference's error:
+// D(d) = (J(sigma + d) - J(sigma - d)) / (2 d) = J'(sigma) + J''' d^2 / 6 + O(d^4), and each J
+// carries the error e that IPOPT's stop leaves in the objective, so |D(d) - J'| <= J''' d^2 / 6
+// + n(d), n(d) = (e(sigma + d) + e(sigma - d)) / (2 d). The truncation is estimated from the
+// two deltas: D(2 d) - D(d) = J''' d^2 / 2 + O(d^4), so J''' d^2 / 6 is |D(2 d) - D(d)| / 3 to
+// within (n(d) + n(2 d)) / 3. The bound is the sum of the three. e is 10 (1 + |J|) times the
+// NLP's KKT error (IPOPT's scaled optimality error, at most its tol 1e-10 when it reports
+// Solve_Succeeded; an NLP may stop at its acceptable level instead, with the larger error it
+// reports): the objective's error is that error times multipliers of order 1 here, and the
+// difference of two neighbours' J at d = 1 % of sigma put it at 5e-11 (there the 1.3e-3 between
+// sum mu and D(d) at sigma = 1e-3 on one machine, 4e-4 on another, was this noise divided by
+// 2 d). The bound must stay below 10 % of sum mu, so that a multiplier off by a factor of 2 or of
+// the wrong sign fails.
 TEST(OcpStationarity, ProductMultipliersAreTheCostsSlopeInSigma) {
+  struct Nlp {
+    double objective, error;
+  };
   const auto nlp_at = [](double sigma) {
     OcpOptions options;
     options.sigma_initial = options.sigma_final = sigma;
     options.polish = false;
+    options.acceptable_iterations = 0;  // no stop at IPOPT's acceptable level: its tol or nothing
     const OcpResult r = solve_block(10, options);
     EXPECT_FALSE(r.homotopy.empty());
     return r.homotopy.empty() ? OcpHomotopyStep{} : r.homotopy.front();
   };
+  const auto reference = [&nlp_at](double sigma) {
+    const OcpHomotopyStep step = nlp_at(sigma);
+    const bool stopped =
+        step.ipopt_status == "Solve_Succeeded" || step.ipopt_status == "Solved_To_Acceptable_Level";
+    EXPECT_TRUE(stopped) << "sigma " << sigma << ": " << step.ipopt_status;
+    const double kkt = std::max(OcpOptions{}.nlp_tolerance, step.kkt_error);
+    std::printf("  J(%.6g) = %.15g, %s, KKT error %.2e\n", sigma, step.objective,
+                step.ipopt_status.c_str(), step.kkt_error);
+    return Nlp{step.objective, 10.0 * (1.0 + std::abs(step.objective)) * kkt};
+  };
   for (const double sigma : {1e-1, 1e-3}) {
     SCOPED_TRACE("sigma " + std::to_string(sigma));
-    const double delta = 1e-2 * sigma;
-    const OcpHomotopyStep at = nlp_at(sigma), below = nlp_at(sigma - delta),
-                          above = nlp_at(sigma + delta);
+    const double d = 0.1 * sigma;
+    const OcpHomotopyStep at = nlp_at(sigma);
     ASSERT_EQ(at.ipopt_status, "Solve_Succeeded");
-    const double slope = (above.objective - below.objective) / (2.0 * delta);
-    std::printf("sigma %g: sum mu %.10g, largest %.6g, -dJ/dsigma %.10g\n", sigma,
-                at.product_multipliers, at.largest_product_multiplier, -slope);
+    const Nlp minus2 = reference(sigma - 2 * d), minus = reference(sigma - d),
+              plus = reference(sigma + d), plus2 = reference(sigma + 2 * d);
+    const double slope = (plus.objective - minus.objective) / (2 * d);
+    const double slope2 = (plus2.objective - minus2.objective) / (4 * d);
+    const double noise = (plus.error + minus.error) / (2 * d);
+    const double noise2 = (plus2.error + minus2.error) / (4 * d);
+    const double truncation = std::abs(slope2 - slope) / 3.0 + (noise + noise2) / 3.0;
+    const double bound = truncation + noise;
+    const double off = std::abs(at.product_multipliers + slope);
+    std::printf(
+        "sigma %g: sum mu %.10g, largest %.6g, -D(d) %.10g, -D(2d) %.10g; |sum mu + D(d)| %.2e "
+        "against the bound %.2e (truncation %.2e, the NLPs' errors %.2e), %.2e of sum mu\n",
+        sigma, at.product_multipliers, at.largest_product_multiplier, -slope, -slope2, off, bound,
+        truncation, noise, bound / at.product_multipliers);
     EXPECT_GT(at.product_multipliers, 0.0);
-    EXPECT_NEAR(at.product_multipliers, -slope, 1e-3 * at.product_multipliers);
+    EXPECT_LT(bound, 0.1 * at.product_multipliers);
+    EXPECT_LE(off, bound);
     EXPECT_LE(at.largest_product_multiplier, at.product_multipliers);
   }
 }
@@ -381,29 +417,95 @@ TEST(OcpPolish, FromAFarRelaxationTheActiveSetIsConsistent) {
   }
 }
 
-// The iteration budget bounds the early polish too: on the braking block (N = 10) the homotopy
-// takes 107 iterations down to sigma = 1e-4 and its early polishes 19 + 7 more (measured). With a
-// budget of 110 the polish gets the 3 left, is not solved in them, and the run ends with the budget
-// spent, not above it.
+// OcpOptions::max_total_iterations bounds the homotopy's NLPs and its early polishes; only the
+// final polish after sigma_final is outside it (ocp.h), and that polish runs only when the
+// homotopy ended by itself. HomotopySolver::run gives each NLP and early polish IPOPT's max_iter
+// = what is left of the budget, and IPOPT stops at max_iter iterations at the latest, so the
+// budgeted iterations never exceed the budget; the run ends kBudgetExhausted only when nothing is
+// left or an NLP ran out of what was, i.e. with the budget spent exactly. (With probe_sparsity an
+// NLP found to need a wider structure is solved twice, each time with max_iter what was left:
+// that exception is off here.) The budgets are taken from a run without one on the braking block
+// (N = 10): the NLPs of a budgeted run are those of the free run (max_iter changes only where
+// IPOPT stops), so each budget below the free run's count cuts it, wherever it runs: 1 (the
+// first NLP cut, nothing solved), what leaves the first early polish half of the iterations it
+// took in the free run (the polish is cut, not kept, and the run ends there), and half of the
+// free run's budgeted iterations.
+int budgeted_iterations(const OcpResult& r, const OcpOptions& options) {
+  const bool ended_by_itself = r.status == OcpStatus::kSolved ||
+                               r.status == OcpStatus::kComplementarityNotReached ||
+                               r.status == OcpStatus::kAcceptableOnly;
+  const bool polished_early = std::any_of(r.notes.begin(), r.notes.end(), [](const auto& note) {
+    return note.rfind("polished at sigma = ", 0) == 0;
+  });
+  const bool final_polish = options.polish && ended_by_itself && !polished_early;
+  int n = r.ipopt_iterations;
+  if (final_polish && !r.homotopy.empty() && r.homotopy.back().polish)
+    n -= r.homotopy.back().iterations;
+  return n;
+}
+
 TEST(OcpStatus, TheBudgetBoundsTheEarlyPolish) {
-  const OcpResult free = solve_block(10);
+  const OcpOptions unbounded;
+  const OcpResult free = solve_block(10, unbounded);
   ASSERT_TRUE(free.ok()) << free.message;
-  ASSERT_GT(free.ipopt_iterations, 110);
-  OcpOptions options;
-  options.max_total_iterations = 110;
-  const OcpResult r = solve_block(10, options);
-  EXPECT_EQ(r.status, OcpStatus::kBudgetExhausted) << r.message;
-  EXPECT_LE(r.ipopt_iterations, 110);
-  ASSERT_FALSE(r.homotopy.empty());
-  bool polished = false;
-  for (const OcpHomotopyStep& s : r.homotopy) polished = polished || s.polish;
-  EXPECT_TRUE(polished) << "the early polish was not tried";
+  const int free_budgeted = budgeted_iterations(free, unbounded);
+  // The first early polish of the free run and the iterations before it.
+  std::size_t first_polish = 0;
+  int before_polish = 0;
+  while (first_polish < free.homotopy.size() && !free.homotopy[first_polish].polish)
+    before_polish += free.homotopy[first_polish++].iterations;
+  ASSERT_LT(first_polish + 1, free.homotopy.size()) << "no early polish in the free run";
+  const int polish_iterations = free.homotopy[first_polish].iterations;
+  ASSERT_GE(polish_iterations, 2);
+  ASSERT_GE(free.homotopy.front().iterations, 2);
+
+  const int into_polish = before_polish + polish_iterations / 2;
+  for (const int budget : {1, into_polish, free_budgeted / 2}) {
+    SCOPED_TRACE("budget " + std::to_string(budget) + " of the free run's " +
+                 std::to_string(free_budgeted));
+    ASSERT_LT(budget, free_budgeted);
+    OcpOptions options;
+    options.max_total_iterations = budget;
+    const OcpResult r = solve_block(10, options);
+    std::printf("budget %d (free run %d): %s, %d iterations; %s\n", budget, free_budgeted,
+                to_string(r.status), r.ipopt_iterations, r.message.c_str());
+    // Cut before the free run's end, and it says so.
+    ASSERT_EQ(r.status, OcpStatus::kBudgetExhausted) << r.message;
+    EXPECT_THAT(r.message, testing::StartsWith("the budget of " + std::to_string(budget) +
+                                               " IPOPT iterations (max_total_iterations) ran out"));
+    EXPECT_FALSE(r.polished);
+    // No final polish after a cut: every iteration is budgeted, and the budget is spent exactly.
+    EXPECT_EQ(budgeted_iterations(r, options), r.ipopt_iterations);
+    EXPECT_EQ(r.ipopt_iterations, budget);
+    // The result is the last solved NLP's (none before the free run's first NLP was done).
+    const auto solved = std::find_if(r.homotopy.rbegin(), r.homotopy.rend(), [](const auto& s) {
+      return !s.polish && (s.ipopt_status == "Solve_Succeeded" ||
+                           s.ipopt_status == "Solved_To_Acceptable_Level" ||
+                           s.ipopt_status == "Feasible_Point_Found");
+    });
+    if (budget < free.homotopy.front().iterations) {
+      EXPECT_EQ(solved, r.homotopy.rend());
+    } else if (budget > free.homotopy.front().iterations) {
+      ASSERT_NE(solved, r.homotopy.rend());
+      EXPECT_THAT(r.message, testing::HasSubstr("the result is the solution at sigma = " +
+                                                format_number(solved->sigma)));
+      EXPECT_EQ(r.objective, solved->objective);
+    }
+    if (budget == into_polish) {
+      // The early polish was tried with what was left and stopped there.
+      ASSERT_EQ(r.homotopy.size(), first_polish + 1);
+      EXPECT_TRUE(r.homotopy.back().polish);
+      EXPECT_EQ(r.homotopy.back().iterations, polish_iterations / 2);
+    }
+  }
 }
 
 // Without the warm start every NLP after the first starts from the previous solution's point
 // alone (IPOPT's own initialisation): the homotopy takes another path to the same exact optimum.
 // Measured: |T - 40/3| = 1.2e-10 (bound 1e-8), the switch times 2.7e-11 (t = 2, bound 2e-9) and
-// 9.4e-11 (t = 34/3, bound 1e-8).
+// 9.4e-11 (t = 34/3, bound 1e-8). Another path: some NLP after the first (the first starts alike)
+// ends at another point, its iterations or objective not those of the warm-started run (equal to
+// the last bit from other starts would mean the option was not applied).
 TEST(OcpRelaxations, ColdStartsReachTheExactOptimumToo) {
   OcpOptions options;
   options.warm_start = false;
@@ -413,7 +515,13 @@ TEST(OcpRelaxations, ColdStartsReachTheExactOptimumToo) {
   ASSERT_EQ(cold.switch_times.size(), 2u);
   EXPECT_NEAR(cold.switch_times[0], TurboCar::kSwitchTimes[0], 2e-9);
   EXPECT_NEAR(cold.switch_times[1], TurboCar::kSwitchTimes[1], 1e-8);
-  EXPECT_NE(cold.ipopt_iterations, solve_car(5).ipopt_iterations);
+  const OcpResult warm = solve_car(5);
+  bool other_path = cold.homotopy.size() != warm.homotopy.size();
+  for (std::size_t k = 1; !other_path && k < cold.homotopy.size(); ++k) {
+    other_path = cold.homotopy[k].iterations != warm.homotopy[k].iterations ||
+                 cold.homotopy[k].objective != warm.homotopy[k].objective;
+  }
+  EXPECT_TRUE(other_path) << "the cold starts took the warm-started run's path";
 }
 
 // Without the polish the relaxed solution at sigma_final is reported as it is: its residual is
@@ -530,8 +638,9 @@ TEST(OcpLinearAlgebra, SmallFrontAmalgamationFollowsTheOption) {
 
 // The early polish (early_polish_sigma): on the turbo car at N = 5 a polish of an NLP at
 // sigma <= 1e-4 (measured: 1e-5, the one at 1e-4 not kept) ends the homotopy at T* = 40/3
-// (bound 1e-8) in fewer IPOPT iterations than the homotopy down to 1e-10, and notes say where it
-// stopped; the products left are within the tolerance.
+// (bound 1e-8) above sigma_final, where the homotopy without it goes on to 1e-10 (what that
+// saves in iterations is measured in docs/ocp.md, not asserted), and notes say where it stopped;
+// the products left are within the tolerance.
 TEST(OcpHomotopy, EarlyPolishEndsTheHomotopyAtTheExactOptimum) {
   OcpOptions o;
   o.early_polish_sigma = 1e-4;
@@ -544,7 +653,6 @@ TEST(OcpHomotopy, EarlyPolishEndsTheHomotopyAtTheExactOptimum) {
   EXPECT_TRUE(early.polished);
   EXPECT_NEAR(early.T, TurboCar::kOptimalTime, 1e-8);
   EXPECT_LE(early.max_complementarity, o.complementarity_tolerance);
-  EXPECT_LT(early.ipopt_iterations, full.ipopt_iterations);
   EXPECT_TRUE(early.homotopy.back().polish);
   // The polish kept, then the polish once more from its solution: the NLP before them.
   ASSERT_GE(early.homotopy.size(), 3u);
@@ -553,13 +661,18 @@ TEST(OcpHomotopy, EarlyPolishEndsTheHomotopyAtTheExactOptimum) {
   EXPECT_LE(stop, 1e-4 * (1 + 1e-12));
   EXPECT_GT(stop, o.sigma_final);
   EXPECT_THAT(early.notes, testing::Contains(testing::HasSubstr("polished at sigma = ")));
-  // The first polish is tried right after the NLP at sigma = 100 * 0.1^6, which is 1e-4 only to
-  // round-off (1.0000000000000003e-4): the threshold allows for that, or the first try would
-  // wait for 1e-5.
+  // The first polish is tried right after the first NLP at sigma <= 1e-4, and none before. On
+  // the schedule 100 * 0.1^k that NLP is the one at 100 * 0.1^6, which is 1e-4 only to round-off
+  // (1.0000000000000003e-4): the threshold allows for that, or the first try would wait for
+  // 1e-5 (a retry halving a step in log sigma would move the schedule off these values).
   const auto first_polish = std::find_if(early.homotopy.begin(), early.homotopy.end(),
                                          [](const OcpHomotopyStep& s) { return s.polish; });
   ASSERT_NE(first_polish, early.homotopy.begin());
-  EXPECT_NEAR(std::prev(first_polish)->sigma, 1e-4, 1e-16);
+  EXPECT_LE(std::prev(first_polish)->sigma, 1e-4 * (1 + 1e-9));
+  for (auto s = early.homotopy.begin(); s + 1 < first_polish; ++s) {
+    EXPECT_GT(s->sigma, 1e-4 * (1 + 1e-9)) << "an NLP at sigma <= 1e-4 without a polish";
+  }
+
   EXPECT_EQ(full.homotopy[full.homotopy.size() - 2].sigma, o.sigma_final);
   // As exact as the final polish: no product left.
   EXPECT_EQ(early.max_complementarity, 0.0);
