@@ -36,9 +36,13 @@ std::vector<OcpHomotopyStep> relaxed_steps(const OcpResult& r) {
 // N = 5 (the switches fit the stages), sigma from 100 by factors of 10, complementarity
 // tolerance 1e-6. Every NLP before the stop has a residual above 1e-6, the last one (at the
 // sigma where the residual first fell within it, solved again at nlp_tolerance 1e-10 when it
-// was solved more loosely) within it, and sigma_final 1e-10 is not reached. Measured: 10 NLPs
-// (sigma = 100 ... 1e-6, then 1e-6 again at nlp_tolerance) and 204 IPOPT iterations against 13
-// NLPs and 659 iterations down to 1e-10; after the polish |T - 40/3| = 1.2e-10 in both.
+// was solved more loosely) within it, and sigma_final 1e-10 is not reached. The NLPs up to the
+// stop are those of the run down to 1e-10 (the rule changes only where the homotopy ends), which
+// goes on below: every relaxed product is at most sigma (plus IPOPT's constraint violation,
+// within its tol 1e-2 sigma), so the residual is within 1e-6 by sigma = 1e-7 at the latest, three
+// NLPs above sigma_final, and the stop leaves at most one more NLP (the solve again). Measured: 10
+// NLPs (sigma = 100 ... 1e-6, then 1e-6 again at nlp_tolerance) against 13 down to 1e-10; after the
+// polish |T - 40/3| = 1.2e-10 in both.
 TEST(OcpHomotopy, StopsAtTheFirstNlpWithinTheComplementarityTolerance) {
   OcpOptions options;
   options.stages = 5;
@@ -62,8 +66,13 @@ TEST(OcpHomotopy, StopsAtTheFirstNlpWithinTheComplementarityTolerance) {
   // At most a second solve of the same NLP after the first one within the tolerance.
   EXPECT_LE(steps.size() - first_within, 2u);
   EXPECT_EQ(steps[first_within].sigma, last.sigma);
-  EXPECT_LT(steps.size(), relaxed_steps(full).size());
-  EXPECT_LT(r.ipopt_iterations, full.ipopt_iterations);
+  const std::vector<OcpHomotopyStep> full_steps = relaxed_steps(full);
+  ASSERT_GT(full_steps.size(), first_within);
+  for (std::size_t k = 0; k <= first_within; ++k) {
+    EXPECT_EQ(steps[k].sigma, full_steps[k].sigma) << k;
+    EXPECT_EQ(steps[k].iterations, full_steps[k].iterations) << k;
+  }
+  EXPECT_LT(steps.size(), full_steps.size());
   EXPECT_THAT(r.notes, testing::Contains(testing::HasSubstr("the homotopy stopped at sigma")));
   EXPECT_THAT(full.notes, testing::Not(testing::Contains(testing::HasSubstr("stopped at"))));
 
@@ -123,9 +132,11 @@ TEST(OcpHomotopy, TotalIterationBudget) {
 
 // OcpOptions::intermediate_tolerance_factor = 0 gives every NLP of the homotopy IPOPT's tol
 // nlp_tolerance (nosnoc's rule), the default 1e-2 the NLPs before the last only
-// max(nlp_tolerance, 1e-2 sigma): the first NLP (sigma = 100) then ends "optimal" at a KKT error
-// far above nlp_tolerance (measured 1.5e-4), with factor 0 every "optimal" NLP within 1e-8
-// (the first at 1.1e-9). Both reach T* = 40/3 (|T - 40/3| 1.4e-10 and 6.0e-11).
+// max(nlp_tolerance, 1e-2 sigma): the first NLP (sigma = 100, tol 1) then ends "optimal" at a
+// KKT error within 1 and above nlp_tolerance (measured 1.5e-4: IPOPT stops at the first iterate
+// within its tol), with factor 0 every "optimal" NLP within 1e-8 (the first at 1.1e-9), among
+// them NLPs at sigma >= 1e-6, where factor 1e-2 would have allowed more than 1e-8. Both reach
+// T* = 40/3 (|T - 40/3| 1.4e-10 and 6.0e-11).
 TEST(OcpHomotopy, IntermediateToleranceFactor) {
   OcpOptions options;
   options.stages = 5;
@@ -138,15 +149,16 @@ TEST(OcpHomotopy, IntermediateToleranceFactor) {
   ASSERT_EQ(tight.status, OcpStatus::kSolved) << tight.message;
   // IPOPT's "optimal" means a KKT error within the tol it was given; an NLP may still end at its
   // acceptable level instead (measured: sigma = 1e-6 at 2.1e-7).
-  int optimal = 0;
+  int optimal_above = 0;  // where the factor 1e-2 would have given a tol above 1e-8
   for (const OcpHomotopyStep& s : relaxed_steps(tight)) {
     if (s.ipopt_status != "Solve_Succeeded") continue;
-    ++optimal;
+    if (1e-2 * s.sigma > options.nlp_tolerance) ++optimal_above;
     EXPECT_LE(s.kkt_error, 1e-8) << s.sigma;
   }
-  EXPECT_GE(optimal, 10);
+  EXPECT_GE(optimal_above, 1);
   EXPECT_EQ(relaxed_steps(loose).front().ipopt_status, "Solve_Succeeded");
-  EXPECT_GT(relaxed_steps(loose).front().kkt_error, 1e-6);
+  EXPECT_LE(relaxed_steps(loose).front().kkt_error, 1e-2 * relaxed_steps(loose).front().sigma);
+  EXPECT_GT(relaxed_steps(loose).front().kkt_error, options.nlp_tolerance);
   EXPECT_NEAR(loose.T, 40.0 / 3.0, 1e-6);
   EXPECT_NEAR(tight.T, 40.0 / 3.0, 1e-6);
   std::printf("first NLP's KKT error: %.1e (factor 1e-2), %.1e (factor 0); |T - 40/3| %.1e, %.1e\n",
@@ -155,8 +167,9 @@ TEST(OcpHomotopy, IntermediateToleranceFactor) {
 }
 
 // OcpOptions::first_from_zero_multipliers: the first NLP starts as IPOPT's warm start with every
-// multiplier 0 instead of IPOPT's own initialisation. Another path (other iterations), the same
-// optimum T* = 40/3.
+// multiplier 0 instead of IPOPT's own initialisation. Another path (the first NLP ends at another
+// point: its iterations, objective or KKT error differ; equal to the last bit from two starts
+// would mean the option was not applied), the same optimum T* = 40/3.
 TEST(OcpHomotopy, FirstNlpFromZeroMultipliers) {
   OcpOptions options;
   options.stages = 5;
@@ -165,23 +178,33 @@ TEST(OcpHomotopy, FirstNlpFromZeroMultipliers) {
   const OcpResult zero = solve_car(options);
   ASSERT_EQ(own.status, OcpStatus::kSolved) << own.message;
   ASSERT_EQ(zero.status, OcpStatus::kSolved) << zero.message;
-  EXPECT_NE(own.homotopy.front().iterations, zero.homotopy.front().iterations);
+  const OcpHomotopyStep &a = own.homotopy.front(), &b = zero.homotopy.front();
+  EXPECT_TRUE(a.iterations != b.iterations || a.objective != b.objective ||
+              a.kkt_error != b.kkt_error)
+      << a.iterations << " iterations, objective " << a.objective << ", KKT error " << a.kkt_error
+      << " from either start";
   EXPECT_NEAR(zero.T, 40.0 / 3.0, 1e-8);
   std::printf("first NLP: %d iterations (IPOPT's start), %d (zero multipliers); |T - 40/3| %.1e\n",
               own.homotopy.front().iterations, zero.homotopy.front().iterations,
               std::abs(zero.T - 40.0 / 3.0));
 }
 
-// OcpOptions::continue_after_failure (nosnoc's rule). With 15 IPOPT iterations per NLP the turbo
-// car's first NLP (sigma = 100; 53 iterations without the cap) stops unsolved. bflow's rule has
+// OcpOptions::continue_after_failure (nosnoc's rule). With half the IPOPT iterations the turbo
+// car's first NLP (sigma = 100) takes without a cap (measured 53), it stops unsolved: the capped
+// run takes the same iterates and stops at the cap. bflow's rule has
 // no solved NLP to go back to and ends there (nlp_failed, one NLP); nosnoc's hands every failed
 // NLP's last iterate to the next sigma: the schedule 100, 10, ..., 1e-10 (13 NLPs) is walked
 // once, and the notes name each failed sigma but the last's, which is the result's message.
 TEST(OcpHomotopy, ContinueAfterFailure) {
   OcpOptions options;
   options.stages = 5;
-  options.max_nlp_iterations = 15;
   options.polish = false;
+  const OcpResult uncapped = solve_car(options);
+  ASSERT_FALSE(uncapped.homotopy.empty());
+  const OcpHomotopyStep& first = uncapped.homotopy.front();
+  ASSERT_EQ(first.ipopt_status, "Solve_Succeeded");
+  ASSERT_GE(first.iterations, 2);
+  options.max_nlp_iterations = first.iterations / 2;
   const OcpResult retried = solve_car(options);
   options.continue_after_failure = true;
   const OcpResult continued = solve_car(options);
