@@ -503,8 +503,18 @@ _FESD_OPTIONS = ("scheme", "stages", "elements", "standard", "formulation", "lif
                  "linear_solver")
 
 
+def _interrupted(result):
+    """A run that Ctrl-C cancelled: KeyboardInterrupt with the partial result as e.args[1] and
+    e.result; any other result as it is."""
+    if result.status == "cancelled":
+        e = KeyboardInterrupt(result.message, result)
+        e.result = result
+        raise e
+    return result
+
+
 def fesd_simulate(model, T: Optional[float] = None, x0=None, *,
-                  steps: Optional[int] = None, **options) -> FesdResult:
+                  steps: Optional[int] = None, progress: bool = False, **options) -> FesdResult:
     """A Filippov system simulated by Finite Elements with Switch Detection (docs/fesd.md), from
     x0 over [0, T] in ``steps`` integration steps.
 
@@ -518,9 +528,17 @@ def fesd_simulate(model, T: Optional[float] = None, x0=None, *,
     Options: scheme ("radau", "gauss"), stages (n_s, 2), elements (N_FE, 3), formulation ("step",
     "stewart"), lifting_depth, standard, sigma_initial, sigma_final, sigma_factor,
     nlp_tolerance, exact_hessian, max_nlp_iterations, newton, sensitivities (dx(T)/dx0, on),
-    linear_solver. Returns x_end, grid, states, step_sizes, switch_times, active_sets,
-    sensitivity and the counters of what the solver did (halved_steps, newton_steps,
-    acceptable_only_steps)."""
+    linear_solver. ``progress=True`` prints one line per integration step on stderr.
+
+    Returns a FesdResult: ok (the run reached T), status ("converged", "step failed", "invalid
+    model"), message (why not ok, and notes), x_end, grid, states, step_sizes, switch_times,
+    active_sets, sensitivity and the counters of what the solver did (halved_steps,
+    newton_steps, acceptable_only_steps). A horizon whose steps T / steps cannot be integrated
+    (above 1e18, or elements below the smallest normal double) is a ValueError naming T and
+    steps. The GIL is released while it runs; calls from several threads are safe, their IPOPT
+    solves taking turns (one at a time in a process). Ctrl-C stops the run between steps or
+    IPOPT iterations and raises KeyboardInterrupt, the partial result (status "cancelled", the
+    steps done) attached as ``e.args[1]`` and ``e.result``."""
     step_model = getattr(model, "_step_model", None)
     if step_model is None and model not in _FESD_DEFAULTS:
         raise ValueError(f"fesd_simulate: unknown example {model!r}; give a bflow.Model or one "
@@ -532,16 +550,24 @@ def fesd_simulate(model, T: Optional[float] = None, x0=None, *,
         if key not in _FESD_OPTIONS:
             raise ValueError(f"unknown option {key!r}; the options are {', '.join(_FESD_OPTIONS)}")
         _set_option(o, key, value, "fesd_simulate")
+    if progress:
+        def report(step):
+            print(f"step {step.index + 1}/{step.planned}: t {step.t:.10g} + {step.length:.6g}"
+                  f"{' (halved ' + str(step.halvings) + ' times)' if step.halvings else ''}, "
+                  f"{'newton' if step.newton else str(step.nlp_iterations) + ' IPOPT iterations'}"
+                  f", complementarity {step.complementarity:.2g}", file=sys.stderr, flush=True)
+        o.progress = report
     start = None if x0 is None else _as_array(x0, "x0", 1)
     if step_model is None:
-        return _bflow._fesd_example(model, float(T if T is not None else t_end), start, o)
+        return _interrupted(
+            _bflow._fesd_example(model, float(T if T is not None else t_end), start, o))
     native = step_model()
     if T is None or start is None:
         raise ValueError("fesd_simulate: a bflow.Model needs T and x0")
     if start.shape[0] != native.states:
         raise ValueError(f"fesd_simulate: x0 has {start.shape[0]} entries, the model "
                          f"{native.states} states")
-    return _bflow._fesd_model(native, float(T), start, o)
+    return _interrupted(_bflow._fesd_model(native, float(T), start, o))
 
 
 def fesd_exact(example: str) -> dict:
@@ -554,7 +580,8 @@ OcpResult = _bflow.OcpResult
 _OCP_OPTIONS = ("elements", "collocation_stages", "scheme", "formulation", "standard",
                 "relaxation", "sigma_initial", "sigma_final", "sigma_factor", "nlp_tolerance",
                 "complementarity_tolerance", "polish", "early_polish_sigma",
-                "max_total_iterations", "exact_hessian", "lifting_depth", "linear_solver")
+                "max_total_iterations", "exact_hessian", "lifting_depth", "linear_solver",
+                "cross_complementarity")
 
 
 _OCP_PROBLEM = ("x0", "T", "time_optimal", "T_min", "T_max", "x_lower", "x_upper", "u_lower",
@@ -586,8 +613,15 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
     collocation_stages (2), scheme, formulation, standard, relaxation ("scholtes", "l1",
     "elastic"), sigma_initial (100), sigma_final (1e-10), sigma_factor, nlp_tolerance,
     complementarity_tolerance, polish, early_polish_sigma, max_total_iterations, exact_hessian,
-    lifting_depth, linear_solver. ``progress=True`` prints one line per NLP on stderr. The GIL
-    is released while IPOPT runs. ``ocp_exact`` gives the exact optimum."""
+    lifting_depth, linear_solver, cross_complementarity ("element-sums", "point-pairs",
+    "point-sums"; FESD only: with standard=True it is refused, and a contact example's own
+    choice is left out). ``progress=True`` prints one line per NLP on stderr. The GIL is
+    released while IPOPT runs; calls from several threads are safe, their NLPs taking turns
+    (IPOPT solves run one at a time in a process). Ctrl-C stops the solve at the next IPOPT
+    iteration and raises KeyboardInterrupt, the result of the last solved NLP (status
+    "cancelled") attached as ``e.args[1]`` and ``e.result``. Guesses, bounds and data that are
+    NaN, infinite where no bound is meant, or at which the model's values are not finite are a
+    ValueError naming the entry. ``ocp_exact`` gives the exact optimum."""
     import sys
     ocp_model = getattr(model, "_ocp_model", None)
     contact = ocp_model is None and model in _CONTACT_DEFAULTS
@@ -613,6 +647,13 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
                              + (f"; the problem's data: {', '.join(_OCP_PROBLEM)}"
                                 if ocp_model is not None else ""))
         _set_option(o, key, value, "ocp_solve")
+    if contact and o.standard and "cross_complementarity" not in options:
+        # The example's settings for FESD's free element lengths and cross complementarity, of
+        # no use to standard time-stepping (fixed lengths, products point by point): the same
+        # solve without them, as the bflow ocp command does.
+        o.cross_complementarity = "element-sums"
+        o.step_deviation_weight = 0.0
+        o.equilibration_weight = 0.0
     if progress:
         def report(step):
             print(f"sigma {step.sigma:.3g}{' (polish)' if step.polish else ''}: "
@@ -621,9 +662,9 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
                   file=sys.stderr, flush=True)
         o.progress = report
     if contact:
-        return _bflow._contact_solve(model, setup or "nosnoc", o)
+        return _interrupted(_bflow._contact_solve(model, setup or "nosnoc", o))
     if ocp_model is None:
-        return _bflow._ocp_example(str(model), o)
+        return _interrupted(_bflow._ocp_example(str(model), o))
     native = ocp_model()
     if "x0" not in data or "T" not in data:
         raise ValueError("ocp_solve: a bflow.Model's problem needs x0 and T (the horizon)")
@@ -640,7 +681,7 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
             setattr(problem, key, float(value))
         else:
             setattr(problem, key, _as_array(np.atleast_1d(value), key, 1))
-    return _bflow._ocp_model(native, problem, o)
+    return _interrupted(_bflow._ocp_model(native, problem, o))
 
 
 def ocp_exact(example: str) -> dict:

@@ -14,6 +14,7 @@
 #include "bflow/examples/monoped_ocp.h"
 #include "bflow/ocp/ocp.h"
 #include "bindings.h"
+#include "interrupt.h"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -62,8 +63,9 @@ void bind_contact_examples(nb::module_& m) {
       "name"_a, "stages"_a, "setup"_a, "formulation"_a);
   m.def(
       "_contact_solve",
-      [](const std::string& name, const std::string& setup, const OcpOptions& options) {
+      [](const std::string& name, const std::string& setup, OcpOptions options) {
         check_name(name);
+        options.cancelled = interrupt_check();
         const auto solve = [&](const auto& model, const OcpProblem& problem) {
           return ocp_solve(model, problem, options);
         };

@@ -7,6 +7,7 @@
 
 #include <nanobind/eigen/dense.h>
 #include <nanobind/nanobind.h>
+#include <nanobind/stl/function.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/pair.h>
 #include <nanobind/stl/shared_ptr.h>
@@ -18,6 +19,7 @@
 #include "bflow/examples/switching_cases.h"
 #include "bflow/fesd/fesd.h"
 #include "bindings.h"
+#include "interrupt.h"
 #include "model_handle.h"
 
 namespace nb = nanobind;
@@ -63,7 +65,10 @@ void bind_fesd(nb::module_& m) {
   m.def(
       "_fesd_model",
       [](const std::shared_ptr<StepModel>& model, double t_end, const Eigen::VectorXd& x0,
-         const FesdOptions& options) { return fesd_simulate(*model, x0, t_end, options); },
+         FesdOptions options) {
+        options.cancelled = interrupt_check();
+        return fesd_simulate(*model, x0, t_end, options);
+      },
       "model"_a, "t_end"_a, "x0"_a, "options"_a, nb::call_guard<nb::gil_scoped_release>());
 
   nb::class_<FesdOptions>(m, "FesdOptions")
@@ -87,9 +92,27 @@ void bind_fesd(nb::module_& m) {
       .def_rw("max_nlp_iterations", &FesdOptions::max_nlp_iterations)
       .def_rw("newton", &FesdOptions::newton)
       .def_rw("sensitivities", &FesdOptions::sensitivities)
-      .def_rw("linear_solver", &FesdOptions::linear_solver);
+      .def_rw("linear_solver", &FesdOptions::linear_solver)
+      .def_rw("progress", &FesdOptions::progress);
 
-  nb::class_<FesdResult> result(m, "FesdResult");
+  nb::class_<FesdStepReport>(m, "FesdStepReport", "One integration step taken by fesd_simulate.")
+      .def_ro("index", &FesdStepReport::index)
+      .def_ro("planned", &FesdStepReport::planned)
+      .def_ro("t", &FesdStepReport::t)
+      .def_ro("length", &FesdStepReport::length)
+      .def_ro("halvings", &FesdStepReport::halvings)
+      .def_ro("newton", &FesdStepReport::newton)
+      .def_ro("nlp_iterations", &FesdStepReport::nlp_iterations)
+      .def_ro("complementarity", &FesdStepReport::complementarity);
+
+  nb::class_<FesdResult> result(
+      m, "FesdResult",
+      "A run of fesd_simulate. ok: the run reached T (status \"converged\"); status: "
+      "\"converged\", \"step failed\", \"invalid model\" or \"cancelled\"; message: why not "
+      "ok, and notes (a step solved only to IPOPT's acceptable level, no sensitivity); x_end, "
+      "grid, states, step_sizes, switch_times, active_sets, max_complementarity, sensitivity "
+      "(dx(T)/dx0) and the counters halved_steps, newton_steps, acceptable_only_steps, "
+      "nlp_iterations.");
   refuse_pickle(result, "bflow.FesdResult",
                 "it is a run's result; keep the arrays you need (x_end, grid, states, ...)");
   result.def_prop_ro("status", [](const FesdResult& r) { return std::string(to_string(r.status)); })
@@ -112,7 +135,8 @@ void bind_fesd(nb::module_& m) {
   m.def(
       "_fesd_example",
       [](const std::string& name, double t_end, std::optional<Eigen::VectorXd> x0,
-         const FesdOptions& options) {
+         FesdOptions options) {
+        options.cancelled = interrupt_check();
         return with_example(name, [&](const StepModel& model, const Eigen::VectorXd& start) {
           return fesd_simulate(model, x0 ? *x0 : start, t_end, options);
         });

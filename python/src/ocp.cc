@@ -17,6 +17,7 @@
 #include "bflow/examples/ocp_examples.h"
 #include "bflow/ocp/ocp.h"
 #include "bindings.h"
+#include "interrupt.h"
 #include "model_handle.h"
 
 namespace nb = nanobind;
@@ -67,6 +68,23 @@ void bind_ocp(nb::module_& m) {
       .def_rw("exact_hessian", &OcpOptions::exact_hessian)
       .def_rw("lifting_depth", &OcpOptions::lifting_depth)
       .def_rw("linear_solver", &OcpOptions::linear_solver)
+      .def_prop_rw(
+          "cross_complementarity",
+          [](const OcpOptions& o) { return std::string(to_string(o.cross_complementarity)); },
+          [](OcpOptions& o, const std::string& v) {
+            if (v == "element-sums") {
+              o.cross_complementarity = CrossComplementarity::kElementSums;
+            } else if (v == "point-pairs") {
+              o.cross_complementarity = CrossComplementarity::kPointPairs;
+            } else if (v == "point-sums") {
+              o.cross_complementarity = CrossComplementarity::kPointSums;
+            } else {
+              throw InvalidArgument("cross_complementarity: unknown rows \"" + v +
+                                    "\"; use element-sums, point-pairs or point-sums");
+            }
+          })
+      .def_rw("step_deviation_weight", &OcpOptions::step_deviation_weight)
+      .def_rw("equilibration_weight", &OcpOptions::equilibration_weight)
       .def_rw("progress", &OcpOptions::progress);
 
   nb::class_<OcpHomotopyStep>(m, "OcpHomotopyStep", "One NLP of the homotopy.")
@@ -157,13 +175,16 @@ void bind_ocp(nb::module_& m) {
       .def_rw("guess_u", &OcpProblem::guess_u);
   m.def(
       "_ocp_model",
-      [](const std::shared_ptr<OcpModel>& model, const OcpProblem& problem,
-         const OcpOptions& options) { return ocp_solve(*model, problem, options); },
+      [](const std::shared_ptr<OcpModel>& model, const OcpProblem& problem, OcpOptions options) {
+        options.cancelled = interrupt_check();
+        return ocp_solve(*model, problem, options);
+      },
       "model"_a, "problem"_a, "options"_a, nb::call_guard<nb::gil_scoped_release>());
 
   m.def(
       "_ocp_example",
-      [](const std::string& name, const OcpOptions& options) {
+      [](const std::string& name, OcpOptions options) {
+        options.cancelled = interrupt_check();
         if (name == "braking-block") {
           return ocp_solve(adapt_ocp(examples::BrakingBlock{}), examples::BrakingBlock::problem(),
                            options);

@@ -140,3 +140,23 @@ def test_irma_written_in_sympy_matches_the_builtin_network():
 def test_bad_sympy_fesd_input_is_refused(call, message):
     with pytest.raises(ValueError, match=message):
         call()
+
+
+def test_a_horizon_whose_steps_cannot_be_integrated_is_a_value_error():
+    # T = 1e308 returned x0 with ok=False and no exception.
+    with pytest.raises(ValueError, match=r"T = 1e\+308 over N_sim = 4 steps"):
+        bflow.fesd_simulate("crossing", T=1e308, steps=4)
+
+
+def test_progress_prints_one_line_per_step(capfd):
+    r = bflow.fesd_simulate("sliding-enter", steps=4, progress=True)
+    assert r.ok and r.status == "converged" and r.message == ""
+    lines = [l for l in capfd.readouterr().err.splitlines() if l.startswith("step ")]
+    assert [l.split(":")[0] for l in lines] == [f"step {k}/4" for k in range(1, 5)]
+    assert lines[1].startswith("step 2/4: t 0.25 + 0.25")
+
+
+def test_the_result_documents_ok_status_and_message():
+    doc = bflow.FesdResult.__doc__
+    for field in ("ok:", "status:", "message:"):
+        assert field in doc, field

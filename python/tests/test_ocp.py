@@ -149,3 +149,95 @@ def test_bad_sympy_ocp_models_are_refused_before_compiling(build, message):
 def test_bad_sympy_ocp_input_is_refused(call, message):
     with pytest.raises(ValueError, match=message):
         call()
+
+
+# --- threads, Ctrl-C and input checked before IPOPT (docs/ocp.md, Threads, Ctrl-C and what is
+# refused). Cases that could end the interpreter with a signal run in a child process, so that a
+# crash fails the test instead of killing pytest.
+import sys
+import textwrap
+
+
+def _child(code, timeout=300):
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def test_two_threads_give_the_serial_results():
+    # IPOPT and MUMPS from two threads at once (the GIL is released) ended in SIGSEGV ("PB
+    # allocation in DMUMPS_LOAD_INIT"); serialised, each call gives the serial result.
+    r = _child("""
+        from concurrent.futures import ThreadPoolExecutor
+        import numpy as np, bflow
+        def run(k):
+            if k % 2:
+                return bflow.fesd_simulate("sliding-enter", newton=False, steps=2).x_end
+            return bflow.ocp_solve("turbo-car", N=5).u
+        serial = [run(k) for k in range(4)]
+        with ThreadPoolExecutor(2) as pool:
+            both = list(pool.map(run, range(4)))
+        assert all(np.array_equal(a, b) for a, b in zip(serial, both)), (serial, both)
+        print("same")
+    """)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == "same"
+
+
+@pytest.mark.parametrize("data, message", [
+    (dict(guess_u=[np.nan]), r"guess_u\(0, 0\) = nan must be finite"),
+    (dict(guess_u=[np.inf]), r"guess_u\(0, 0\) = inf must be finite"),
+    (dict(guess_u=[1e308]), "at the initial guess .* the objective is inf"),
+    (dict(guess_x=[0, np.inf]), r"guess_x\[1\] = inf must be finite"),
+    (dict(u_lower=[np.inf]), r"u_lower\[0\] = inf: a lower bound may be -inf"),
+    (dict(T_max=5.0), "time_optimal is not set"),
+])
+def test_non_finite_or_absurd_data_is_a_value_error_not_a_crash(data, message):
+    # Each of the guesses ended the interpreter with SIGSEGV; in a child process so that a
+    # crash fails here.
+    r = _child(f"""
+        import numpy as np, sympy as sp, bflow
+        nan, inf = float("nan"), float("inf")
+        p, v, u = sp.symbols("p v u")
+        b0 = bflow.signs(1)[0]
+        m = bflow.Model([p, v], field=[v, u - b0], surfaces=[v], controls=[u],
+                        lagrange=v ** 2 + u ** 2)
+        try:
+            bflow.ocp_solve(m, N=5, x0=[0, 2.0], T=2.0, **{data!r})
+            print("solved")
+        except ValueError as e:
+            print("ValueError:", e)
+    """)
+    assert r.returncode == 0, r.stderr[-2000:]
+    import re
+    assert re.search(message, r.stdout), r.stdout
+
+
+def test_standard_with_cross_complementarity_is_refused():
+    with pytest.raises(ValueError, match="cross complementarity point-sums belongs to FESD"):
+        bflow.ocp_solve("turbo-car", N=5, standard=True, cross_complementarity="point-sums")
+
+
+def test_ctrl_c_stops_a_long_solve_with_the_partial_result():
+    # The turbo car at N = 200 takes minutes; SIGINT after 2 s must end it within 10 s (IPOPT
+    # iterations of this size take well under a second) with KeyboardInterrupt carrying the
+    # result of the last solved NLP.
+    import signal
+    import time
+    child = subprocess.Popen([sys.executable, "-c", textwrap.dedent("""
+        import sys, time, bflow
+        print("start", flush=True)
+        try:
+            bflow.ocp_solve("turbo-car", N=200)
+            print("finished")
+        except KeyboardInterrupt as e:
+            r = e.args[1]
+            print("KeyboardInterrupt", r.status, e.result is r, flush=True)
+    """)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert child.stdout.readline().strip() == "start"
+    time.sleep(2.0)
+    sent = time.monotonic()
+    child.send_signal(signal.SIGINT)
+    out, err = child.communicate(timeout=60)
+    waited = time.monotonic() - sent
+    assert out.strip() == "KeyboardInterrupt cancelled True", (out, err[-2000:])
+    assert waited < 10.0, waited
