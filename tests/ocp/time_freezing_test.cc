@@ -260,9 +260,13 @@ struct FieldOnly {
 
 // Stewart's formulation takes a piecewise-smooth model's modes in one call (mode_fields, mixed
 // at each base set's vertex by the model's own sign matrix, here the three regions with the
-// union) instead of one field evaluation per base set: the same numbers, as the homotopy runs
-// the same iterations. Measured: the states differ by 5e-31 at most (2.2e-16 in an earlier
-// build); bound 2e-14.
+// union) instead of one field evaluation per base set: the same numbers to round-off. The two
+// evaluations round differently; a step Newton solves (here every one, measured) ends at the same
+// discrete solution to round-off, and a step left to the homotopy may take other IPOPT iterations
+// and end within the round-off of this ball's homotopy, which
+// TangentialVelocityStopsInsideTheImpact measures across BLAS kernels and builds (up to 1.1e-13,
+// bound 1e-12). A field mixed wrongly is off by O(1). Measured: the states differ by 5e-31 at most
+// (2.2e-16 in an earlier build); bound 1e-12.
 TEST(TimeFreezingBall, StewartTakesTheModesInOneCall) {
   const Ball tf(FallingBall{}, {0.5, 100.0});
   const PiecewiseSmoothAsStep<Ball> pss(tf, Ball::sign_matrix());
@@ -283,8 +287,9 @@ TEST(TimeFreezingBall, StewartTakesTheModesInOneCall) {
   ASSERT_EQ(a.states.cols(), b.states.cols());
   const double difference = (a.states - b.states).cwiseAbs().maxCoeff();
   std::printf("largest state difference %.2e\n", difference);
-  EXPECT_LE(difference, 2e-14);
-  EXPECT_EQ(a.nlp_iterations, b.nlp_iterations);
+  EXPECT_LE(difference, 1e-12);
+  std::printf("steps by Newton: %d of %d (one call), %d (per vertex)\n", a.newton_steps, o.steps,
+              b.newton_steps);
 }
 
 // At the edge of the friction cone (vx0 = 1 < mu |vz-| = 2.2): the tangential velocity reaches
