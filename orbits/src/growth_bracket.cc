@@ -709,8 +709,54 @@ OrbitStability classify(const GrowthBracket& bracket) {
   return OrbitStability::kUndecided;
 }
 
+namespace {
+
+// rho(c L) = c rho(L), while the bracket's parts (the cones' slack, the norms' rounding, the
+// power iteration's steps) work in absolute numbers that under- or overflow for pieces far from
+// 1 (a map scaled by 1e-150 has products of 12 pieces of 1e-1800). With `rescale`, a map whose
+// pieces' largest entry is not in [1, 2) is brought there by a power of two, which is exact, and
+// the ends are scaled back.
+GrowthBracket unit_bracket(const FlowDerivative& map, const MatrixXd& basis,
+                           const OrbitOptions& options, bool rescale);
+
+GrowthBracket rescaled_bracket(const FlowDerivative& map, const MatrixXd& basis,
+                               const OrbitOptions& options, double size) {
+  if (!std::isfinite(size)) {
+    throw InvalidArgument(
+        "growth_rate_bracket: a piece of the map has an entry that is not finite (its largest "
+        "entry in the basis is " +
+        format_number(size) + "): no growth rate can be bracketed");
+  }
+  const int exponent = std::ilogb(size);
+  if (exponent < std::numeric_limits<double>::min_exponent) {
+    throw InvalidArgument("growth_rate_bracket: the map's pieces are at most " +
+                          format_number(size) +
+                          " in size, below the normal double range: their growth cannot be "
+                          "bracketed (scale the map)");
+  }
+  FlowDerivative scaled = map;
+  scaled.append_transition(MatrixXd::Identity(map.dim(), map.dim()) * std::ldexp(1.0, -exponent));
+  GrowthBracket b = unit_bracket(scaled, basis, options, false);
+  const auto up = [exponent](double v) { return std::ldexp(v, exponent); };
+  b.lower = up(b.lower);
+  b.upper = up(b.upper);
+  b.lower_margin = up(b.lower_margin);
+  b.upper_margin = up(b.upper_margin);
+  for (std::complex<double>& mu : b.multipliers) mu = {up(mu.real()), up(mu.imag())};
+  return b;
+}
+
+}  // namespace
+
 GrowthBracket growth_rate_bracket(const FlowDerivative& map, const MatrixXd& basis,
                                   const OrbitOptions& options) {
+  return unit_bracket(map, basis, options, true);
+}
+
+namespace {
+
+GrowthBracket unit_bracket(const FlowDerivative& map, const MatrixXd& basis,
+                           const OrbitOptions& options, bool rescale) {
   if (basis.rows() != map.dim() || basis.cols() > basis.rows() || !basis.allFinite()) {
     throw InvalidArgument("growth_rate_bracket: the basis is " + std::to_string(basis.rows()) +
                           " x " + std::to_string(basis.cols()) + " for a map of dimension " +
@@ -753,6 +799,15 @@ GrowthBracket growth_rate_bracket(const FlowDerivative& map, const MatrixXd& bas
           std::to_string(worst_piece) + " of " + std::to_string(pieces.size()) +
           " maps span(B) out of it by |(I - B B^T) M B|_F / |M B|_F = " + format_number(worst) +
           " (at most " + format_number(internal::kSpanTolerance) + ")");
+    }
+  }
+  if (rescale) {
+    double size = 0.0;
+    for (const internal::ConePiece& piece : pieces) {
+      size = std::max(size, piece.matrix.cwiseAbs().maxCoeff());
+    }
+    if (!std::isfinite(size) || (size > 0.0 && std::ilogb(size) != 0)) {
+      return rescaled_bracket(map, basis, options, size);
     }
   }
   GrowthBracket bracket;
@@ -861,5 +916,7 @@ GrowthBracket growth_rate_bracket(const FlowDerivative& map, const MatrixXd& bas
   internal::finish_bracket(bracket);
   return bracket;
 }
+
+}  // namespace
 
 }  // namespace bflow

@@ -655,12 +655,27 @@ namespace {
 // kRestCheckTolerance) x (1 + |x|_inf) over the period is an equilibrium (find_periodic_orbit).
 constexpr double kRestMotionPerTolerance = 1000.0;
 constexpr double kRestCheckTolerance = 1e-8;
+// A Newton correction of at least this fraction of the orbit's excursion, at a point whose
+// residual meets the tolerance, marks a vanishing orbit (find_periodic_orbit).
+constexpr double kVanishingFraction = 0.1;
+// ... where the orbit moves along the correction at least this many residuals.
+constexpr double kVanishingMotion = 100.0;
 
-// The largest distance |phi_t(x) - x|_inf over one period: at the events and at 32 equal times.
-double excursion(const SegmentModel& model, const VectorXd& x, const ReturnMap& map,
-                 const FlowOptions& flow) {
-  double largest = 0.0;
-  for (const EventRecord& e : map.events) largest = std::max(largest, inf_norm(e.rho - x));
+// The largest distance |phi_t(x) - x|_inf over one period, and the largest |u . (phi_t(x) - x)|
+// (the orbit's extent along u; 0 when u is empty): at the events and at 32 equal times.
+struct Excursion {
+  double reach = 0.0;
+  double along = 0.0;
+};
+
+Excursion excursion(const SegmentModel& model, const VectorXd& x, const ReturnMap& map,
+                    const FlowOptions& flow, const VectorXd& u = VectorXd()) {
+  Excursion out;
+  auto visit = [&](const VectorXd& y) {
+    out.reach = std::max(out.reach, inf_norm(y - x));
+    if (u.size() == x.size()) out.along = std::max(out.along, std::abs(u.dot(y - x)));
+  };
+  for (const EventRecord& e : map.events) visit(e.rho);
   FlowOptions options = flow;
   VectorXd y = x;
   const int samples = 32;
@@ -669,9 +684,32 @@ double excursion(const SegmentModel& model, const VectorXd& x, const ReturnMap& 
     if (!r.ok()) break;
     y = r.x;
     options.initial_sides = r.sides;
-    largest = std::max(largest, inf_norm(y - x));
+    visit(y);
   }
-  return largest;
+  return out;
+}
+
+// Why x is a point of a vanishing orbit rather than near a fixed point (empty when it is not):
+// Newton's correction dx is at least kVanishingFraction of the orbit's extent along dx while
+// the trajectory moves along dx at least kVanishingMotion times the residual. At a fixed point
+// with multiplier mu, |dx| is about |P(x) - x| / |1 - mu|: both hold only where |1 - mu| <=
+// 1 / (kVanishingMotion kVanishingFraction) = 0.1 and the orbit's extent along dx is at most 10
+// corrections, i.e. where the orbit is not resolved at all. The extent along dx is at least the
+// residual's component along it; on a direction the orbit is flat in (a coordinate that settles
+// to a constant) it is no more, so such a direction is not taken for a vanishing orbit.
+std::string vanishing_orbit(int iteration, double residual, double correction, double period,
+                            const Excursion& e) {
+  if (!(correction > 0.0) || !(correction >= kVanishingFraction * e.along) ||
+      !(e.along >= kVanishingMotion * residual)) {
+    return {};
+  }
+  return "the iteration approaches a vanishing orbit, not a fixed point: at iteration " +
+         std::to_string(iteration) + " |P(x) - x| = " + format_number(residual) +
+         " is small but Newton's correction |dx| = " + format_number(correction) + " is " +
+         format_number(correction / e.along) + " of the orbit's extent along it, " +
+         format_number(e.along) + " (period " + format_number(period) +
+         "): the linearised map puts the fixed point a good part of the orbit's size away, as " +
+         "where orbits shrink to a point (period and amplitude to 0)";
 }
 
 std::string cut(const std::string& text, std::size_t limit = 400) {
@@ -727,6 +765,7 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
   // check needs it (`refining`).
   double tolerance = options.tolerance;
   bool refining = false;
+  bool vanishing = false;
   NewtonEquationSolution last_solve;
   bool solved_once = false;
   for (int iteration = 0;; ++iteration) {
@@ -750,12 +789,38 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
     if (options.progress) options.progress(step);
     orbit.newton_iterations = iteration;
     const double scale = 1.0 + inf_norm(x);
-    if (residual <= tolerance * scale && tolerance > kRestCheckTolerance) {
+    const bool small_residual = residual <= tolerance * scale;
+    // The Newton correction at x: the step to the fixed point of the linearised map. It is the
+    // second half of the convergence test, and the step taken when the test fails.
+    const MatrixXd basis = orthogonal_complement(section_gradient(section, x));
+    last_solve = solve_newton_equation(current.derivative, basis, -(basis.transpose() * r));
+    solved_once = true;
+    const double correction = inf_norm(basis * last_solve.c);
+    orbit.correction = correction;
+    if (small_residual && !(correction <= tolerance * scale)) {
+      // A small residual alone proves nothing where the orbits themselves are small (near a
+      // point of a switching surface where both fields cross it, every small loop returns
+      // close to its start): a correction comparable to the orbit's own excursion says the
+      // fixed point of the linearised map lies as far as the whole orbit, and the iterates
+      // approach a vanishing orbit.
+      const VectorXd dx = basis * last_solve.c;
+      const std::string why =
+          vanishing_orbit(iteration, residual, correction, current.time,
+                          excursion(model, x, current, options.flow, VectorXd(dx / dx.norm())));
+      if (!why.empty()) {
+        orbit.message = why;
+        vanishing = true;
+        break;
+      }
+      // Not converged: Newton goes on from here (the criterion, not a choice made for the
+      // caller).
+    }
+    if (small_residual && correction <= tolerance * scale && tolerance > kRestCheckTolerance) {
       // At a loose tolerance a point near a rest point the iterates slide to meets it as well as
       // a point of a genuine orbit: where the trajectory stays within 1000 tolerances of x,
       // Newton goes on to kRestCheckTolerance, where the two part (the first stops moving, the
       // second keeps its motion).
-      const double reach = excursion(model, x, current, options.flow);
+      const double reach = excursion(model, x, current, options.flow).reach;
       if (!(reach > kRestMotionPerTolerance * tolerance * scale)) {
         orbit.decisions.push_back(
             "iteration " + std::to_string(iteration) + ": the trajectory stays within " +
@@ -768,19 +833,18 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
         break;
       }
     }
-    if (residual <= tolerance * scale) {
+    if (residual <= tolerance * scale && correction <= tolerance * scale) {
       orbit.converged = true;
       break;
     }
     if (iteration >= options.max_newton_iterations) {
       orbit.message = "Newton's method did not converge in " + std::to_string(iteration) +
                       " iterations (OrbitOptions::max_newton_iterations): |P(x) - x| = " +
-                      format_number(residual) + " > " + format_number(tolerance * scale);
+                      format_number(residual) +
+                      " and the correction |dx| = " + format_number(correction) +
+                      ", the tolerance " + format_number(tolerance * scale);
       break;
     }
-    const MatrixXd basis = orthogonal_complement(section_gradient(section, x));
-    last_solve = solve_newton_equation(current.derivative, basis, -(basis.transpose() * r));
-    solved_once = true;
     if (last_solve.solutions.empty()) {
       orbit.decisions.push_back(
           "iteration " + std::to_string(iteration) +
@@ -850,7 +914,7 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
   orbit.notices = current.notices;
   orbit.tangent_basis = orthogonal_complement(section_gradient(section, x));
   orbit.return_map = std::move(current.derivative);
-  if (refining && !orbit.converged) {
+  if (refining && !orbit.converged && !vanishing) {
     // The point met the caller's tolerance (the line search only ever lowers the residual);
     // only the refinement for the equilibrium check did not finish.
     orbit.decisions.push_back("refining for the equilibrium check stopped: " + orbit.message);
@@ -863,7 +927,10 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
     // stop where the trajectory stays within about 2 / |1 - mu| residuals of x. A trajectory that
     // stays within 1000 times Newton's tolerance (at most kRestCheckTolerance, to which a looser
     // run was refined above) of x is therefore an equilibrium.
-    const double reach = excursion(model, x, current, options.flow);
+    const VectorXd dx = orbit.tangent_basis * last_solve.c;
+    const Excursion moved = excursion(model, x, current, options.flow,
+                                      dx.norm() > 0.0 ? VectorXd(dx / dx.norm()) : VectorXd());
+    const double reach = moved.reach;
     const double resolution = kRestMotionPerTolerance *
                               std::min(options.tolerance, kRestCheckTolerance) *
                               (1.0 + inf_norm(x));
@@ -874,6 +941,13 @@ PeriodicOrbit find_periodic_orbit(const SegmentModel& model, const PoincareSecti
           format_number(current.time) + " the trajectory stays within " + format_number(reach) +
           " of x, not more than 1000 x min(Newton's tolerance, 1e-8) x (1 + |x|) = " +
           format_number(resolution);
+    } else {
+      const std::string why = vanishing_orbit(orbit.newton_iterations, orbit.residual,
+                                              orbit.correction, current.time, moved);
+      if (!why.empty()) {
+        orbit.converged = false;
+        orbit.message = why;
+      }
     }
   }
   if (orbit.converged && options.stability) {

@@ -75,6 +75,7 @@ void bind_orbits(nb::module_& m) {
       .def_ro("return_map", &PeriodicOrbit::return_map)
       .def_ro("newton_iterations", &PeriodicOrbit::newton_iterations)
       .def_ro("residual", &PeriodicOrbit::residual)
+      .def_ro("correction", &PeriodicOrbit::correction)
       .def_ro("growth_rate_lower", &PeriodicOrbit::growth_rate_lower)
       .def_ro("growth_rate_upper", &PeriodicOrbit::growth_rate_upper)
       .def_prop_ro("stability",

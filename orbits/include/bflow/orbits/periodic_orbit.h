@@ -26,7 +26,14 @@
 // the piecewise-linear equation  DP(x_k; delta) - delta = -(P(x_k) - x_k)  for delta in the
 // section's tangent space exactly (solve_newton_equation: the linear system of every distinct
 // piece, each solution checked on the map; none or several are reported in `decisions`), then
-// backtracks until |P(x) - x| decreases. It converges to unstable orbits as well as stable ones;
+// backtracks until |P(x) - x| decreases. It has converged when both |P(x) - x| and the Newton
+// correction |delta| at x are within tolerance (1 + |x|_inf): a small residual alone proves
+// nothing where the orbits are small (near a point of a switching surface where both fields
+// cross it, every small loop returns close to its start while P(x) / x stays away from 1). Where
+// the residual meets the tolerance but the correction is at least 0.1 of the orbit's whole
+// excursion (sampled as below), the iterates approach a vanishing orbit (period and amplitude
+// shrinking to 0): the run stops there, converged = false, and the message says so.
+// It converges to unstable orbits as well as stable ones;
 // the iterates stay on the section (projected back along Ds for a curved section). A guess that
 // does not cross the section upwards is replaced by its return P(guess); a run that ends where
 // the trajectory stays within 1000 min(tolerance, 1e-8) (1 + |x|_inf) of x over the return time
@@ -74,6 +81,10 @@
 //   a cycle counts only when L^p z = c z holds on the map to 1e-8 relative and z lies in its
 //   cones to 1e-9. The ends bound one number, so an upper end below the lower one is an error
 //   of bflow: it throws std::logic_error, never lifted to the lower end.
+//   Scale. rho(c L) = c rho(L): the map is brought to pieces of size about 1 by a power of two
+//   (exact) before bracketing and the ends scaled back, so the bracket of c L is c times that of
+//   L (up to the pieces' own rounding) for any c whose pieces stay in the normal double range;
+//   pieces that are not finite or below it are refused.
 // With one piece (every event crosses one surface) both ends are the spectral radius of the
 // Jacobian within its rounding margin: the classic Floquet multipliers (multipliers lists
 // them). Stable when upper < 1,
@@ -213,8 +224,9 @@ struct OrbitNewtonStep {
 
 struct OrbitOptions {
   FlowOptions flow = default_orbit_flow_options();
-  /** Converged when |P(x) - x|_inf <= tolerance (1 + |x|_inf) (tightened to 1e-8 where the
-      equilibrium check needs it: see the header comment). */
+  /** Converged when |P(x) - x|_inf <= tolerance (1 + |x|_inf) and Newton's correction there,
+      |dx|_inf, is within the same bound (tightened to 1e-8 where the equilibrium check needs
+      it: see the header comment). */
   double tolerance = 1e-8;
   int max_newton_iterations = 40;
   /** Backtracking halvings per Newton step (<= kMaxBacktracks); a step that shrinks below the
@@ -324,6 +336,9 @@ struct PeriodicOrbit {
   FlowDerivative return_map{1};
   int newton_iterations = 0;
   double residual = 0.0;  ///< |P(x) - x|_inf at x
+  /** |dx|_inf of Newton's correction at x (the step to the fixed point of the linearised map,
+      solve_newton_equation): converged requires it within the tolerance as well. */
+  double correction = 0.0;
   double growth_rate_lower = 0.0;
   double growth_rate_upper = 0.0;
   OrbitStability stability = OrbitStability::kUndecided;
