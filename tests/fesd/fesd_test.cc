@@ -60,7 +60,12 @@ TEST(FesdTest, EnteringSlidingIsLocatedToTheOrderOfTheScheme) {
 }
 
 // Steps are solved by Newton's method on guessed active sets (with and without a switch); the
-// IPOPT homotopy alone must reach the same FESD solution, and Newton must actually be used.
+// IPOPT homotopy alone must reach the same FESD solution, and Newton must actually be used: on
+// every step, as each has at most one switch, which the guesses cover, and with a switch on
+// exactly one (the sliding arc begins once). The homotopy's point is the relaxed solution at
+// sigma_final = 1e-12 to IPOPT's tol 1e-13, which may lie O(sigma_final) from the discrete
+// solution Newton solves to round-off: the bounds are 10 sigma_final (a wrong active set is off
+// by O(h)).
 TEST(FesdTest, NewtonOnGuessedActiveSetsAgreesWithTheHomotopy) {
   FesdOptions o;
   o.stages = 4;
@@ -74,13 +79,13 @@ TEST(FesdTest, NewtonOnGuessedActiveSetsAgreesWithTheHomotopy) {
   EXPECT_EQ(fast.newton_steps, 8);
   EXPECT_EQ(fast.newton_switch_steps, 1);  // the step where the sliding arc begins
   EXPECT_EQ(slow.newton_steps, 0);
-  // Measured: x 4.5e-15, switch time 3.4e-13, sensitivity 5.4e-16 apart (the homotopy ends at
-  // sigma = 1e-12 with IPOPT's tol 1e-13).
-  EXPECT_LE((fast.x_end - slow.x_end).cwiseAbs().maxCoeff(), 1e-13);
+  // Measured: x 4.5e-15, switch time 3.4e-13, sensitivity 5.4e-16 apart.
+  const double apart = 10.0 * o.sigma_final;
+  EXPECT_LE((fast.x_end - slow.x_end).cwiseAbs().maxCoeff(), apart);
   ASSERT_EQ(fast.switch_times.size(), slow.switch_times.size());
-  EXPECT_NEAR(fast.switch_times[0], slow.switch_times[0], 1e-11);
+  EXPECT_NEAR(fast.switch_times[0], slow.switch_times[0], apart);
   ASSERT_EQ(fast.sensitivity.size(), slow.sensitivity.size());
-  EXPECT_LE((fast.sensitivity - slow.sensitivity).cwiseAbs().maxCoeff(), 1e-13);
+  EXPECT_LE((fast.sensitivity - slow.sensitivity).cwiseAbs().maxCoeff(), apart);
 }
 
 // One IRMA step across its first switch (c_6 at t = 25.54) from the exact state at t = 25:
