@@ -6,8 +6,13 @@ A model is d states, n switching surfaces h(x) and the vector field F_b(x) for e
 (``field<T>`` and ``surfaces<T>`` templated on the scalar, so that Ceres Jets give DF and Dh
 exactly as for a C++ model), compiles it with the system's C++ compiler into a shared library
 and loads it. The library is cached under ``$BFLOW_CACHE_DIR`` (default ``~/.cache/bflow/models``)
-by a hash of the generated source and the compiler command: the first call with a new model
-compiles (a few seconds), later calls and other processes load it.
+by a key of the model's inputs (their ``srepr``), the engine, this generator's text and the
+compiler command: the first use of a new model compiles (a few seconds), later uses and other
+processes load it, after checking its checksum and the key it holds.
+
+Nothing of the user's text reaches the compiler: every symbol is printed as a generated
+identifier (``x[i]``, ``p_[j]``, ...), strings are refused (SymPy's ``sympify`` would evaluate
+them as Python), and only a whitelist of expression nodes is printed.
 
 Example (two surfaces crossed at once, [B] (3.1))::
 
@@ -21,13 +26,18 @@ Example (two surfaces crossed at once, [B] (3.1))::
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
+import json
+import math
+import numbers
 import os
 import shutil
 import subprocess
-import tempfile
+import sys
+import time
 from pathlib import Path
-from typing import Dict, Mapping, Sequence, Union
+from typing import Dict, Mapping, Sequence
 
 import sympy as sp
 from sympy.printing.c import C99CodePrinter
@@ -37,11 +47,16 @@ from ._errors import ModelError
 
 __all__ = ["Model", "signs", "ModelError", "compile_seconds"]
 
-# Functions the generated code may call: each has an overload for Ceres Jets.
-_ALLOWED_FUNCTIONS = {
-    "sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "exp", "log",
-    "sqrt", "Abs", "Pow", "Add", "Mul", "cbrt",
-}
+# Functions the generated code may call: each has an overload for Ceres Jets (sqrt and cbrt are
+# powers in SymPy).
+_FUNCTIONS = (sp.sin, sp.cos, sp.tan, sp.asin, sp.acos, sp.atan, sp.atan2, sp.sinh, sp.cosh,
+              sp.tanh, sp.exp, sp.log)
+_FUNCTION_NAMES = "sin cos tan asin acos atan atan2 sinh cosh tanh exp log sqrt cbrt and powers"
+# Functions that branch on their argument: the branch belongs to a switching surface.
+_BRANCHING = (sp.Piecewise, sp.Heaviside, sp.sign, sp.Max, sp.Min, sp.floor, sp.ceiling)
+# A field given per sign word is printed as a switch over its 2^n words (and FESD takes its 2^n
+# modes): above this many surfaces, write the field in the sign symbols.
+MAX_WORD_SURFACES = 10
 
 compile_seconds = {"last": 0.0}
 
@@ -53,8 +68,138 @@ def signs(n: int):
     return sp.symbols(f"b_0:{n}", real=True) if n > 0 else ()
 
 
+def _short(value) -> str:
+    text = str(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _number_value(node, where: str) -> float:
+    """The double nearest the exact number node (an Integer, Rational or Float), refusing one
+    beyond the double range."""
+    try:
+        if isinstance(node, sp.Rational):
+            value = int(node.p) / int(node.q)  # Python's int division rounds correctly
+        else:
+            value = float(node)
+    except OverflowError:
+        value = math.inf
+    if not math.isfinite(value):
+        raise ModelError(f"{where}: the number {_short(node)} is beyond the range of a double")
+    return value
+
+
+def _refusal(node, where: str) -> ModelError:
+    name = type(node).__name__
+    if isinstance(node, sp.Abs):
+        arg = _short(node.args[0])
+        return ModelError(
+            f"{where}: Abs({arg}) has a kink where {arg} = 0, which is no switching surface (the "
+            f"flow would step over it, its derivative wrong there); make the kink a surface: add "
+            f"{arg} to the surfaces and write the field with its sign symbol b (b*({arg}))")
+    if isinstance(node, _BRANCHING):
+        return ModelError(
+            f"{where}: {_short(node)} branches on the state; state the branches as the field of "
+            "each sign word (the surfaces decide the side)")
+    if isinstance(node, (sp.logic.boolalg.Boolean, sp.core.relational.Relational)):
+        return ModelError(f"{where}: {_short(node)} is a condition ({name}), not a number; "
+                          "a side is chosen by a switching surface and its sign symbol")
+    if isinstance(node, (sp.Derivative, sp.Integral, sp.Subs)):
+        return ModelError(f"{where}: {_short(node)} is an unevaluated {name}; evaluate it "
+                          "(.doit()) into a closed form first")
+    if node.is_Number or node in (sp.oo, -sp.oo, sp.zoo, sp.nan):
+        return ModelError(f"{where}: {_short(node)} is not a finite real number")
+    if node == sp.I or node.is_extended_real is False:
+        return ModelError(f"{where}: {_short(node)} is not real (the field is real)")
+    if isinstance(node, sp.Function) or getattr(node, "is_Function", False):
+        return ModelError(f"{where}: the function {name} has no Jet overload; use "
+                          f"{_FUNCTION_NAMES}")
+    return ModelError(
+        f"{where}: {_short(node)} ({name}) is not an expression bflow compiles: symbols, finite "
+        f"real numbers, pi, E, sums, products and the functions {_FUNCTION_NAMES}")
+
+
+def _check_nodes(expr, where: str) -> None:
+    """Refuses every node outside the whitelist: symbols, finite real numbers, pi, E, Add, Mul,
+    Pow and the functions with a Jet overload."""
+    stack = [expr]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, sp.Symbol):
+            continue
+        if isinstance(node, (sp.Rational, sp.Float)):
+            _number_value(node, where)
+            continue
+        if node is sp.pi or node is sp.E:
+            continue
+        if isinstance(node, (sp.Add, sp.Mul, sp.Pow, *_FUNCTIONS)):
+            stack.extend(node.args)
+            continue
+        raise _refusal(node, where)
+
+
+def _expression(value, where: str):
+    """A SymPy expression from a SymPy expression or a real number; never parses text."""
+    if isinstance(value, (str, bytes, bytearray)):
+        raise ModelError(
+            f"{where}: the string {_short(repr(value))} is not an expression: bflow does not "
+            "parse strings (SymPy's sympify would run them as Python); build the expression "
+            "from SymPy symbols")
+    if isinstance(value, bool) or type(value).__name__ == "bool_":
+        raise ModelError(f"{where}: {value!r} is a truth value, not a number")
+    if isinstance(value, sp.Basic):
+        expr = value
+    elif isinstance(value, numbers.Integral):
+        expr = sp.Integer(int(value))
+    elif isinstance(value, numbers.Real):
+        number = float(value)
+        if not math.isfinite(number):
+            raise ModelError(f"{where}: {number!r} is not a finite number")
+        expr = sp.Float(number)
+    else:
+        raise ModelError(f"{where}: {_short(repr(value))} ({type(value).__name__}) is neither "
+                         "a SymPy expression nor a real number")
+    _check_nodes(expr, where)
+    return expr
+
+
+def _expressions(values, what: str):
+    if isinstance(values, (str, bytes, bytearray, sp.Basic)) or not hasattr(values, "__iter__"):
+        raise ModelError(f"{what} must be a list of expressions, got {_short(repr(values))}")
+    return [_expression(v, f"{what}[{k}]") for k, v in enumerate(values)]
+
+
+def _real_value(value, where: str) -> float:
+    """A parameter's value: a finite real number (a string is not parsed)."""
+    if isinstance(value, (str, bytes, bytearray, bool)) or not isinstance(
+            value, (numbers.Real, sp.Number)):
+        raise ModelError(f"{where} must be a real number, got {_short(repr(value))}")
+    try:
+        number = float(value)
+    except (TypeError, OverflowError):
+        number = math.nan
+    if not math.isfinite(number):
+        raise ModelError(f"{where} must be a finite real number, got {_short(repr(value))}")
+    return number
+
+
+def _sign_word(word, n: int) -> str:
+    if isinstance(word, str):
+        w = word
+    else:
+        try:
+            w = "".join("+" if int(v) > 0 else "-" for v in word)
+        except (TypeError, ValueError):
+            w = None
+    if w is None or len(w) != n or any(c not in "+-" for c in w):
+        raise ModelError(
+            f"field: the sign word {_short(repr(word))} must have {n} characters '+' or '-'")
+    return w
+
+
 class _Printer(C99CodePrinter):
-    """C++ for a scalar type T: every number a T, powers without integer exponents."""
+    """C++ for a scalar type T: every number a T printed from its value, powers without integer
+    exponents, every symbol a generated identifier (the expressions are checked by _check_nodes
+    first)."""
 
     def __init__(self, names: Dict[sp.Symbol, str]):
         super().__init__()
@@ -62,18 +207,36 @@ class _Printer(C99CodePrinter):
 
     def _print_Symbol(self, expr):
         if expr not in self._names:
-            raise ModelError(
-                f"the symbol {expr} is neither a state, a parameter nor a sign symbol")
+            raise ModelError("an expression holds a symbol that is neither a state, a parameter "
+                             "nor a sign symbol")
         return self._names[expr]
 
+    _print_Dummy = _print_Symbol
+
+    @staticmethod
+    def _exact(expr) -> bool:
+        return abs(int(expr.p)) <= 2 ** 53 and int(expr.q) <= 2 ** 53
+
     def _print_Integer(self, expr):
-        return f"T({int(expr)}.0)"
+        if self._exact(expr):
+            return f"T({int(expr)}.0)"
+        return f"T({_number_value(expr, 'a number')!r})"
 
     def _print_Rational(self, expr):
-        return f"(T({int(expr.p)}.0) / T({int(expr.q)}.0))"
+        if self._exact(expr):
+            return f"(T({int(expr.p)}.0) / T({int(expr.q)}.0))"
+        return f"T({_number_value(expr, 'a number')!r})"
 
     def _print_Float(self, expr):
         return f"T({float(expr)!r})"
+
+    def _print_Mul(self, expr):
+        # The base printer splits a rational coefficient into numerator and denominator, which
+        # overflow on their own when they exceed a double.
+        c, rest = expr.as_coeff_Mul()
+        if isinstance(c, sp.Rational) and not self._exact(c):
+            return f"({self._print_Rational(c)} * ({self._print(rest)}))"
+        return super()._print_Mul(expr)
 
     def _print_Pi(self, expr):
         return "T(3.141592653589793)"
@@ -96,20 +259,19 @@ class _Printer(C99CodePrinter):
                 return "(" + " * ".join([f"({b})"] * n) + ")"
             if -4 <= n < 0:
                 return "(T(1.0) / (" + " * ".join([f"({b})"] * (-n)) + "))"
-            return f"pow({b}, {float(n)!r})"
+        if e.is_Rational:
+            return f"pow({b}, {_number_value(e, 'an exponent')!r})"
         if e.is_Number:
             return f"pow({b}, {float(e)!r})"
         return f"pow({b}, {self._print(e)})"
-
-    def _print_Abs(self, expr):
-        return f"abs({self._print(expr.args[0])})"
 
 
 def _assignments(printer: "_Printer", target: str, exprs, indent: str, offset: int = 0):
     """C++ lines target[offset + k] = exprs[k], common subexpressions (a sin of the same angle in
     several components, ...) computed once in a local of type T: with Jets each repeated call
     would cost a derivative's worth of work again."""
-    temporaries, reduced = sp.cse(list(exprs), symbols=sp.numbered_symbols("_cse"))
+    # Dummies as temporaries: they never equal a user's symbol, whatever its name.
+    temporaries, reduced = sp.cse(list(exprs), symbols=sp.numbered_symbols("c", cls=sp.Dummy))
     local = _Printer(dict(printer._names))
     lines = []
     for k, (symbol, value) in enumerate(temporaries):
@@ -118,28 +280,6 @@ def _assignments(printer: "_Printer", target: str, exprs, indent: str, offset: i
     for k, e in enumerate(reduced):
         lines.append(f"{indent}{target}[{offset + k}] = {local.doprint(e)};")
     return lines
-
-
-def _check_functions(expr, where: str):
-    for node in sp.preorder_traversal(expr):
-        if isinstance(node, (sp.Piecewise, sp.Heaviside)) or type(node).__name__ in (
-                "sign", "Max", "Min", "floor", "ceiling"):
-            raise ModelError(
-                f"{where}: {node} branches on the state; state the branches as the field of "
-                "each sign word (the surfaces decide the side)")
-        if isinstance(node, sp.Function) or (isinstance(node, sp.Basic) and node.is_Function):
-            name = type(node).__name__
-            if name not in _ALLOWED_FUNCTIONS:
-                raise ModelError(
-                    f"{where}: the function {name} has no Jet overload; use "
-                    + ", ".join(sorted(_ALLOWED_FUNCTIONS - {"Pow", "Add", "Mul"})))
-
-
-def _sympify_list(values, what: str):
-    try:
-        return [sp.sympify(v) for v in values]
-    except (sp.SympifyError, TypeError) as e:
-        raise ModelError(f"{what}: {e}") from None
 
 
 class Model:
@@ -162,13 +302,18 @@ class Model:
         terminal: terminal constraints g_T(x(T)) (default g_T = 0).
 
     A model without controls runs on every engine: the flow and its B-derivative, orbits and
-    sweeps (compiled at construction), and FESD (``bflow.fesd_simulate``, compiled on first
-    use). A model with controls is for ``bflow.ocp_solve``.
+    sweeps, and FESD (``bflow.fesd_simulate``); a model with controls is for
+    ``bflow.ocp_solve``. Each engine's library is compiled on its first use (a model used only
+    for FESD never compiles the flow's) and cached.
 
     Raises:
-        ModelError (a ValueError) before any compiler runs: a symbol that is not a state,
-        parameter or sign symbol, a function without a Jet overload, a field of the wrong
-        length, a missing sign word, a surface count above 64.
+        ModelError (a ValueError) before any compiler runs: a string or any object that is
+        neither a SymPy expression nor a real number, a node outside the whitelist (symbols,
+        finite real numbers, pi, E, +, *, powers, the functions with a Jet overload: not
+        Abs, Piecewise, oo, nan, I, conditions, Derivative, ...), a symbol that is not a state,
+        parameter or sign symbol, a non-finite parameter value, a field of the wrong length, a
+        missing sign word, a field per sign word of more than MAX_WORD_SURFACES surfaces, a
+        surface count above 64.
     """
 
     def __init__(self, states: Sequence[sp.Symbol], field, surfaces: Sequence = (),
@@ -181,7 +326,7 @@ class Model:
         if len(set(self.states)) != len(self.states):
             raise ModelError(f"states repeat a symbol: {self.states}")
         d = len(self.states)
-        self.surface_exprs = _sympify_list(surfaces, "surfaces")
+        self.surface_exprs = _expressions(surfaces, "surfaces")
         n = len(self.surface_exprs)
         if n > 64:
             raise ModelError(f"at most 64 surfaces, got {n}")
@@ -190,8 +335,11 @@ class Model:
         for p in self.parameters:
             if not isinstance(p, sp.Symbol):
                 raise ModelError(f"parameter names must be SymPy Symbols, got {p!r}")
-        self.parameter_values = [float(parameters[p]) for p in self.parameters]
+        self.parameter_values = [_real_value(parameters[p], f"the value of the parameter {p}")
+                                 for p in self.parameters]
         self.sign_symbols = list(signs) if signs is not None else list(globals()["signs"](n))
+        if not all(isinstance(s, sp.Symbol) for s in self.sign_symbols):
+            raise ModelError(f"signs must be SymPy Symbols, got {_short(self.sign_symbols)}")
         if len(self.sign_symbols) != n:
             raise ModelError(
                 f"{len(self.sign_symbols)} sign symbols for {n} surfaces: give one per surface")
@@ -214,39 +362,46 @@ class Model:
                 raise ModelError(f"the control {u} is also a state, a parameter or a sign symbol")
             names[u] = f"u[{k}]"
         self._names = names
-        self.lagrange_expr = None if lagrange is None else _sympify_list([lagrange], "lagrange")[0]
-        self.mayer_expr = None if mayer is None else _sympify_list([mayer], "mayer")[0]
-        self.path_exprs = _sympify_list(path, "path")
-        self.terminal_exprs = _sympify_list(terminal, "terminal")
+        self.lagrange_expr = None if lagrange is None else _expression(lagrange, "lagrange")
+        self.mayer_expr = None if mayer is None else _expression(mayer, "mayer")
+        self.path_exprs = _expressions(path, "path")
+        self.terminal_exprs = _expressions(terminal, "terminal")
         if not self.controls and (self.lagrange_expr is not None or self.mayer_expr is not None
                                   or self.path_exprs or self.terminal_exprs):
             raise ModelError("costs and constraints (lagrange, mayer, path, terminal) belong to "
                              "an optimal control model: give its controls")
 
         if isinstance(field, Mapping):
+            if n > MAX_WORD_SURFACES:
+                raise ModelError(
+                    f"field: a field given per sign word is compiled as a switch over all 2^n "
+                    f"words (and FESD takes them as 2^n modes): n = {n} surfaces would be "
+                    f"{2 ** n} words, above the {2 ** MAX_WORD_SURFACES} of n = "
+                    f"{MAX_WORD_SURFACES}; write the field as expressions in the sign symbols "
+                    f"bflow.signs({n})")
             words = {}
             for word, exprs in field.items():
-                w = word if isinstance(word, str) else "".join(
-                    "+" if int(v) > 0 else "-" for v in word)
-                if len(w) != n or any(c not in "+-" for c in w):
-                    raise ModelError(
-                        f"field: the sign word {word!r} must have {n} characters '+' or '-'")
-                words[w] = _sympify_list(exprs, f"field[{w!r}]")
-            missing = [w for w in _all_words(n) if w not in words]
-            if missing:
-                raise ModelError(f"field: the sign word {missing[0]!r} is missing "
-                                 f"({len(missing)} of {2 ** n} words missing)")
+                w = _sign_word(word, n)
+                if w in words:
+                    raise ModelError(f"field: the sign word {w!r} is given twice")
+                words[w] = _expressions(exprs, f"field[{w!r}]")
+            if len(words) < 2 ** n:
+                # Every key is a distinct word of n signs: one of the first len(words) + 1 is
+                # missing.
+                missing = next(w for w in map(lambda bits: _word_of_bits(bits, n),
+                                              range(len(words) + 1)) if w not in words)
+                raise ModelError(f"field: the sign word {missing!r} is missing "
+                                 f"({2 ** n - len(words)} of {2 ** n} words missing)")
             self.field_words = words
             self.field_exprs = None
         else:
-            self.field_exprs = _sympify_list(field, "field")
+            self.field_exprs = _expressions(field, "field")
             self.field_words = None
         known = set(self.states) | set(self.parameters)
         for where, exprs, expected, extra, forbidden in self._all_exprs():
             if expected is not None and len(exprs) != expected:
                 raise ModelError(f"{where} has {len(exprs)} expressions, expected {expected}")
             for k, e in enumerate(exprs):
-                _check_functions(e, f"{where}[{k}]")
                 for symbols, what, why in forbidden:
                     used = e.free_symbols & set(symbols)
                     if used:
@@ -260,20 +415,57 @@ class Model:
                         f"states {self.states}, parameters {self.parameters}"
                         + (f", controls {self.controls}" if self.controls else "")
                         + " nor sign symbols")
+        if self.controls and n == 0:
+            raise ModelError("an optimal control model needs at least one switching surface "
+                             "(FESD detects its switches)")
         self._libraries: Dict[str, str] = {}
+        self._keys: Dict[str, str] = {}
         self._step = None
         self._ocp = None
+        self._compiled = None
+
+    # --- the compiled libraries, one per engine, each compiled on first use
+    def _key(self, engine: str, extra=()) -> str:
+        """The cache key of one engine's library: a hash of the model's inputs (not of the
+        generated source, so that a cached load neither runs cse nor prints C++)."""
+        if engine not in self._keys or extra:
+            fields = (self.field_exprs if self.field_exprs is not None
+                      else sorted(self.field_words.items()))
+            inputs = (engine, _GENERATOR, _command(Path("s"), Path("o")), str(_bflow.__file__),
+                      *map(_structure, (self.states, self.parameters, self.sign_symbols,
+                                        self.controls, fields, self.surface_exprs,
+                                        self.lagrange_expr, self.mayer_expr, self.path_exprs,
+                                        self.terminal_exprs, list(extra))))
+            key = hashlib.sha256(repr(inputs).encode()).hexdigest()[:32]
+            if extra:
+                return key
+            self._keys[engine] = key
+        return self._keys[engine]
+
+    def _library(self, engine: str, key: str, make_source, load):
+        """Loads the cached library of one engine (compiling it on a miss) with load(path). A
+        library that holds another key is replaced and loaded from a fresh path (dlopen keeps a
+        library by its path for the life of the process)."""
+        info = (engine, len(self.states), len(self.surface_exprs))
+        path = _cached_library(key, make_source, info)
+        try:
+            handle = load(str(path))
+        except ValueError as error:
+            if "not the model" not in str(error):
+                raise
+            print(f"bflow: {error}; compiling it again", file=sys.stderr, flush=True)
+            _LOADED.add(str(path))  # dlopen keeps it: the rebuild is loaded from a fresh path
+            path = _fresh_copy(_cached_library(key, make_source, info, rebuild=True))
+            handle = load(str(path))
+        _LOADED.add(str(path))
+        return handle, str(path)
+
+    @property
+    def source(self) -> str:
+        """The generated C++ of the flow's library (generated anew on each access)."""
         if self.controls:
-            if n == 0:
-                raise ModelError("an optimal control model needs at least one switching surface "
-                                 "(FESD detects its switches)")
-            self.source = None
-            self._compiled = None
-            self._load_ocp()
-        else:
-            self.source = self._source()
-            self._compiled = _bflow._load_model(str(_compile(self.source)), self.parameter_values,
-                                                [str(q) for q in self.parameters])
+            return None
+        return self._source(self._key("flow"))
 
     def _all_exprs(self):
         """(where, expressions, expected count, symbols allowed beside states and parameters,
@@ -297,7 +489,7 @@ class Model:
         yield "path", self.path_exprs, None, controls, [side]
         yield "terminal", self.terminal_exprs, None, [], [side, control]
 
-    def _source(self) -> str:
+    def _source(self, key: str) -> str:
         printer = _Printer(self._names)
         d, n, P = len(self.states), len(self.surface_exprs), len(self.parameters)
         lines = []
@@ -315,7 +507,7 @@ class Model:
             lines.append("      switch (b.bits()) {")
             for w, exprs in sorted(self.field_words.items(),
                                    key=lambda item: _word_bits(item[0])):
-                lines.append(f"        case {_word_bits(w)}u: {{  // {w}")
+                lines.append(f"        case {_word_bits(w)}u: {{")
                 assign("xdot", exprs, "          ")
                 lines.append("          return;")
                 lines.append("        }")
@@ -334,7 +526,7 @@ class Model:
                             f"  double p_[{max(P, 1)}] = {{}};"] + lines)
         return self._library_source("flow", "bflow/integrators/model_adapter.h", struct,
                                     "SegmentModel", "bflow::ModelAdapter<GeneratedModel>",
-                                    "model")
+                                    "model", key)
 
     # --- FESD and optimal control: the step inclusion x' = f(x, [u,] a), a_j in gamma(h_j(x))
     def _multilinear(self) -> bool:
@@ -401,7 +593,6 @@ class Model:
                         exprs, names = self.field_exprs, dict(self._names)
                         for j, b in enumerate(self.sign_symbols):
                             names[b] = "T(1.0)" if word[j] == "+" else "T(-1.0)"
-                    lines.append(f"    // {word}")
                     assign(_Printer(names), "F", exprs, r * d)
 
             function(f"void modes(const T* x, {u_arg}T* F)", self._names,
@@ -433,28 +624,33 @@ class Model:
             made, kind = "model", "GeneratedModel"
         return "\n".join(lines), kind, made
 
-    def _engine_source(self, engine: str) -> str:
+    def _engine_source(self, engine: str, key: str) -> str:
         body, kind, made = self._step_struct()
         if engine == "step":
             header, interface, adapter = "bflow/fesd/step_model.h", "StepModel", "StepModelAdapter"
         else:
             header, interface, adapter = "bflow/ocp/ocp.h", "OcpModel", "OcpModelAdapter"
         return self._library_source(engine, header, body, interface, f"bflow::{adapter}<{kind}>",
-                                    made)
+                                    made, key)
 
     def _library_source(self, engine: str, header: str, struct: str, interface: str,
-                        adapter: str, made: str) -> str:
+                        adapter: str, made: str, key: str) -> str:
         """The shared library of one engine: the struct GeneratedModel (with its parameters in
-        p_) and bflow_<engine>_model_create / _destroy, which python/src/model_handle.h loads."""
+        p_), bflow_<engine>_model_create / _destroy, which python/src/model_handle.h loads, and
+        the key the library is cached under (checked after dlopen)."""
         return _LIBRARY_TEMPLATE.format(
-            states=", ".join(map(str, self.states)), header=header, struct=struct,
-            interface=interface, engine=engine, P=len(self.parameters), adapter=adapter,
-            made=made)
+            header=header, struct=struct, interface=interface, engine=engine,
+            P=len(self.parameters), adapter=adapter, made=made, key=key)
 
-    def _engine_library(self, engine: str) -> str:
-        if engine not in self._libraries:
-            self._libraries[engine] = str(_compile(self._engine_source(engine)))
-        return self._libraries[engine]
+    def _engine_model(self, engine: str, load):
+        """The library of the step (FESD) or OCP engine, compiled on first use, loaded with
+        load(path); later loads (other parameter values) reuse the path."""
+        if engine in self._libraries:
+            return load(self._libraries[engine])
+        key = self._key(engine)
+        handle, self._libraries[engine] = self._library(
+            engine, key, lambda: self._engine_source(engine, key), load)
+        return handle
 
     def _step_model(self):
         """The compiled step inclusion (FESD), compiled on first use."""
@@ -464,42 +660,62 @@ class Model:
         if not self.surface_exprs:
             raise ModelError("FESD needs at least one switching surface")
         if self._step is None:
-            self._step = _bflow._load_step_model(self._engine_library("step"),
-                                                 self.parameter_values)
+            values = self.parameter_values
+            self._step = self._engine_model(
+                "step", lambda path: _bflow._load_step_model(path, values))
         return self._step
-
-    def _load_ocp(self):
-        self._ocp = _bflow._load_ocp_model(self._engine_library("ocp"), self.parameter_values)
 
     def _ocp_model(self):
         if not self.controls:
             raise ModelError("the model has no controls: give Model(..., controls=[u, ...]) "
                              "to solve an optimal control problem")
+        if self._ocp is None:
+            values = self.parameter_values
+            self._ocp = self._engine_model("ocp",
+                                           lambda path: _bflow._load_ocp_model(path, values))
         return self._ocp
 
     def _section(self, expression):
         """A Poincare section s(x) = 0 written in the states and parameters, compiled (on first
         use, cached) into the functor of orbits/periodic_orbit.h behind SectionAdapter."""
-        s_expr = _sympify_list([expression], "section")[0]
-        _check_functions(s_expr, "section")
+        s_expr = _expression(expression, "section")
         unknown = s_expr.free_symbols - set(self.states) - set(self.parameters)
         if unknown:
             raise ModelError(f"section: the symbol(s) {sorted(map(str, unknown))} are neither "
                              f"states {self.states} nor parameters {self.parameters}")
-        struct = "\n".join([
-            f"  double p_[{max(len(self.parameters), 1)}] = {{}};",
-            "  template <typename T>", "  T operator()(const T* x) const {", _USING,
-            "    (void)x;", f"    return {_Printer(self._names).doprint(s_expr)};", "  }"])
-        source = self._library_source("section", "bflow/orbits/periodic_orbit.h", struct,
-                                      "PoincareSection", "bflow::SectionAdapter<GeneratedModel>",
-                                      "model")
-        return _bflow._load_section(str(_compile(source)), self.parameter_values)
+        key = self._key("section", (s_expr,))
+
+        def source():
+            struct = "\n".join([
+                f"  double p_[{max(len(self.parameters), 1)}] = {{}};",
+                "  template <typename T>", "  T operator()(const T* x) const {", _USING,
+                "    (void)x;", f"    return {_Printer(self._names).doprint(s_expr)};", "  }"])
+            return self._library_source("section", "bflow/orbits/periodic_orbit.h", struct,
+                                        "PoincareSection",
+                                        "bflow::SectionAdapter<GeneratedModel>", "model", key)
+
+        values = self.parameter_values
+        return self._library("section", key, source,
+                             lambda path: _bflow._load_section(path, values))[0]
 
     def _flow_model(self):
-        if self._compiled is None:
+        """The compiled flow (a SegmentModel), compiled on first use by a flow engine."""
+        if self.controls:
             raise ModelError(f"the model has controls {self.controls}: it is an optimal control "
                              "model for bflow.ocp_solve; the flow, orbits, sweeps and jump maps "
                              "take a model without controls")
+        if self._compiled is None:
+            values, names = self.parameter_values, [str(q) for q in self.parameters]
+
+            def load(path):
+                return _bflow._load_model(path, values, names)
+
+            if "flow" in self._libraries:
+                self._compiled = load(self._libraries["flow"])
+            else:
+                key = self._key("flow")
+                self._compiled, self._libraries["flow"] = self._library(
+                    "flow", key, lambda: self._source(key), load)
         return self._compiled
 
     # --- what the C++ model provides
@@ -521,17 +737,13 @@ class Model:
             if name not in names:
                 raise ModelError(f"with_parameters: no parameter {name!r}; the model has "
                                  f"{sorted(names)}")
-            new[names[name]] = float(v)
+            new[names[name]] = _real_value(v, f"with_parameters: {name}")
         clone = object.__new__(Model)
         clone.__dict__.update(self.__dict__)
         clone.parameter_values = new
         clone._libraries = dict(self._libraries)
-        clone._step = None
-        if self._compiled is not None:
-            clone._compiled = _bflow._load_model(self._compiled.path, new,
-                                                 [str(q) for q in self.parameters])
-        if self.controls:
-            clone._load_ocp()
+        clone._keys = dict(self._keys)
+        clone._step = clone._ocp = clone._compiled = None  # loaded on use, with the new values
         return clone
 
     def field(self, x, sides: str):
@@ -571,8 +783,31 @@ def _vector(x, name: str, d: int):
     return a
 
 
-def _all_words(n: int):
-    return ["".join("+" if (bits >> j) & 1 else "-" for j in range(n)) for bits in range(2 ** n)]
+def _structure(value):
+    """The exact tree of an expression (or of a list, tuple or sign word of them) as nested
+    tuples of strings and integers, for the cache key: like srepr, every node's class, every
+    symbol's name and assumptions and every number's exact value, but without sorting the terms
+    (5 to 10 times faster; equal trees give equal keys, which is all a key needs)."""
+    if value is None or isinstance(value, str):
+        return value
+    if isinstance(value, (list, tuple)):
+        return tuple(_structure(v) for v in value)
+    if isinstance(value, sp.Symbol):
+        extra = (value.dummy_index,) if isinstance(value, sp.Dummy) else ()
+        return (type(value).__name__, value.name, *extra,
+                tuple(sorted(value.assumptions0.items())))
+    if isinstance(value, sp.Rational):
+        return ("Rational", int(value.p), int(value.q))
+    if isinstance(value, sp.Float):
+        return ("Float", value._mpf_, value._prec)
+    if not value.args:
+        return (type(value).__name__, str(value))
+    return (type(value).__name__, *(_structure(a) for a in value.args))
+
+
+def _word_of_bits(bits: int, n: int) -> str:
+    """The sign word whose surface j is on its + side where bit j of bits is set."""
+    return "".join("+" if (bits >> j) & 1 else "-" for j in range(n))
 
 
 def _word_bits(word: str) -> int:
@@ -584,7 +819,7 @@ _USING = """    using std::sin; using std::cos; using std::tan; using std::asin;
     using std::cosh; using std::tanh; using std::exp; using std::log;
     using std::sqrt; using std::abs; using std::pow; using std::cbrt;"""
 
-_LIBRARY_TEMPLATE = """// Generated by bflow from a SymPy model; states ({states}).
+_LIBRARY_TEMPLATE = """// Generated by bflow from a SymPy model.
 #include <cmath>
 #include <cstdio>
 #include <exception>
@@ -617,6 +852,8 @@ extern "C" bflow::{interface}* bflow_{engine}_model_create(const double* p, int 
 }}
 
 extern "C" void bflow_{engine}_model_destroy(bflow::{interface}* model) {{ delete model; }}
+
+extern "C" const char bflow_model_key[] = "{key}";
 """
 
 
@@ -637,32 +874,179 @@ def _command(source: Path, output: Path):
     ]
 
 
+# The generator's version: a change to this file (the printer, the templates) is a new key.
+_GENERATOR = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()
+# A temporary of a compile (bflow_tmp_*) or a fresh copy older than this is a leftover of a
+# process that was killed (or is done with it) and is removed by the next compile.
+STALE_SECONDS = 600.0
+_LOADED: set = set()       # libraries this process has dlopened, by path
+_VERIFIED: Dict[str, tuple] = {}  # path -> (inode, size, mtime) whose checksum matched
+
+
+def _cache_location():
+    """(the cache folder, the $BFLOW_CACHE_DIR setting or None for the default)."""
+    setting = os.environ.get("BFLOW_CACHE_DIR")
+    if not setting:  # unset or "": the default
+        return Path.home() / ".cache" / "bflow" / "models", None
+    expanded = os.path.expanduser(setting)
+    if expanded.startswith("~"):
+        raise ModelError(f"$BFLOW_CACHE_DIR={setting!r}: {expanded.split('/')[0]!r} names no "
+                         "home folder; give an absolute path")
+    return Path(os.path.abspath(expanded)), setting
+
+
 def cache_dir() -> Path:
-    """Where compiled models are kept ($BFLOW_CACHE_DIR, default ~/.cache/bflow/models)."""
-    return Path(os.environ.get("BFLOW_CACHE_DIR", Path.home() / ".cache" / "bflow" / "models"))
+    """Where compiled models are kept: $BFLOW_CACHE_DIR ("~" expanded, a relative path taken
+    from the current folder; unset or "" for the default ~/.cache/bflow/models)."""
+    return _cache_location()[0]
 
 
-def _compile(source: str) -> Path:
-    import time
-    key = hashlib.sha256(
-        (source + "\n" + " ".join(_command(Path("s"), Path("o"))) + "\n" +
-         _bflow.__file__).encode()).hexdigest()[:24]
-    directory = cache_dir()
+def _cache_error(directory: Path, setting, action: str, error: OSError) -> ModelError:
+    where = (f"$BFLOW_CACHE_DIR={setting!r}" if setting is not None
+             else "the default model cache ($BFLOW_CACHE_DIR unset)")
+    reason = error.strerror or str(error)
+    return ModelError(f"{where}: cannot {action} {directory}: {reason} (errno {error.errno}); "
+                      "set $BFLOW_CACHE_DIR to a writable folder")
+
+
+def _write_file(path: Path, data: bytes) -> None:
+    with open(path, "wb") as f:
+        f.write(data)
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _verified(library: Path, key: str) -> bool:
+    """Whether library is whole and of this key: its sidecar names the key, the size and the
+    sha256 of the file (checked before any dlopen; once per process while the file is
+    unchanged)."""
+    try:
+        info = json.loads(library.with_suffix(".json").read_text())
+        st = os.stat(library)
+    except (OSError, ValueError):
+        return False
+    if not isinstance(info, dict) or info.get("key") != key or info.get("size") != st.st_size:
+        return False
+    stamp = (st.st_ino, st.st_size, st.st_mtime_ns)
+    if _VERIFIED.get(str(library)) == stamp:
+        return True
+    try:
+        ok = _sha256(library) == info.get("sha256")
+    except OSError:
+        return False
+    if ok:
+        _VERIFIED[str(library)] = stamp
+    return ok
+
+
+def _clean_stale(directory: Path) -> None:
+    """Removes what killed compiles left (bflow_tmp_* files, the tmp* folders of older
+    versions holding only model.cc / model.so) and fresh copies, all older than
+    STALE_SECONDS."""
+    now = time.time()
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return
+    for entry in entries:
+        try:
+            old = now - entry.stat(follow_symlinks=False).st_mtime > STALE_SECONDS
+            if not old:
+                continue
+            name = entry.name
+            if entry.is_file(follow_symlinks=False) and (
+                    name.startswith("bflow_tmp_") or
+                    (name.startswith("model_") and name.count(".") == 2)):
+                os.unlink(entry.path)
+            elif (entry.is_dir(follow_symlinks=False) and name.startswith("tmp")
+                  and set(os.listdir(entry.path)) <= {"model.cc", "model.so"}):
+                shutil.rmtree(entry.path)
+        except OSError:
+            pass  # another process removed it, or it is not ours to remove
+
+
+def _fresh_copy(library: Path) -> Path:
+    """A copy of library under a name this process has not loaded: model_<key>.<tag>.so."""
+    fresh = library.with_name(f"{library.stem}.{os.getpid()}_{time.time_ns()}.so")
+    shutil.copyfile(library, fresh)
+    return fresh
+
+
+def _cached_library(key: str, make_source, info, rebuild: bool = False) -> Path:
+    """The library of this key in the cache, checked (checksum, key); compiled on a miss, on a
+    damaged or replaced file, or when rebuild. Compiles of one key are serialised by a lock
+    file; the library and its sidecar are written to temporaries and renamed (atomic)."""
+    engine, d, n = info
+    directory, setting = _cache_location()
     library = directory / f"model_{key}.so"
-    if library.exists():
+    if not rebuild and _verified(library, key):
         compile_seconds["last"] = 0.0
         return library
-    directory.mkdir(parents=True, exist_ok=True)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise _cache_error(directory, setting, "make the folder", error) from None
+    try:
+        lock = open(directory / f"model_{key}.lock", "a")
+    except OSError as error:
+        raise _cache_error(directory, setting, "write in", error) from None
+    with lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not rebuild and _verified(library, key):  # another process compiled it meanwhile
+            compile_seconds["last"] = 0.0
+            return library
+        if not rebuild and library.exists():
+            print(f"bflow: the cached library {library} does not match its checksum or key "
+                  "(damaged or replaced): compiling it again", file=sys.stderr, flush=True)
+        _clean_stale(directory)
+        _compile_into(library, key, make_source(), engine, d, n, directory, setting)
+    return _fresh_copy(library) if str(library) in _LOADED else library
+
+
+def _compile_into(library: Path, key: str, source: str, engine: str, d: int, n: int,
+                  directory: Path, setting) -> None:
     start = time.perf_counter()
-    with tempfile.TemporaryDirectory(dir=directory) as work:
-        src = Path(work) / "model.cc"
-        src.write_text(source)
-        out = Path(work) / "model.so"
+    print(f"bflow: compiling {engine} library for a model with {d} states, {n} surfaces "
+          f"(first use; cached in {directory})", file=sys.stderr, flush=True)
+    stem = directory / f"bflow_tmp_{key}_{os.getpid()}_{time.time_ns()}"
+    src, out, meta = (stem.with_suffix(".cc"), stem.with_suffix(".so"),
+                      stem.with_suffix(".json"))
+    try:
+        try:
+            _write_file(src, source.encode())
+        except OSError as error:
+            raise _cache_error(directory, setting, "write the generated source in",
+                               error) from None
         run = subprocess.run(_command(src, out), capture_output=True, text=True)
         if run.returncode != 0:
-            raise ModelError("the C++ compiler refused the generated model:\n" +
-                             run.stderr[-4000:] + f"\n(source kept in the message above; "
-                             f"command: {' '.join(_command(src, out))})")
-        os.replace(out, library)  # atomic: another process sees the whole library or none
-    compile_seconds["last"] = time.perf_counter() - start
-    return library
+            failed = directory / f"failed_{key}.cc"
+            os.replace(src, failed)
+            raise ModelError(
+                f"the C++ compiler refused the generated {engine} library (its source is kept "
+                f"in {failed}):\n{run.stderr[-4000:]}\ncommand: "
+                f"{' '.join(_command(failed, library))}")
+        sidecar = {"key": key, "engine": engine, "size": out.stat().st_size,
+                   "sha256": _sha256(out)}
+        try:
+            _write_file(meta, json.dumps(sidecar).encode())
+        except OSError as error:
+            raise _cache_error(directory, setting, "write the checksum in", error) from None
+        # The sidecar first: a reader between the two renames sees a checksum that does not
+        # match the old file and compiles again; never a library with a wrong checksum.
+        os.replace(meta, library.with_suffix(".json"))
+        os.replace(out, library)
+    finally:
+        for temporary in (src, out, meta):
+            try:
+                temporary.unlink()
+            except FileNotFoundError:
+                pass
+    seconds = time.perf_counter() - start
+    compile_seconds["last"] = seconds
+    print(f"bflow: compiled {engine} library in {seconds:.1f} s", file=sys.stderr, flush=True)

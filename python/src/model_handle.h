@@ -35,14 +35,34 @@ struct Model {
     bflow_<engine>_model_create(parameters, count, error, size) and _destroy. The library stays
     loaded for the life of the process: models and results may outlive the Python object that
     loaded it.
-    @throws InvalidArgument if the library cannot be loaded, lacks the functions, or refuses the
-    parameters (its message). */
+    @pre path is a library of bflow's model cache, named model_<key>.so or model_<key>.<tag>.so,
+    whose string bflow_model_key holds <key> (bflow/model.py writes both). The key is checked
+    after dlopen, so that a library of another model copied under the key is never used (its
+    checksum, checked before dlopen by the cache, catches a damaged file).
+    @throws InvalidArgument if the library cannot be loaded, is not the model its name states,
+    lacks the functions, or refuses the parameters (its message). */
 template <typename Interface>
 std::shared_ptr<const Interface> load_compiled(const std::string& path, const std::string& engine,
                                                const std::vector<double>& parameters) {
+  const std::size_t slash = path.find_last_of('/');
+  const std::string file = slash == std::string::npos ? path : path.substr(slash + 1);
+  const std::string prefix = "model_";
+  if (file.compare(0, prefix.size(), prefix) != 0 || file.find('.') == std::string::npos) {
+    throw InvalidArgument("the library " + path +
+                          " is not named model_<key>.so as bflow's model cache names them");
+  }
+  const std::string expected = file.substr(prefix.size(), file.find('.') - prefix.size());
   void* library = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
   if (library == nullptr) {
     throw InvalidArgument("cannot load the compiled model " + path + ": " + dlerror());
+  }
+  const auto* key = static_cast<const char*>(dlsym(library, "bflow_model_key"));
+  if (key == nullptr || expected != key) {
+    const std::string found =
+        key == nullptr ? std::string("no key") : "the key " + std::string(key);
+    dlclose(library);
+    throw InvalidArgument("the library " + path + " holds " + found + ", not the model " +
+                          expected + " its name states");
   }
   using Create = Interface* (*)(const double*, int, char*, int);
   using Destroy = void (*)(Interface*);
