@@ -134,6 +134,15 @@ class JumpMap:
         for j in chosen:
             if not 0 <= j < n:
                 raise ValueError(f"JumpMap.at: surface {j} is out of range [0, {n})")
+        # The table of from_limits holds all 2^n limits, each one call of the field from Python
+        # (16 surfaces: 0.6 s measured; each surface more doubles it).
+        most = 16
+        if len(chosen) > most:
+            raise ValueError(
+                f"JumpMap.at: {len(chosen)} surfaces meet, 2^{len(chosen)} = {2 ** len(chosen)} "
+                f"field limits to evaluate from Python; at most {most} surfaces here (the C++ "
+                f"JumpMap takes a table of up to 2^24 limits, and bflow::ad::jump_map_at "
+                f"evaluates the limits lazily up to 64 surfaces)")
         h = native.surface_values(rho)
         word = list(before) if before is not None else ["+" if v > 0 else "-" for v in h]
         if len(word) != n:
