@@ -455,7 +455,7 @@ class Model:
                 raise
             print(f"bflow: {error}; compiling it again", file=sys.stderr, flush=True)
             _LOADED.add(str(path))  # dlopen keeps it: the rebuild is loaded from a fresh path
-            path = _fresh_copy(_cached_library(key, make_source, info, rebuild=True))
+            path = _cached_library(key, make_source, info, rebuild=True)  # a fresh copy
             handle = load(str(path))
         _LOADED.add(str(path))
         return handle, str(path)
