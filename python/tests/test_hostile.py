@@ -159,8 +159,9 @@ def test_a_cached_library_cut_short_is_rebuilt_not_loaded(tmp_path):
 def test_another_models_library_under_the_key_is_not_used(tmp_path):
     env = {"BFLOW_CACHE_DIR": str(tmp_path / "a")}
     other = {"BFLOW_CACHE_DIR": str(tmp_path / "b")}
-    assert run("relay()", env=env)[0] == "ok"
-    assert run("bflow.Model([x, y], field=[1, 2], surfaces=[x])", env=other)[0] == "ok"
+    assert run("relay().field([0.1, 0.2], '+')", env=env)[0] == "ok"
+    assert run("bflow.Model([x, y], field=[1, 2], surfaces=[x]).field([0, 0], '+')",
+               env=other)[0] == "ok"
     (mine,) = [p for p in _libraries(tmp_path / "a") if "failed" not in p.name]
     (theirs,) = [p for p in _libraries(tmp_path / "b") if "failed" not in p.name]
     mine.write_bytes(theirs.read_bytes())
@@ -191,7 +192,8 @@ def test_cache_directory_settings(tmp_path, value):
             pytest.skip("the tests run as root: a read-only folder is writable")
     home = tmp_path / "home"
     home.mkdir()
-    code = "bflow.Model([x], field=[1 + 0 * k], surfaces=[x - 1], parameters={k: 1.0})"
+    code = ("bflow.Model([x], field=[1 + k], surfaces=[x - 1], parameters={k: 1.0})"
+            ".field([0.0], '-')")
     proc_env = {"BFLOW_CACHE_DIR": value, "HOME": str(home)}
     code_in_cwd = f"os.chdir({str(cwd)!r})\n{code}"
     kind, message, _ = run(code_in_cwd, env=proc_env)
