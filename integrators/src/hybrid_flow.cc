@@ -74,7 +74,34 @@ Signs starting_sides(const SegmentModel& model, const Eigen::VectorXd& x0,
                             std::to_string(options.initial_sides->size()) +
                             " surfaces, the model has " + std::to_string(n));
     }
-    return *options.initial_sides;
+    // A side may be given only where h_j(x0) cannot tell it: within what the integrator's
+    // tolerance moves h_j, |Dh_j(x0)|_1 (atol + rtol |x0|_inf). A state is known only to that
+    // accuracy, and the engine's own states sit as close to a surface on its other side (a run
+    // that ends at a crossing it did not take, a point projected onto a section). Beyond it,
+    // the side h_j(x0) has is the only one the flow can start on.
+    const Signs sides = *options.initial_sides;
+    if (n > 0) {
+      Eigen::VectorXd h(n);
+      model.surface_values(x0.data(), h.data());
+      const Eigen::MatrixXd normals = model.surface_normals(x0);
+      for (int j = 0; j < n; ++j) {
+        if (!std::isfinite(h[j]) || h[j] == 0.0 || (h[j] > 0.0) == sides.plus(j)) continue;
+        const IntegratorOptions& integ = options.integrator;
+        const double band =
+            normals.row(j).lpNorm<1>() *
+            (integ.absolute_tolerance() + integ.rtol * x0.lpNorm<Eigen::Infinity>());
+        if (!(std::abs(h[j]) <= band)) {
+          throw InvalidArgument(
+              "initial_sides \"" + sides.str() + "\" puts x0 on side " +
+              (sides.plus(j) ? "+" : "-") + " of surface " + std::to_string(j) + ", but h_" +
+              std::to_string(j) + "(x0) = " + format_number(h[j]) +
+              " is beyond what the integration tolerance moves h there (" + format_number(band) +
+              " = |Dh_j(x0)|_1 (atol + rtol |x0|_inf)): a side may be given only where x0 is on "
+              "the surface to that tolerance");
+        }
+      }
+    }
+    return sides;
   }
   Eigen::VectorXd h(n);
   model.surface_values(x0.data(), h.data());

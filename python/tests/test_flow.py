@@ -246,3 +246,19 @@ def test_central_differences_average_the_two_sides_of_a_nonlinear_b_derivative()
     np.testing.assert_allclose(central, exact, rtol=0, atol=1e-8)
     np.testing.assert_allclose(central, (D.apply(dx) - D.apply(-dx)) / 2, rtol=0, atol=1e-8)
     assert np.max(np.abs(central - D.apply(dx))) > 1e-2
+
+
+def test_initial_sides_that_contradict_h_are_refused():
+    # The biped's start is in the air (h < 0 for both feet): "++" would use the contact field
+    # there. A side is the caller's only where x0 is on the surface to the integration
+    # tolerance; beyond it, the message names the surface, the side and h_j(x0).
+    m, x0 = bflow.biped(), bflow.biped_initial_state()
+    with pytest.raises(ValueError, match=r'initial_sides "\+\+" puts x0 on side \+ of surface 0, '
+                                         r'but h_0\(x0\) = -'):
+        bflow.simulate(m, x0, 0.6, initial_sides="++")
+    with pytest.raises(ValueError, match="surface 0"):
+        bflow.flow_derivative(m, x0, 0.6, initial_sides="+-")
+    # The sides h(x0) has are accepted and give the default run.
+    given = bflow.simulate(m, x0, 0.6, initial_sides="--")
+    default = bflow.simulate(m, x0, 0.6)
+    np.testing.assert_array_equal(given.x, default.x)

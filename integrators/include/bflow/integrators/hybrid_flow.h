@@ -114,7 +114,13 @@ struct FlowOptions {
   double grazing_threshold = 1e-12;
   /** More events than this ends the simulation with kTooManyEvents (Zeno behaviour?). */
   int max_events = 10000;
-  /** Sides at x0; by default the signs of h(x0), which must then be nonzero. */
+  /** Sides at x0; by default the signs of h(x0), which must then be nonzero. A side given
+      must agree with the sign of h_j(x0) unless |h_j(x0)| is within what the integration
+      tolerance moves h_j, |Dh_j(x0)|_1 (atol + rtol |x0|_inf) (the accuracy of any state the
+      engine computes, and how far its own states may sit across a surface: a run that ends at
+      a crossing it did not take): there, on the surface, it is the caller's choice; beyond it,
+      simulate() and flow_derivative() throw InvalidArgument naming the surface, the side and
+      h_j(x0). */
   std::optional<Signs> initial_sides;
 };
 
