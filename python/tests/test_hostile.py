@@ -196,12 +196,13 @@ def test_cache_directory_settings(tmp_path, value):
             ".field([0.0], '-')")
     proc_env = {"BFLOW_CACHE_DIR": value, "HOME": str(home)}
     code_in_cwd = f"os.chdir({str(cwd)!r})\n{code}"
-    kind, message, _ = run(code_in_cwd, env=proc_env)
-    assert not (cwd / "~").exists(), "a folder named ~ was made"
-    if kind != "ok":
-        refused(kind, message, "BFLOW_CACHE_DIR")
-    else:
-        assert not list(cwd.glob("model_*")), "compiled into the current folder"
+    for attempt in range(2):  # the second run loads what the first compiled
+        kind, message, proc = run(code_in_cwd, env=proc_env)
+        assert not (cwd / "~").exists(), "a folder named ~ was made"
+        if kind != "ok":
+            refused(kind, message, "BFLOW_CACHE_DIR")
+            break
+        assert attempt == 0 or "compiling" not in proc.stderr, proc.stderr
 
 
 # --- optimal control and FESD ----------------------------------------------------------------
@@ -210,7 +211,11 @@ def test_cache_directory_settings(tmp_path, value):
                                    "guess_x=[0, np.inf]", "guess_x=[np.nan, 0]",
                                    "x0=[0, np.nan]", "u_lower=[np.nan]"])
 def test_non_finite_ocp_data_are_refused(guess):
-    kind, message, _ = run(f"bflow.ocp_solve(car(), N=5, x0=[0, 2.0], T=2.0, {guess})")
+    data = {"x0": "[0, 2.0]", "T": "2.0"}
+    key, value = guess.split("=", 1)
+    data[key] = value
+    kind, message, _ = run("bflow.ocp_solve(car(), N=5, " +
+                           ", ".join(f"{k}={v}" for k, v in data.items()) + ")")
     refused(kind, message, guess.split("=")[0])
 
 
