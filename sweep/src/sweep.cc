@@ -248,8 +248,17 @@ std::string SweepAxis::name() const {
 }
 
 SweepGrid::SweepGrid(std::vector<SweepAxis> axes) : axes_(std::move(axes)) {
-  for (const SweepAxis& axis : axes_) {
+  for (std::size_t a = 0; a < axes_.size(); ++a) {
+    const SweepAxis& axis = axes_[a];
     check_axis(axis);
+    // A coordinate on two axes would take the later axis's value only: the earlier one's
+    // values would label samples they did not produce.
+    for (std::size_t b = 0; b < a; ++b) {
+      if (axes_[b].kind == axis.kind && axes_[b].name() == axis.name()) {
+        throw InvalidArgument("sweep: " + axis.name() + " is varied by axes " + std::to_string(b) +
+                              " and " + std::to_string(a) + "; vary each once");
+      }
+    }
     if (axis.count > kMaxSamples / samples_) {
       throw InvalidArgument("sweep: the grid has more than 2^53 samples (the axis " + axis.name() +
                             " has " + std::to_string(axis.count) + " values)");

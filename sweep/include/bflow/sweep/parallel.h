@@ -23,6 +23,8 @@
 // - An exception from evaluate becomes that sample's record through on_error (its what()); the
 //   sweep goes on. An exception from the sink or from on_error stops the workers after the
 //   samples they hold and is rethrown.
+// - At most one worker per sample is started. A worker thread the system cannot start stops
+//   the run: the workers that started are joined and InvalidArgument names the thread count.
 // - progress (optional) is called on the calling thread after the sink, at most every
 //   progress_interval seconds and once after the last sample.
 #ifndef BFLOW_SWEEP_PARALLEL_H_
@@ -38,6 +40,7 @@
 #include <map>
 #include <mutex>
 #include <string>
+#include <system_error>
 #include <thread>
 #include <utility>
 #include <vector>
@@ -70,7 +73,8 @@ struct SweepRunOptions {
   double progress_interval = 0.25;  ///< seconds between progress calls
 };
 
-/** The number of worker threads `options` asks for (threads, or the hardware's when 0).
+/** The number of worker threads `options` asks for (threads, or the hardware's when 0);
+    run_ordered starts at most one per sample.
     @throws InvalidArgument for threads < 0. */
 inline int sweep_threads(const SweepRunOptions& options) {
   if (options.threads < 0) {
@@ -90,7 +94,9 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
     throw InvalidArgument("sweep: the first sample " + std::to_string(first) +
                           " is after the end " + std::to_string(end));
   }
-  const int threads = sweep_threads(options);
+  // No more workers than samples: the others would only start and stop.
+  const int threads = static_cast<int>(std::min<std::uint64_t>(
+      static_cast<std::uint64_t>(sweep_threads(options)), std::max<std::uint64_t>(end - first, 1)));
   const std::uint64_t window =
       options.window > 0 ? options.window : 64 * static_cast<std::uint64_t>(threads);
   using Clock = std::chrono::steady_clock;
@@ -152,10 +158,21 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
 
   std::vector<std::thread> pool;
   pool.reserve(static_cast<std::size_t>(threads));
-  for (int k = 0; k < threads; ++k) pool.emplace_back(work);
   std::exception_ptr failure;
   std::vector<Record> batch;
   try {
+    // A thread the system cannot start (address space, a process limit) stops the run: the
+    // workers that started finish the samples they hold and are joined, then the caller gets an
+    // InvalidArgument naming the count (never std::terminate from a joinable thread unwound).
+    for (int k = 0; k < threads; ++k) {
+      try {
+        pool.emplace_back(work);
+      } catch (const std::system_error& e) {
+        throw InvalidArgument("sweep: could not start worker thread " + std::to_string(k + 1) +
+                              " of " + std::to_string(threads) + " (" + e.what() +
+                              "); ask for fewer threads");
+      }
+    }
     while (written.load() < end) {
       batch.clear();
       {

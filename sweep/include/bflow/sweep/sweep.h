@@ -57,8 +57,9 @@ struct SweepAxis {
     has one sample. */
 class SweepGrid {
  public:
-  /** @throws InvalidArgument for a count of 0, a non-finite end, or more than 2^53 samples
-      (indices stay exact in a double). */
+  /** @throws InvalidArgument for a count of 0, a non-finite end, more than 2^53 samples
+      (indices stay exact in a double), or the same state or parameter on two axes (the later
+      axis's values would replace the earlier's). */
   explicit SweepGrid(std::vector<SweepAxis> axes);
   const std::vector<SweepAxis>& axes() const { return axes_; }
   std::uint64_t samples() const { return samples_; }
