@@ -6,6 +6,7 @@ import subprocess
 
 import numpy as np
 import pytest
+import sympy as sp
 
 import bflow
 
@@ -135,3 +136,18 @@ def test_a_sympy_section_needs_a_sympy_model_and_its_symbols():
     model, x, _ = relay_van_der_pol()
     with pytest.raises(bflow.ModelError, match=r"\['z'\] are neither states"):
         bflow.find_orbit(model, x + sp.Symbol("z"), [-1.0, 1.0])
+
+
+def test_no_false_orbit_where_the_relay_oscillators_loops_shrink():
+    # Near the origin every loop nearly closes (P(x) / x = 1.0013 at x = 3e-6): the run from
+    # 0.0834 slides there and is reported as a vanishing orbit, not converged; from 0.19 the true
+    # orbit (period 2.310931, its closed-form quadrature, tests/orbits/relay_orbit_test.cc).
+    x, y, k = sp.symbols("x y k")
+    s = bflow.signs(1)[0]
+    m = bflow.Model([x, y], field=[y, (k - y**2) * y - s], surfaces=[x], parameters={k: 0.2})
+    false = bflow.find_orbit(m, "-x1", [0.0834, 0.0])
+    assert not false.converged
+    assert "vanishing orbit" in false.message
+    true = bflow.find_orbit(m, "-x1", [0.19, 0.0])
+    assert true.converged, true.message
+    assert abs(true.period - 2.310931026838881) < 2e-7

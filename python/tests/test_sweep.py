@@ -119,3 +119,14 @@ def test_a_biped_parameter_axis_matches_the_command(cli):
 def test_bad_parameter_axes_are_refused(model, x0, axes, message):
     with pytest.raises(ValueError, match=message):
         bflow.sweep(model(), x0, 0.5, axes, progress=False)
+
+
+def test_a_state_on_two_axes_is_refused_and_threads_beyond_the_samples_are_not_started():
+    m = quadrants()
+    with pytest.raises(ValueError, match=r"x\[0\] is varied by axes 0 and 1"):
+        bflow.sweep(m, [-0.5, -0.3], 1.0, [(0, -1.0, 0.0, 3), (0, 0.0, 1.0, 2)], progress=False)
+    # 600 threads for 3 samples: three workers, the same records as one thread.
+    axes = [(0, -0.6, -0.4, 3)]
+    many = bflow.sweep(m, [-0.5, -0.3], 1.0, axes, threads=600, progress=False)
+    one = bflow.sweep(m, [-0.5, -0.3], 1.0, axes, threads=1, progress=False)
+    assert [list(r.x_t) for r in many] == [list(r.x_t) for r in one]
