@@ -134,15 +134,6 @@ class JumpMap:
         for j in chosen:
             if not 0 <= j < n:
                 raise ValueError(f"JumpMap.at: surface {j} is out of range [0, {n})")
-        # The table of from_limits holds all 2^n limits, each one call of the field from Python
-        # (16 surfaces: 0.6 s measured; each surface more doubles it).
-        most = 16
-        if len(chosen) > most:
-            raise ValueError(
-                f"JumpMap.at: {len(chosen)} surfaces meet, 2^{len(chosen)} = {2 ** len(chosen)} "
-                f"field limits to evaluate from Python; at most {most} surfaces here (the C++ "
-                f"JumpMap takes a table of up to 2^24 limits, and bflow::ad::jump_map_at "
-                f"evaluates the limits lazily up to 64 surfaces)")
         h = native.surface_values(rho)
         word = list(before) if before is not None else ["+" if v > 0 else "-" for v in h]
         if len(word) != n:
@@ -157,16 +148,10 @@ class JumpMap:
         if np.any(orient == 0):
             raise ValueError(f"JumpMap.at: the field is tangent to surface(s) "
                              f"{[chosen[k] for k in np.flatnonzero(orient == 0)]} at rho")
-        eta = normals * orient[:, None]
-        limits = np.empty((native.states, 2 ** len(chosen)))
-        for bits in range(2 ** len(chosen)):
-            w = list(base)
-            for k, j in enumerate(chosen):
-                after = (bits >> k) & 1
-                plus = after if orient[k] > 0 else not after
-                w[j] = "+" if plus else "-"
-            limits[:, bits] = native.field(rho, "".join(w))
-        return cls.from_limits(eta, limits)
+        # The limits are evaluated lazily in C++ (n + 1 field calls per direction), so any n up
+        # to the JumpMap's 64 surfaces costs no 2^n table.
+        return cls(_bflow._jump_map_at(native, rho, chosen, "".join(base),
+                                       [int(o) for o in orient]))
 
     @property
     def surfaces(self) -> int:

@@ -1,4 +1,5 @@
-// JumpMap from NumPy: normals (n x d) and field limits (d x 2^n, column b.bits() is F_b(rho)).
+// JumpMap from NumPy: normals (n x d) and field limits (d x 2^n, column b.bits() is F_b(rho)),
+// or from a model at a point, its limits evaluated lazily (n + 1 words per apply).
 #include <string>
 #include <vector>
 
@@ -11,6 +12,7 @@
 #include "bflow/core/jump_map.h"
 #include "bflow/core/triangulation.h"
 #include "bindings.h"
+#include "model_handle.h"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -32,6 +34,44 @@ void bind_jump(nb::module_& m) {
           s += (k ? ", " : "") + std::to_string(o.order[k]);
         return s + "])";
       });
+
+  // The JumpMap of `model` at rho across the chosen surfaces: eta_k = orient_k Dh_{chosen[k]}(rho)
+  // and Gamma(w) = F_b(rho), b the word `base` (the other surfaces' sides, the chosen ones -)
+  // with bit chosen[k] set where w_k is "after" for orient_k = +1, "before" for -1. Gamma is
+  // evaluated lazily, so that any n up to 64 costs n + 1 field calls per direction.
+  m.def(
+      "_jump_map_at",
+      [](const Model& model, ConstVector rho, const std::vector<int>& chosen,
+         const std::string& base, const std::vector<int>& orient) {
+        const std::shared_ptr<const SegmentModel> field = model.model;
+        const int d = field->states(), surfaces = field->surfaces();
+        const Signs sides = Signs::parse(base);
+        if (rho.size() != d || sides.size() != surfaces || orient.size() != chosen.size()) {
+          throw InvalidArgument("JumpMap.at: rho, the sign word and the orientations must match "
+                                "the model's " + std::to_string(d) + " states and " +
+                                std::to_string(surfaces) + " surfaces");
+        }
+        const Eigen::VectorXd x = rho;
+        const Eigen::MatrixXd all = field->surface_normals(x);
+        Eigen::MatrixXd eta(static_cast<Eigen::Index>(chosen.size()), d);
+        for (std::size_t k = 0; k < chosen.size(); ++k) {
+          if (chosen[k] < 0 || chosen[k] >= surfaces) {
+            throw InvalidArgument("JumpMap.at: surface " + std::to_string(chosen[k]) +
+                                  " is out of range [0, " + std::to_string(surfaces) + ")");
+          }
+          eta.row(static_cast<Eigen::Index>(k)) = orient[k] * all.row(chosen[k]);
+        }
+        auto limits = [field, x, chosen, sides, orient](Signs w, Eigen::Ref<Eigen::VectorXd> out) {
+          Signs b = sides;
+          for (std::size_t k = 0; k < chosen.size(); ++k) {
+            const bool after = w.plus(static_cast<int>(k));
+            b = (orient[k] > 0 ? after : !after) ? b.with_plus(chosen[k]) : b.with_minus(chosen[k]);
+          }
+          field->field(x.data(), b, out.data());  // (a Ref<VectorXd> is contiguous)
+        };
+        return JumpMap(eta, limits);
+      },
+      "model"_a, "rho"_a, "chosen"_a, "base"_a, "orient"_a);
 
   nb::class_<JumpMap>(m, "JumpMap")
       .def("_limits_table",
