@@ -47,9 +47,10 @@ void bind_jump(nb::module_& m) {
         const int d = field->states(), surfaces = field->surfaces();
         const Signs sides = Signs::parse(base);
         if (rho.size() != d || sides.size() != surfaces || orient.size() != chosen.size()) {
-          throw InvalidArgument("JumpMap.at: rho, the sign word and the orientations must match "
-                                "the model's " + std::to_string(d) + " states and " +
-                                std::to_string(surfaces) + " surfaces");
+          throw InvalidArgument(
+              "JumpMap.at: rho, the sign word and the orientations must match "
+              "the model's " +
+              std::to_string(d) + " states and " + std::to_string(surfaces) + " surfaces");
         }
         const Eigen::VectorXd x = rho;
         const Eigen::MatrixXd all = field->surface_normals(x);

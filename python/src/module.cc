@@ -4,11 +4,14 @@
 
 #include "bflow/core/errors.h"
 #include "bindings.h"
+#include "interrupt.h"
 
 namespace nb = nanobind;
 
 NB_MODULE(_bflow, m) {
   m.doc() = "bflow's C++ API (use the package bflow, which wraps it)";
+  bflow::python::main_thread_ident() = nb::cast<unsigned long>(
+      nb::module_::import_("threading").attr("main_thread")().attr("ident"));
   nb::register_exception_translator([](const std::exception_ptr& p, void*) {
     try {
       std::rethrow_exception(p);
