@@ -1235,7 +1235,14 @@ struct HomotopySolver::Impl {
       nlp.widen_structure();
       nlp.back_to_start();
       nlp.clear_missed();
+      // The two solves share the NLP's max_iter (what is left of a budget, or the cap per NLP):
+      // the second gets what the first left, so that the NLP never takes more than was given.
+      Ipopt::OptionsList& o = *app->Options();
+      int max_iter = 0;
+      const bool capped = o.GetIntegerValue("max_iter", max_iter, "");
+      if (capped) o.SetIntegerValue("max_iter", std::max(0, max_iter - earlier_iterations));
       status = app->OptimizeTNLP(&nlp);
+      if (capped) o.SetIntegerValue("max_iter", max_iter);
     }
     if (status == Ipopt::Invalid_Option) {
       // Not an outcome of the NLP: no NLP of this solver can run.

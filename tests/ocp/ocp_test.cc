@@ -423,13 +423,13 @@ TEST(OcpPolish, FromAFarRelaxationTheActiveSetIsConsistent) {
 // = what is left of the budget, and IPOPT stops at max_iter iterations at the latest, so the
 // budgeted iterations never exceed the budget; the run ends kBudgetExhausted only when nothing is
 // left or an NLP ran out of what was, i.e. with the budget spent exactly. (With probe_sparsity an
-// NLP found to need a wider structure is solved twice, each time with max_iter what was left:
-// that exception is off here.) The budgets are taken from a run without one on the braking block
-// (N = 10): the NLPs of a budgeted run are those of the free run (max_iter changes only where
-// IPOPT stops), so each budget below the free run's count cuts it, wherever it runs: 1 (the
-// first NLP cut, nothing solved), what leaves the first early polish half of the iterations it
-// took in the free run (the polish is cut, not kept, and the run ends there), and half of the
-// free run's budgeted iterations.
+// NLP found to need a wider structure is solved twice within what was left:
+// OcpSparsity.TheWidenedNlpStaysWithinTheBudget.) The budgets are taken from a run without one on
+// the braking block (N = 10): the NLPs of a budgeted run are those of the free run (max_iter
+// changes only where IPOPT stops), so each budget below the free run's count cuts it, wherever it
+// runs: 1 (the first NLP cut, nothing solved), what leaves the first early polish half of the
+// iterations it took in the free run (the polish is cut, not kept, and the run ends there), and
+// half of the free run's budgeted iterations.
 int budgeted_iterations(const OcpResult& r, const OcpOptions& options) {
   const bool ended_by_itself = r.status == OcpStatus::kSolved ||
                                r.status == OcpStatus::kComplementarityNotReached ||
@@ -613,6 +613,35 @@ TEST(OcpSparsity, ABranchNoProbeTookWidensTheStructureAndKeepsTheOptimum) {
   // The result reports the structure of its last NLP: the widened one is every candidate.
   EXPECT_EQ(probed.jacobian_nonzeros, full.jacobian_nonzeros);
   EXPECT_EQ(probed.hessian_nonzeros, full.hessian_nonzeros);
+}
+
+// With probe_sparsity an NLP found to need a wider structure is solved again from its start; the
+// two solves share that NLP's max_iter (what is left of the budget), so the budget holds there
+// too. The budget here ends inside the widened NLP: the free run's iterations before it plus all
+// but one of its own (both solves). The budgeted run's NLPs are the free run's up to there
+// (max_iter changes only where IPOPT stops), so it must end kBudgetExhausted within the budget;
+// solving the second time with the first's max_iter took one iteration more than the budget.
+TEST(OcpSparsity, TheWidenedNlpStaysWithinTheBudget) {
+  OcpOptions o;
+  o.stages = 5;
+  o.probe_sparsity = true;
+  const OcpResult free_run = ocp_solve(adapt_ocp(FarBranchCar{}), TurboCar::problem(), o);
+  ASSERT_TRUE(free_run.ok()) << free_run.message;
+  int before = 0;
+  const OcpHomotopyStep* widened = nullptr;
+  for (const auto& step : free_run.homotopy) {
+    if (step.structure_widened) {
+      widened = &step;
+      break;
+    }
+    before += step.iterations;
+  }
+  ASSERT_NE(widened, nullptr);
+  ASSERT_GE(widened->iterations, 2);
+  o.max_total_iterations = before + widened->iterations - 1;
+  const OcpResult cut = ocp_solve(adapt_ocp(FarBranchCar{}), TurboCar::problem(), o);
+  EXPECT_EQ(cut.status, OcpStatus::kBudgetExhausted) << cut.message;
+  EXPECT_LE(cut.ipopt_iterations, o.max_total_iterations);
 }
 
 // MUMPS's small-front amalgamation (bflow::ScopedMumpsAmalgamation) is set on every analysis of

@@ -456,7 +456,8 @@ struct OcpOptions {
   double later_mu_init = 0.0;
   int max_nlp_iterations = 3000;  ///< per NLP of the homotopy
   /** > 0: IPOPT iterations of the whole homotopy, its early polishes included: each NLP and
-      early polish gets at most what is left, and when it runs out the result is
+      early polish gets at most what is left (an NLP solved again with a widened structure,
+      probe_sparsity, shares it between both solves), and when it runs out the result is
       kBudgetExhausted with the last solved NLP's solution; the final polish after sigma_final
       is not bounded by it. 0: no limit but max_nlp_iterations per NLP. */
   int max_total_iterations = 0;
