@@ -1309,6 +1309,7 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
       const int left = rules.max_total_iterations - out.iterations;
       if (left <= 0) {
         out.budget_exhausted = true;
+        out.budget_exhausted_before = true;
         out.failed_status =
             "no iterations left of the budget of " + std::to_string(rules.max_total_iterations);
         out.failed_sigma = sigma;

@@ -831,9 +831,12 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
                                 number(outcome.failed_sigma)
         : outcome.budget_exhausted
             ? "the budget of " + std::to_string(options.max_total_iterations) +
-                  " IPOPT iterations (max_total_iterations) ran out at sigma = " +
-                  number(outcome.failed_sigma) + " (complementarity residual " +
-                  number(outcome.failed_complementarity) + ")"
+                  " IPOPT iterations (max_total_iterations) ran out " +
+                  (outcome.budget_exhausted_before
+                       ? "before the NLP at sigma = " + number(outcome.failed_sigma) +
+                             ", the NLPs and early polishes before it having used it up"
+                       : "in the NLP at sigma = " + number(outcome.failed_sigma)) +
+                  " (complementarity residual " + number(outcome.failed_complementarity) + ")"
             : "IPOPT returned " + outcome.failed_status +
                   " at sigma = " + number(outcome.failed_sigma) + " (complementarity residual " +
                   number(outcome.failed_complementarity) + ")";

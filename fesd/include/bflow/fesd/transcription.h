@@ -395,6 +395,9 @@ struct HomotopyOutcome {
   double failed_sigma = 0.0, failed_complementarity = 0.0;
   /** The homotopy ended because HomotopyRules::max_total_iterations ran out. */
   bool budget_exhausted = false;
+  /** With budget_exhausted: nothing was left when the NLP at failed_sigma was to start (the NLPs
+      and early polishes before it used the budget up), rather than that NLP running out. */
+  bool budget_exhausted_before = false;
   /** IpoptSettings::cancelled asked to stop: the NLP at failed_sigma was cut short; the
       transcription holds the last solved NLP's solution (any_solved) or that NLP's last
       iterate. */
