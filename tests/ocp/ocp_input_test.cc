@@ -11,6 +11,7 @@
 
 #include "bflow/examples/ocp_examples.h"
 #include "bflow/ocp/ocp.h"
+#include "support/error_message.h"
 
 namespace bflow {
 namespace {
@@ -20,16 +21,7 @@ using ::testing::HasSubstr;
 constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-template <typename Call>
-std::string message_of(Call&& call) {
-  try {
-    call();
-  } catch (const InvalidArgument& e) {
-    return e.what();
-  }
-  ADD_FAILURE() << "expected bflow::InvalidArgument";
-  return "";
-}
+using testing::message_of;
 
 // Bit-equal results.
 void expect_same(const OcpResult& a, const OcpResult& b) {
