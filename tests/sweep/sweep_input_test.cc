@@ -1,8 +1,10 @@
 // Sweep input checked where it enters: the grid refuses a coordinate on two axes, and the pool
-// starts no more workers than samples and turns a thread the system cannot start into an
-// InvalidArgument after joining the workers that started.
+// starts no more workers than samples, turns a thread the system cannot start into an
+// InvalidArgument after joining the workers that started, and stops when its cancellation hook
+// says so.
 #include <sys/resource.h>
 
+#include <atomic>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
@@ -93,6 +95,53 @@ TEST(SweepPoolDeathTest, NoMoreWorkersThanSamples) {
         std::exit(run_with_threads(600, 3));
       },
       ::testing::ExitedWithCode(0), "");
+}
+
+// A hook that cancels once the sink has taken k records: the run says it was cancelled, the
+// sink saw exactly 0 .. k - 1, and the workers stopped (samples evaluated <= k + the records
+// that may wait for the sink + one in hand per worker, far below the 10^6 of the grid).
+TEST(SweepPoolCancel, AHookThatCancelsAfterKSamplesStopsTheRun) {
+  for (const int threads : {1, 2, 4}) {
+    constexpr std::uint64_t kSamples = 1000000, kStopAfter = 37;
+    SweepRunOptions options;
+    options.threads = threads;
+    options.window = 8;
+    options.cancel_interval = 0.0;  // polled before every record
+    std::vector<std::uint64_t> seen;
+    std::atomic<std::uint64_t> evaluated{0};
+    options.cancelled = [&] { return seen.size() >= kStopAfter; };
+    const SweepRunResult r = run_ordered<std::uint64_t>(
+        0, kSamples,
+        [&](std::uint64_t i) {
+          ++evaluated;
+          return i;
+        },
+        [](std::uint64_t, const std::string&) { return std::uint64_t{0}; },
+        [&](std::uint64_t&& v) { seen.push_back(v); }, options);
+    EXPECT_TRUE(r.cancelled) << threads;
+    EXPECT_EQ(r.done, kStopAfter) << threads;
+    EXPECT_EQ(r.threads, threads);
+    ASSERT_EQ(seen.size(), kStopAfter);
+    for (std::uint64_t k = 0; k < kStopAfter; ++k) EXPECT_EQ(seen[k], k);
+    EXPECT_LE(evaluated.load(), kStopAfter + options.window + static_cast<std::uint64_t>(threads));
+  }
+}
+
+// Without a hook, or with one that never fires, the run is whole and says so; the thread count
+// it reports is capped by the samples.
+TEST(SweepPoolCancel, AnUncancelledRunReportsEverySampleAndItsThreads) {
+  SweepRunOptions options;
+  options.threads = 16;
+  options.cancelled = [] { return false; };
+  std::uint64_t sum = 0;
+  const SweepRunResult r = run_ordered<std::uint64_t>(
+      0, 5, [](std::uint64_t i) { return i; },
+      [](std::uint64_t, const std::string&) { return std::uint64_t{0}; },
+      [&](std::uint64_t&& v) { sum += v; }, options);
+  EXPECT_FALSE(r.cancelled);
+  EXPECT_EQ(r.done, 5u);
+  EXPECT_EQ(r.threads, 5);
+  EXPECT_EQ(sum, 10u);
 }
 
 }  // namespace

@@ -22,11 +22,18 @@
 //   number of samples): a worker whose index is `window` ahead of the sink waits.
 // - An exception from evaluate becomes that sample's record through on_error (its what()); the
 //   sweep goes on. An exception from the sink or from on_error stops the workers after the
-//   samples they hold and is rethrown.
+//   samples they hold and is rethrown, as is a worker's failure to store a record (bad_alloc).
 // - At most one worker per sample is started. A worker thread the system cannot start stops
 //   the run: the workers that started are joined and InvalidArgument names the thread count.
 // - progress (optional) is called on the calling thread after the sink, at most every
 //   progress_interval seconds and once after the last sample.
+// - cancelled (optional) is polled on the calling thread, at most every cancel_interval
+//   seconds, while it waits for a record and before it hands one to the sink. When it returns
+//   true the sink takes no more records, the workers stop after the samples they hold (a
+//   sample is never cut short) and the run returns with cancelled set: the sink then has seen
+//   exactly the indices first .. first + done - 1.
+// - The result says how many records the sink took, how many workers ran and whether the run
+//   was cancelled.
 #ifndef BFLOW_SWEEP_PARALLEL_H_
 #define BFLOW_SWEEP_PARALLEL_H_
 
@@ -71,6 +78,17 @@ struct SweepRunOptions {
   std::uint64_t window = 0;
   std::function<void(const SweepProgress&)> progress;
   double progress_interval = 0.25;  ///< seconds between progress calls
+  /** Polled on the calling thread; true stops the run (see the top of this header). Python's
+      binding runs the interpreter's signal handlers here, so Ctrl-C stops a sweep. */
+  std::function<bool()> cancelled;
+  double cancel_interval = 0.05;  ///< seconds between polls of cancelled (0: before every record)
+};
+
+/** What an ordered run did. */
+struct SweepRunResult {
+  std::uint64_t done = 0;  ///< records the sink took: indices first .. first + done - 1
+  int threads = 0;         ///< worker threads started: the threads asked for, capped by samples
+  bool cancelled = false;  ///< options.cancelled stopped the run before the last sample
 };
 
 /** The number of worker threads `options` asks for (threads, or the hardware's when 0);
@@ -88,8 +106,8 @@ inline int sweep_threads(const SweepRunOptions& options) {
 
 /** See the top of this header. @throws InvalidArgument for first > end or threads < 0. */
 template <typename Record, typename Evaluate, typename OnError, typename Sink>
-void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnError on_error,
-                 Sink sink, const SweepRunOptions& options = {}) {
+SweepRunResult run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate,
+                           OnError on_error, Sink sink, const SweepRunOptions& options = {}) {
   if (first > end) {
     throw InvalidArgument("sweep: the first sample " + std::to_string(first) +
                           " is after the end " + std::to_string(end));
@@ -148,11 +166,20 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
       {
         std::lock_guard<std::mutex> lock(mutex);
         if (stop) return;
-        waiting.emplace(index, std::move(record));
-        wanted = index == written.load();
+        try {
+          waiting.emplace(index, std::move(record));
+        } catch (...) {  // bad_alloc: the caller gets it, never std::terminate in a worker
+          if (!worker_failure) worker_failure = std::current_exception();
+          stop = true;
+        }
+        wanted = stop || index == written.load();
       }
       // Only the record the sink waits for wakes it; it then takes every consecutive one.
       if (wanted) ready.notify_one();
+      if (wanted && stop) {
+        room.notify_all();
+        return;
+      }
     }
   };
 
@@ -160,6 +187,19 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
   pool.reserve(static_cast<std::size_t>(threads));
   std::exception_ptr failure;
   std::vector<Record> batch;
+  SweepRunResult result;
+  result.threads = threads;
+  // The wait between polls of cancelled; never 0, which would spin.
+  const auto poll_wait = std::chrono::duration<double>(std::max(options.cancel_interval, 1e-3));
+  Clock::time_point last_poll = start;
+  const auto poll = [&](Clock::time_point now) {
+    if (!options.cancelled ||
+        std::chrono::duration<double>(now - last_poll).count() < options.cancel_interval) {
+      return false;
+    }
+    last_poll = now;
+    return options.cancelled();
+  };
   try {
     // A thread the system cannot start (address space, a process limit) stops the run: the
     // workers that started finish the samples they hold and are joined, then the caller gets an
@@ -167,25 +207,41 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
     for (int k = 0; k < threads; ++k) {
       try {
         pool.emplace_back(work);
-      } catch (const std::system_error& e) {
+      } catch (const std::exception& e) {  // system_error, or bad_alloc for the thread's state
         throw InvalidArgument("sweep: could not start worker thread " + std::to_string(k + 1) +
                               " of " + std::to_string(threads) + " (" + e.what() +
                               "); ask for fewer threads");
       }
     }
-    while (written.load() < end) {
+    while (written.load() < end && !result.cancelled) {
       batch.clear();
+      bool arrived = true;
       {
         std::unique_lock<std::mutex> lock(mutex);
-        ready.wait(lock, [&] { return stop || waiting.count(written.load()) > 0; });
+        const auto has_next = [&] { return stop || waiting.count(written.load()) > 0; };
+        if (options.cancelled) {
+          arrived = ready.wait_for(lock, poll_wait, has_next);
+        } else {
+          ready.wait(lock, has_next);
+        }
         if (stop) std::rethrow_exception(worker_failure);
-        for (auto it = waiting.find(written.load() + batch.size());
-             it != waiting.end() && it->first == written.load() + batch.size();
-             it = waiting.erase(it)) {
-          batch.push_back(std::move(it->second));
+        if (arrived) {
+          for (auto it = waiting.find(written.load() + batch.size());
+               it != waiting.end() && it->first == written.load() + batch.size();
+               it = waiting.erase(it)) {
+            batch.push_back(std::move(it->second));
+          }
         }
       }
+      if (!arrived) {  // the cancelled hook is polled without the lock held
+        result.cancelled = poll(Clock::now());
+        continue;
+      }
       for (Record& record : batch) {
+        if (poll(Clock::now())) {
+          result.cancelled = true;
+          break;
+        }
         sink(std::move(record));
         ++progress.done;
         {
@@ -205,6 +261,8 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
     }
   } catch (...) {
     failure = std::current_exception();
+  }
+  if (failure || result.cancelled) {
     {
       std::lock_guard<std::mutex> lock(mutex);
       stop = true;
@@ -214,6 +272,8 @@ void run_ordered(std::uint64_t first, std::uint64_t end, Evaluate evaluate, OnEr
   }
   for (std::thread& t : pool) t.join();
   if (failure) std::rethrow_exception(failure);
+  result.done = progress.done;
+  return result;
 }
 
 }  // namespace bflow
