@@ -34,7 +34,7 @@ __all__ = ["JumpMap", "Model", "ModelError", "signs", "simulate", "flow_derivati
            "FlowDerivative", "fd", "flow_options", "biped", "biped_initial_state", "pronk",
            "pronk_initial_state", "find_orbit", "continue_orbits", "PeriodicOrbit",
            "fesd_simulate", "fesd_exact", "FesdResult", "ocp_solve", "ocp_exact", "OcpResult",
-           "sweep", "SweepRecord"]
+           "sweep", "SweepRecord", "SweepRecords"]
 __version__ = "0.1.0"
 
 CrossingOrder = _bflow.CrossingOrder
@@ -687,6 +687,18 @@ def ocp_exact(example: str) -> dict:
 SweepRecord = _bflow.SweepRecord
 
 
+class SweepRecords(list):
+    """The records of a sweep, in grid order (a list), with what the sweep decided: ``threads``,
+    the worker threads that ran (the threads asked for, or one per core, capped at one per
+    sample), and ``notices``, one line per such decision (e.g. "threads=600 capped at 8, one per
+    sample")."""
+
+    def __init__(self, records, threads: int, notices):
+        super().__init__(records)
+        self.threads = threads
+        self.notices = list(notices)
+
+
 def sweep(model, x0, t: float, axes, directions=None, *, threads: int = 0,
           progress: bool = True, **options):
     """The flow and its B-derivative at every point of a grid of initial states and parameters,
@@ -700,7 +712,20 @@ def sweep(model, x0, t: float, axes, directions=None, *, threads: int = 0,
     Returns the records in grid order: ``varied``, ``status`` ("ok", or why the sample failed:
     a failed sample does not stop the sweep), ``message``, ``x_t``, ``images`` (one per
     direction), ``orders`` (per direction, per event: the crossing order), ``pieces``,
-    ``structure(direction)`` (e.g. "0+1 (1>0)": which surfaces cross together, in which order)."""
+    ``structure(direction)`` (e.g. "0+1 (1>0)": which surfaces cross together, in which order).
+    The list is a ``SweepRecords``: its ``threads`` is the pool's size (at most one thread per
+    sample) and ``notices`` says when the threads asked for were capped.
+
+    Ctrl-C stops the sweep within about 50 ms plus the samples in hand (one per thread) and
+    raises KeyboardInterrupt with the finished records, in grid order from the first sample, as
+    ``e.args[1]`` and ``e.records``; the message counts the unfinished samples, left out.
+
+    The records are held in memory: before any sample runs, a sweep whose records would exceed
+    3/4 of the machine's physical memory (or of the address-space limit) is refused with a
+    ValueError naming the samples and the bytes, counting each record without events, and
+    again at the first record with that record's events assumed for every sample. The command
+    ``bflow sweep`` streams records to a file instead."""
+    threads = _count(threads, "threads", "sweep", lo=0)
     native, x = _x0(model, x0)
     if directions is None:
         dirs = [row for row in np.eye(native.states)]
@@ -715,11 +740,28 @@ def sweep(model, x0, t: float, axes, directions=None, *, threads: int = 0,
             raise ValueError("sweep: an axis is (index, lo, hi, count) or (parameter name, lo, "
                              f"hi, count), got {axis!r}") from None
         if isinstance(what, _parameter_name_types()):
-            grid.append((-1, str(what), float(lo), float(hi), int(count)))
+            index, parameter = -1, str(what)
         else:
-            grid.append((int(what), "", float(lo), float(hi), int(count)))
-    return _bflow._sweep(native, x, float(t), grid, [np.asarray(v, dtype=float) for v in dirs],
-                         flow_options(**options), int(threads), bool(progress))
+            index = _count(what, "the state index of an axis", "sweep", lo=-2 ** 31)
+            parameter = ""
+        label = parameter or f"x[{index}]"
+        # 2^53: the most samples a grid takes (indices exact in a double).
+        count = _count(count, f"the count of the axis {label}", "sweep", lo=1, hi=2 ** 53)
+        grid.append((index, parameter, float(lo), float(hi), count))
+    records, pool, cancelled, samples = _bflow._sweep(
+        native, x, float(t), grid, [np.asarray(v, dtype=float) for v in dirs],
+        flow_options(**options), threads, bool(progress))
+    notices = []
+    if threads > pool:
+        notices.append(f"threads={threads} capped at {pool}, one per sample")
+    result = SweepRecords(records, pool, notices)
+    del records
+    if cancelled:
+        e = KeyboardInterrupt(f"sweep: interrupted; {len(result)} of {samples} samples finished, "
+                              f"the {samples - len(result)} unfinished ones are left out", result)
+        e.records = result
+        raise e
+    return result
 
 
 def _parameter_name_types():

@@ -56,9 +56,14 @@ def test_a_failed_sample_is_a_record():
 
 @pytest.mark.parametrize("axes, message", [
     ([(2, 0.0, 1.0, 3)], r"x\[2\] is outside"),
-    ([(0, 0.0, 1.0, 0)], "x\\[0\\] has a count of 0"),
-    ([(0, 0.0, 1.0, -2)], "x\\[0\\] has a count of -2"),
+    ([(0, 0.0, 1.0, 0)], r"count of the axis x\[0\]=0 is outside \[1, "),
+    ([(0, 0.0, 1.0, -2)], r"count of the axis x\[0\]=-2 is outside"),
     ([(0, 0.0)], "axis is"),
+    # Beyond the C++ integer types: a ValueError naming the value, not nanobind's "incompatible
+    # function arguments".
+    ([(0, 0.0, 1.0, 2 ** 70)], r"count of the axis x\[0\]=1180591620717411303424 is outside"),
+    ([(2 ** 40, 0.0, 1.0, 3)], r"state index of an axis=1099511627776 is outside"),
+    ([(0, 0.0, 1.0, 2.5)], r"count of the axis x\[0\] must be an integer, got 2.5"),
 ])
 def test_bad_axes_are_refused(axes, message):
     with pytest.raises(ValueError, match=message):
@@ -130,3 +135,78 @@ def test_a_state_on_two_axes_is_refused_and_threads_beyond_the_samples_are_not_s
     many = bflow.sweep(m, [-0.5, -0.3], 1.0, axes, threads=600, progress=False)
     one = bflow.sweep(m, [-0.5, -0.3], 1.0, axes, threads=1, progress=False)
     assert [list(r.x_t) for r in many] == [list(r.x_t) for r in one]
+
+
+@pytest.mark.parametrize("threads, message", [
+    (2 ** 40, r"threads=1099511627776 is outside \[0, 2147483647\]"),
+    (-1, r"threads=-1 is outside"),
+    (1.5, r"threads must be an integer, got 1.5"),
+])
+def test_bad_thread_counts_are_refused_naming_the_value(threads, message):
+    with pytest.raises(ValueError, match=message):
+        bflow.sweep(quadrants(), [-0.5, -0.3], 1.0, [(0, -0.6, -0.4, 3)], threads=threads,
+                    progress=False)
+
+
+def test_the_thread_cap_is_reported(capfd):
+    m = quadrants()
+    axes = [(0, -0.6, -0.4, 3)]
+    many = bflow.sweep(m, [-0.5, -0.3], 1.0, axes, threads=600, progress=True)
+    assert isinstance(many, bflow.SweepRecords) and len(many) == 3
+    assert many.threads == 3
+    assert many.notices == ["threads=600 capped at 3, one per sample"]
+    assert "sweep: 3 samples on 3 threads (one per sample)" in capfd.readouterr().err
+    two = bflow.sweep(m, [-0.5, -0.3], 1.0, axes, threads=2, progress=False)
+    assert two.threads == 2 and two.notices == []
+
+
+def _relay():
+    k = sp.Symbol("k")
+    s = bflow.signs(1)[0]
+    return bflow.Model([x, y], field=[y, (k - y**2) * y - s], surfaces=[x], parameters={k: 0.2})
+
+
+def test_an_interrupted_sweep_keeps_its_finished_records_each_its_own_flow_derivative():
+    """A SIGINT raised from another thread while the sweep runs: KeyboardInterrupt carrying a
+    prefix of the grid, each record equal to flow_derivative at its own start."""
+    import signal
+    import threading
+    m = _relay()
+    m.field([0.1, 0.0], "+")  # compiled before the timer starts
+    samples = 200000
+    timer = threading.Timer(1.0, signal.raise_signal, args=(signal.SIGINT,))
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt) as info:
+            bflow.sweep(m, [0.5, 0.0], 5.0, [(0, 0.1, 1.0, samples)], threads=2, progress=False)
+    finally:
+        timer.cancel()
+    e = info.value
+    records = e.args[1]
+    assert records is e.records
+    assert 0 < len(records) < samples
+    assert f"{len(records)} of {samples} samples finished" in e.args[0]
+    assert f"the {samples - len(records)} unfinished ones are left out" in e.args[0]
+    assert [r.index for r in records] == list(range(len(records)))
+    step = records[:: max(1, len(records) // 20)]  # at most ~20 checked: each is a full run
+    for r in step:
+        assert r.ok, r.message
+        assert r.varied == pytest.approx([0.1 + 0.9 * r.index / (samples - 1)], rel=0, abs=1e-15)
+        start = [r.varied[0], 0.0]
+        D = bflow.flow_derivative(m, start, 5.0)
+        np.testing.assert_allclose(r.x_t, D.x, rtol=0, atol=1e-12)
+        for k, image in enumerate(r.images):
+            np.testing.assert_allclose(image, D.apply(np.eye(2)[k]), rtol=0, atol=1e-12)
+
+
+def test_a_sweep_beyond_memory_is_refused_before_it_runs():
+    with pytest.raises(ValueError) as info:
+        bflow.sweep(quadrants(), [-0.5, -0.3], 1.0,
+                    [(0, -1.0, 0.0, 10 ** 6), (1, -1.0, 1.0, 10 ** 6)], progress=False)
+    message = str(info.value)
+    assert "1000000000000 samples" in message and "bytes" in message
+    assert "bflow sweep" in message
+    # A record holds at least its two varied values, x_t and two images of 2 doubles: 96 bytes
+    # of numbers, so 10^12 records need more than 9.6e13 bytes.
+    needed = float(message.split("hold about ")[1].split(" bytes")[0])
+    assert needed > 9.6e13
