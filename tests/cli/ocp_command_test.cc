@@ -346,7 +346,8 @@ TEST(OcpCommandTest, AnIterationBudgetEndsTheHomotopy) {
   const std::vector<std::string> err = lines(r.err);
   ASSERT_FALSE(err.empty());
   EXPECT_THAT(err.back(), StartsWith("error: ocp: budget_exhausted: the budget of 100 IPOPT "
-                                     "iterations (max_total_iterations) ran out at sigma = "));
+                                     "iterations (max_total_iterations) ran out "));
+  EXPECT_THAT(err.back(), HasSubstr("the NLP at sigma = "));
 }
 
 TEST(OcpCommandTest, BadOptionsAreNamed) {
