@@ -311,12 +311,19 @@ def test_a_sweep_too_large_for_memory_is_refused_up_front():
     assert time.perf_counter() - start < 30
 
 
+def default_sigint():
+    """preexec_fn of a child that must see Ctrl-C as a user does: SIGINT back to its default
+    (pytest-xdist's workers ignore SIGINT, a child inherits that, and Python installs its
+    KeyboardInterrupt handler only where SIGINT is not ignored)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _interrupted(body: str, after: float, within: float):
     """Runs body in a child, sends SIGINT `after` seconds after it prints READY; returns its
     stdout, stderr and the seconds from the signal to its exit."""
     code = PRELUDE + textwrap.dedent(body)
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint)
     first = proc.stdout.readline()
     assert first.startswith("READY"), (first, proc.stderr.read()[-2000:])
     time.sleep(after)

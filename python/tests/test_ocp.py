@@ -217,6 +217,14 @@ def test_standard_with_cross_complementarity_is_refused():
         bflow.ocp_solve("turbo-car", N=5, standard=True, cross_complementarity="point-sums")
 
 
+def default_sigint():
+    """preexec_fn of a child that must see Ctrl-C as a user does: SIGINT back to its default
+    (pytest-xdist's workers ignore SIGINT, a child inherits that, and Python installs its
+    KeyboardInterrupt handler only where SIGINT is not ignored)."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_stops_a_long_solve_with_the_partial_result():
     # The turbo car at N = 200 takes minutes; SIGINT after 2 s must end it within 10 s (IPOPT
     # iterations of this size take well under a second) with KeyboardInterrupt carrying the
@@ -232,7 +240,7 @@ def test_ctrl_c_stops_a_long_solve_with_the_partial_result():
         except KeyboardInterrupt as e:
             r = e.args[1]
             print("KeyboardInterrupt", r.status, e.result is r, flush=True)
-    """)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    """)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint)
     assert child.stdout.readline().strip() == "start"
     time.sleep(2.0)
     sent = time.monotonic()

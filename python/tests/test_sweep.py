@@ -175,12 +175,15 @@ def test_an_interrupted_sweep_keeps_its_finished_records_each_its_own_flow_deriv
     m.field([0.1, 0.0], "+")  # compiled before the timer starts
     samples = 200000
     timer = threading.Timer(1.0, signal.raise_signal, args=(signal.SIGINT,))
+    # Python's own handler, as a user's interpreter has it (pytest-xdist's workers ignore SIGINT).
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer.start()
     try:
         with pytest.raises(KeyboardInterrupt) as info:
             bflow.sweep(m, [0.5, 0.0], 5.0, [(0, 0.1, 1.0, samples)], threads=2, progress=False)
     finally:
         timer.cancel()
+        signal.signal(signal.SIGINT, previous)
     e = info.value
     records = e.args[1]
     assert records is e.records
