@@ -305,6 +305,7 @@ void add_orbit(OrderedJson& j, const PeriodicOrbit& orbit) {
   j["period"] = number_or_null(returned, orbit.period);
   j["newton_iterations"] = orbit.newton_iterations;
   j["residual"] = number_or_null(returned, orbit.residual);
+  j["correction"] = number_or_null(returned, orbit.correction);
   OrderedJson steps = OrderedJson::array();
   for (const OrbitNewtonStep& s : orbit.steps) {
     steps.push_back(OrderedJson{{"iteration", s.iteration},
@@ -362,6 +363,7 @@ OrderedJson member_json(const Member& m) {
   j["period"] = number_or_null(returned, o.period);
   j["newton_iterations"] = o.newton_iterations;
   j["residual"] = number_or_null(returned, o.residual);
+  j["correction"] = number_or_null(returned, o.correction);
   j["growth_rate_lower"] = number_or_null(o.converged, o.growth_rate_lower);
   j["growth_rate_upper"] = number_or_null(o.converged, o.growth_rate_upper);
   j["stability"] = o.converged ? OrderedJson(to_string(o.stability)) : OrderedJson(nullptr);

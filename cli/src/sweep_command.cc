@@ -565,7 +565,9 @@ int run_sweep_on(const SweepCommandOptions& options, std::ostream& out, std::ost
     report_error(err, e.what());
     return kExitFailure;
   } catch (const InvalidArgument& e) {
-    report_error(err, std::string("sweep: ") + e.what());
+    // The sweep library's own messages already name it.
+    const std::string what = e.what();
+    report_error(err, what.rfind("sweep: ", 0) == 0 ? what : "sweep: " + what);
     return kExitBadInput;
   } catch (const DemoError& e) {  // the atlas could not be written or drawn
     report_error(err, e.what());

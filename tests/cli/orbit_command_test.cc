@@ -95,6 +95,7 @@ TEST(OrbitCommandTest, BipedDefaultsFindTheHoppingOrbit) {
   EXPECT_EQ(x[4], 0.0);  // on the section
   EXPECT_GT(period, 0.0);
   EXPECT_LE(j["residual"].get<double>(), 1e-8 * (1.0 + x.lpNorm<Eigen::Infinity>()));
+  EXPECT_LE(j["correction"].get<double>(), 1e-8 * (1.0 + x.lpNorm<Eigen::Infinity>()));
 
   // The independent check: x is a fixed point of the flow after one period, reached rising.
   const bflow::testing::PeriodReturn back = simulate_one_period(j["params"], x, period);
