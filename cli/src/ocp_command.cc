@@ -595,13 +595,9 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
     }
     o.relaxation = parse_relaxation(options.relaxation);
     if (options.cross) {
-      if (*options.cross == "element-sums") {
-        o.cross_complementarity = CrossComplementarity::kElementSums;
-      } else if (*options.cross == "point-pairs") {
-        o.cross_complementarity = CrossComplementarity::kPointPairs;
-      } else if (*options.cross == "point-sums") {
-        o.cross_complementarity = CrossComplementarity::kPointSums;
-      } else {
+      try {
+        o.cross_complementarity = parse_cross_complementarity(*options.cross);
+      } catch (const InvalidArgument&) {  // the text quoted as every user text on stderr
         fail("--cross", "unknown cross complementarity " + quote(*options.cross) +
                             "; use element-sums, point-pairs or point-sums");
       }

@@ -72,16 +72,7 @@ void bind_ocp(nb::module_& m) {
           "cross_complementarity",
           [](const OcpOptions& o) { return std::string(to_string(o.cross_complementarity)); },
           [](OcpOptions& o, const std::string& v) {
-            if (v == "element-sums") {
-              o.cross_complementarity = CrossComplementarity::kElementSums;
-            } else if (v == "point-pairs") {
-              o.cross_complementarity = CrossComplementarity::kPointPairs;
-            } else if (v == "point-sums") {
-              o.cross_complementarity = CrossComplementarity::kPointSums;
-            } else {
-              throw InvalidArgument("cross_complementarity: unknown rows \"" + v +
-                                    "\"; use element-sums, point-pairs or point-sums");
-            }
+            o.cross_complementarity = parse_cross_complementarity(v);
           })
       .def_rw("step_deviation_weight", &OcpOptions::step_deviation_weight)
       .def_rw("equilibration_weight", &OcpOptions::equilibration_weight)

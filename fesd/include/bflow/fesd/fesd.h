@@ -83,6 +83,16 @@ inline const char* to_string(CrossComplementarity cross) {
   if (cross == CrossComplementarity::kPointSums) return "point-sums";
   return cross == CrossComplementarity::kPointPairs ? "point-pairs" : "element-sums";
 }
+/** The inverse of to_string. @throws InvalidArgument naming the text and the three names. */
+inline CrossComplementarity parse_cross_complementarity(const std::string& text) {
+  for (const CrossComplementarity c :
+       {CrossComplementarity::kElementSums, CrossComplementarity::kPointPairs,
+        CrossComplementarity::kPointSums}) {
+    if (text == to_string(c)) return c;
+  }
+  throw InvalidArgument("unknown cross complementarity \"" + text +
+                        "\"; use element-sums, point-pairs or point-sums");
+}
 
 /** One integration step taken by fesd_simulate, as FesdOptions::progress receives it. */
 struct FesdStepReport {
