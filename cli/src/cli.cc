@@ -208,10 +208,11 @@ turbo car at an N that is a multiple of 5 off 40/3, the braking block more than 
 J*) ended at another stationary point: the exit code stays 0, and the notice ends "notes" and
 is printed as one "warning: ocp: ..." line on stderr.
 
-"linear_solver" in the JSON names IPOPT's linear solver (--linear-solver, MUMPS by default).
-HSL's solvers come from libhsl.so, which Debian does not ship (docs/ocp.md, "Linear solvers:
-MUMPS and HSL"): when it cannot be loaded, the command exits with code 2 before solving, with
-one line "error: --linear-solver: ..." naming the file and the loader's reason.)";
+"ipopt" and "linear_solver" in the JSON name the solver stack: "IPOPT 3.14.19" and IPOPT's
+linear solver with its version or library, "mumps 5.8.2" by default (--linear-solver).
+HSL's solvers come from Coin-HSL's library, which no package ships (docs/ocp.md, "Linear
+solvers"): when it cannot be loaded, the command exits with code 2 before solving, with one
+line "error: --linear-solver: ..." naming the file and the loader's reason.)";
 
 constexpr const char* kOrbitFooter =
     R"(The section (--section TEXT): s(x) = 0, crossed from s < 0 to s > 0
@@ -456,12 +457,18 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     fesd->add_flag(
         "--exact-hessian", fesd_options.exact_hessian,
         "IPOPT with the exact Hessian (second-order AD by pieces) instead of limited-memory");
-    fesd->add_option("--linear-solver", fesd_options.linear_solver,
-                     "IPOPT's linear solver: mumps, or HSL's ma27, ma57, ma77, ma86, ma97 (from "
-                     "libhsl.so, which must be on LD_LIBRARY_PATH; see docs/ocp.md) or pardiso "
-                     "(libpardiso.so)")
+    fesd->add_option(
+            "--linear-solver", fesd_options.linear_solver,
+            "IPOPT's linear solver: mumps (MUMPS with METIS), spral, HSL's ma27, ma57, "
+            "ma77, ma86, ma97 (from Coin-HSL's library), pardiso (pardiso-project.org's) or "
+            "pardisomkl (where IPOPT has MKL); see docs/ocp.md, \"Linear solvers\"")
         ->type_name("NAME")
         ->capture_default_str();
+    fesd->add_option(
+            "--linear-solver-library", fesd_options.linear_solver_library,
+            "the library of an HSL solver or of PARDISO, a file name the loader finds or a "
+            "path (default: libcoinhsl.so, then libhsl.so; libpardiso.so)")
+        ->type_name("FILE");
     fesd->add_flag("--standard", fesd_options.standard,
                    "Standard time-stepping: fixed steps, no switch detection");
     fesd->add_flag("--trajectory", fesd_options.trajectory,
@@ -541,12 +548,17 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                     "is budget_exhausted with the last solved NLP's result (default 0: no limit "
                     "but 3000 per NLP, 10000 for the monoped)")
         ->type_name("K");
-    ocp->add_option("--linear-solver", ocp_options.linear_solver,
-                    "IPOPT's linear solver: mumps, or HSL's ma27, ma57, ma77, ma86, ma97 (from "
-                    "libhsl.so, which must be on LD_LIBRARY_PATH; see docs/ocp.md) or pardiso "
-                    "(libpardiso.so)")
+    ocp->add_option(
+           "--linear-solver", ocp_options.linear_solver,
+           "IPOPT's linear solver: mumps (MUMPS with METIS), spral, HSL's ma27, ma57, "
+           "ma77, ma86, ma97 (from Coin-HSL's library), pardiso (pardiso-project.org's) or "
+           "pardisomkl (where IPOPT has MKL); see docs/ocp.md, \"Linear solvers\"")
         ->type_name("NAME")
         ->capture_default_str();
+    ocp->add_option("--linear-solver-library", ocp_options.linear_solver_library,
+                    "the library of an HSL solver or of PARDISO, a file name the loader finds or a "
+                    "path (default: libcoinhsl.so, then libhsl.so; libpardiso.so)")
+        ->type_name("FILE");
     ocp->add_flag("--trajectory", ocp_options.trajectory,
                   "Add every element boundary, the states there, the step sizes and active sets");
     ocp->add_option("--plot", ocp_options.plot,

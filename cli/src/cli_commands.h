@@ -183,9 +183,13 @@ struct FesdCommandOptions {
   bool sizes = false;          ///< print [F] Table 4 and the NLP size for the example instead
   /** Lifting depth n_d: 0 (none) or 2..max(2, n_c), also for --sizes. */
   int lifting = 0;
-  /** --linear-solver: IPOPT's, one of bflow::kLinearSolvers (mumps, HSL's ma27 ... ma97 from
-      libhsl.so, pardiso); unknown or without its library: exit code 2 before computing. */
+  /** --linear-solver: IPOPT's, one of bflow::kLinearSolvers (mumps, spral, HSL's ma27 ...
+      ma97 from Coin-HSL, pardiso, pardisomkl); unknown or without its library: exit code 2 before
+     computing. */
   std::string linear_solver = "mumps";
+  /** --linear-solver-library: the HSL or PARDISO library file ("": libcoinhsl.so, then
+      libhsl.so; libpardiso.so). */
+  std::string linear_solver_library;
   bool compact = false;
 };
 
@@ -230,9 +234,13 @@ struct OcpCommandOptions {
   /** --lifting: the step formulation's lifting depth (OcpOptions::lifting_depth); not given:
       the example's (2 for the monoped's nosnoc setup, else 0). */
   std::optional<int> lifting;
-  /** --linear-solver: IPOPT's, one of bflow::kLinearSolvers (mumps, HSL's ma27 ... ma97 from
-      libhsl.so, pardiso); unknown or without its library: exit code 2 before the solve. */
+  /** --linear-solver: IPOPT's, one of bflow::kLinearSolvers (mumps, spral, HSL's ma27 ...
+      ma97 from Coin-HSL, pardiso, pardisomkl); unknown or without its library: exit code 2 before
+     the solve. */
   std::string linear_solver = "mumps";
+  /** --linear-solver-library: the HSL or PARDISO library file ("": libcoinhsl.so, then
+      libhsl.so; libpardiso.so). */
+  std::string linear_solver_library;
   bool trajectory = false;  ///< add every element boundary, the states there, h, active sets
   /** Directory (created if missing) for ocp_states.png, ocp_controls.png, ocp_switching.png
       and their data and gnuplot scripts; not given: no plots. */

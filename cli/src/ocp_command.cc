@@ -604,11 +604,12 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
     }
     check_ranges(options, o);
     try {
-      check_linear_solver(options.linear_solver, "--linear-solver");
+      check_linear_solver(options.linear_solver, options.linear_solver_library, "--linear-solver");
     } catch (const InvalidArgument& e) {
       throw OptionError(e.what());  // unknown, or its library missing: before anything runs
     }
     o.linear_solver = options.linear_solver;
+    o.linear_solver_library = options.linear_solver_library;
     o.stages = stages_of(options);
     o.elements = options.nfe;
     o.collocation_stages = options.stages;
@@ -694,7 +695,8 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
           j["message"] = r.message;
           if (options.example == "monoped") j["setup"] = to_string(monoped.setup);
           j["cross_complementarity"] = o.standard ? "standard" : to_string(o.cross_complementarity);
-          j["linear_solver"] = o.linear_solver;
+          j["ipopt"] = r.ipopt;
+          j["linear_solver"] = r.linear_solver;
           j["ipopt_status"] = r.ipopt_status;
           j["kkt_error"] = std::isfinite(r.kkt_error) ? OrderedJson(r.kkt_error) : nullptr;
           j["notes"] = notes;

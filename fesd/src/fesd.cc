@@ -579,6 +579,9 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   const fesd::HomotopyRules rules = fesd::homotopy_schedule(options);
 
   FesdResult result;
+  result.ipopt = ipopt_description();
+  result.linear_solver =
+      linear_solver_description(solver.linear_solver(), solver.linear_solver_library());
   Eigen::VectorXd x = x0;
   result.grid.push_back(0.0);
   std::vector<Eigen::VectorXd> states{x};

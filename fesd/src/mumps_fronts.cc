@@ -1,22 +1,21 @@
-// IPOPT 3.11 calls MUMPS through dmumps_c, and bflow defines dmumps_c itself so that it can set
-// what IPOPT has no option for (linear_solver.h, ScopedMumpsAmalgamation): this definition, in
-// the executable or the shared object that links bflow's static libraries, comes before
-// Debian's libdmumps_seq in the dynamic linker's lookup and forwards every call to it.
+// IPOPT calls MUMPS through dmumps_c, and a build with a MUMPS before 5.8 (Debian's 5.5.1 under
+// IPOPT 3.11.9, the fallback) defines dmumps_c itself so that it can set what IPOPT 3.11 has no
+// option for and that MUMPS 5.8 sets by default, the amalgamation of small fronts (linear_solver.h,
+// ScopedMumpsAmalgamation): this definition, in the executable or the shared object that links
+// bflow's static libraries, comes before Debian's libdmumps_seq in the dynamic linker's lookup
+// and forwards every call to it. cmake/BflowIpopt.cmake leaves this file out of other builds.
 #include <dlfcn.h>
 #include <dmumps_c.h>
 
-#include <atomic>
 #include <cstdio>
 #include <cstdlib>
 #include <mutex>
 
 #include "bflow/fesd/linear_solver.h"
+#include "mumps_fronts.h"
 
 namespace bflow {
 namespace {
-
-thread_local bool amalgamate = false;
-std::atomic<long> amalgamated{0};
 
 using DmumpsC = void (*)(DMUMPS_STRUC_C*);
 
@@ -34,14 +33,6 @@ bool takes_keep_197(const DMUMPS_STRUC_C& id) {
 }
 
 }  // namespace
-
-ScopedMumpsAmalgamation::ScopedMumpsAmalgamation(bool on) : previous_(amalgamate) {
-  amalgamate = on;
-}
-ScopedMumpsAmalgamation::~ScopedMumpsAmalgamation() { amalgamate = previous_; }
-
-long mumps_amalgamated_analyses() { return amalgamated.load(); }
-
 }  // namespace bflow
 
 extern "C" void dmumps_c(DMUMPS_STRUC_C* id) {
@@ -54,9 +45,9 @@ extern "C" void dmumps_c(DMUMPS_STRUC_C* id) {
   // MUMPS's module variables are shared by its instances (bflow::ipopt_mutex).
   const std::lock_guard<std::recursive_mutex> lock(bflow::ipopt_mutex());
   const bool analysis = id->job == 1 || id->job == 4 || id->job == 6;
-  if (analysis && bflow::amalgamate && bflow::takes_keep_197(*id)) {
+  if (analysis && bflow::fesd::mumps_amalgamation_wanted() && bflow::takes_keep_197(*id)) {
     id->keep[196] = 1;
-    ++bflow::amalgamated;
+    bflow::fesd::count_mumps_amalgamation();
   }
   next(id);
 }

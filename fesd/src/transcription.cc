@@ -8,27 +8,19 @@
 #include <cstdio>
 #include <functional>
 #include <limits>
+#include <memory>
 #include <string>
 #include <tuple>
 #include <utility>
 #include <vector>
 
-#include <IpIpoptApplication.hpp>
-#include <IpIpoptCalculatedQuantities.hpp>
-#include <IpIpoptData.hpp>
-#include <IpSolveStatistics.hpp>
-#include <IpTNLP.hpp>
-
 #include "bflow/core/errors.h"
-#include "bflow/fesd/ipopt_options.h"
 #include "bflow/fesd/linear_solver.h"
 #include "bflow/fesd/sparsity.h"
+#include "homotopy_nlp.h"
 
 namespace bflow {
 namespace fesd {
-
-static_assert(std::numeric_limits<Ipopt::Index>::max() == kFesdMaxIndex,
-              "kFesdMaxIndex must be the largest value of IPOPT's Index");
 
 namespace {
 
@@ -39,47 +31,10 @@ double bound(const Eigen::VectorXd& v, int k, double fallback) {
   return v.size() == 0 ? fallback : std::clamp(v[k], -kInfinity, kInfinity);
 }
 
-const char* ipopt_status_name(Ipopt::ApplicationReturnStatus status) {
-  switch (status) {
-    case Ipopt::Solve_Succeeded:
-      return "Solve_Succeeded";
-    case Ipopt::Solved_To_Acceptable_Level:
-      return "Solved_To_Acceptable_Level";
-    case Ipopt::Infeasible_Problem_Detected:
-      return "Infeasible_Problem_Detected";
-    case Ipopt::Search_Direction_Becomes_Too_Small:
-      return "Search_Direction_Becomes_Too_Small";
-    case Ipopt::Diverging_Iterates:
-      return "Diverging_Iterates";
-    case Ipopt::User_Requested_Stop:
-      return "User_Requested_Stop";
-    case Ipopt::Feasible_Point_Found:
-      return "Feasible_Point_Found";
-    case Ipopt::Maximum_Iterations_Exceeded:
-      return "Maximum_Iterations_Exceeded";
-    case Ipopt::Restoration_Failed:
-      return "Restoration_Failed";
-    case Ipopt::Error_In_Step_Computation:
-      return "Error_In_Step_Computation";
-    case Ipopt::Maximum_CpuTime_Exceeded:
-      return "Maximum_CpuTime_Exceeded";
-    case Ipopt::Not_Enough_Degrees_Of_Freedom:
-      return "Not_Enough_Degrees_Of_Freedom";
-    case Ipopt::Invalid_Problem_Definition:
-      return "Invalid_Problem_Definition";
-    case Ipopt::Invalid_Option:
-      return "Invalid_Option";
-    case Ipopt::Invalid_Number_Detected:
-      return "Invalid_Number_Detected";
-    default:
-      return "IPOPT_error";
-  }
-}
-
 }  // namespace
 
 // The transcription as one IPOPT problem at relaxation sigma.
-class Transcription::Nlp final : public Ipopt::TNLP {
+class Transcription::Nlp final : public HomotopyNlp {
  public:
   using ElementEnds = Transcription::ElementEnds;
   // A function of a few unknowns that enters the objective.
@@ -175,7 +130,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     set_guess(Eigen::MatrixXd::Zero(nu, 1), [&](int) { return std::make_pair(p_.x0, p_.x0); }, {});
   }
 
-  const TranscriptionLayout& layout() const { return l_; }
+  const TranscriptionLayout& layout() const override { return l_; }
   int constraints() const { return constraints_ + static_cast<int>(equal_.size()); }
   std::size_t jacobian_nonzeros() {
     ensure_structure();
@@ -191,27 +146,22 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   void ensure_structure() {
     if (!structure_ready_) build_structure(!p_.probe_sparsity);
   }
-  bool full_structure() const { return full_structure_; }
+  bool full_structure() const override { return full_structure_; }
   // A derivative outside the declared structure was met (and left out) since clear_missed().
-  bool structure_missed() const { return jac_missed_ || hessian_.missed() > 0; }
-  void clear_missed() {
+  bool structure_missed() const override { return jac_missed_ || hessian_.missed() > 0; }
+  void clear_missed() override {
     jac_missed_ = false;
     hessian_.clear_missed();
   }
   // Every candidate entry from now on.
-  void widen_structure() { build_structure(true); }
+  void widen_structure() override { build_structure(true); }
   // The starting point of the NLP about to be solved, kept so that it can be solved again.
-  void keep_start() { start_ = {w_, z_l_, z_u_, lambda_}; }
+  void keep_start() override { start_ = {w_, z_l_, z_u_, lambda_}; }
   // Polled by IPOPT after every iteration (intermediate_callback); true ends the NLP with
   // User_Requested_Stop.
-  void set_cancel(const std::function<bool()>* cancelled) { cancelled_ = cancelled; }
-  bool intermediate_callback(Ipopt::AlgorithmMode, Ipopt::Index, Ipopt::Number, Ipopt::Number,
-                             Ipopt::Number, Ipopt::Number, Ipopt::Number, Ipopt::Number,
-                             Ipopt::Number, Ipopt::Number, Ipopt::Index, const Ipopt::IpoptData*,
-                             Ipopt::IpoptCalculatedQuantities*) override {
-    return cancelled_ == nullptr || !*cancelled_ || !(*cancelled_)();
-  }
-  void back_to_start() {
+  void set_cancel(const std::function<bool()>* cancelled) override { cancelled_ = cancelled; }
+  bool go_on() override { return cancelled_ == nullptr || !*cancelled_ || !(*cancelled_)(); }
+  void back_to_start() override {
     w_ = start_[0];
     z_l_ = start_[1];
     z_u_ = start_[2];
@@ -222,7 +172,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   // The active set read from the solution: which member of each complementarity pair is zero on
   // every element (a member is fixed at its zero value through its bounds), plus equal lengths
   // of neighbouring elements of a stage with the same sides.
-  void enter_polish(const std::vector<std::vector<int>>& sides) {
+  void enter_polish(const std::vector<std::vector<int>>& sides) override {
     polish_ = true;
     fixed_.clear();
     equal_.clear();
@@ -337,27 +287,27 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       polish_jac_.push_back({base + static_cast<int>(r), l_.var(equal_[r] - 1, 0)});
     }
   }
-  void leave_polish() {
+  void leave_polish() override {
     polish_ = false;
     fixed_.clear();
     equal_.clear();
     polish_jac_.clear();
   }
-  void set_sigma(double sigma) { sigma_ = sigma; }
+  void set_sigma(double sigma) override { sigma_ = sigma; }
   void set_solution(const Eigen::VectorXd& w) { w_ = w; }
-  const Eigen::VectorXd& solution() const { return w_; }
-  double kkt_error() const { return kkt_error_; }
-  double constraint_violation() const { return constraint_violation_; }
+  const Eigen::VectorXd& solution() const override { return w_; }
+  double kkt_error() const override { return kkt_error_; }
+  double constraint_violation() const override { return constraint_violation_; }
   // The last solved iterate, kept so that a failed solve can go back to it.
-  void save() { saved_ = {w_, z_l_, z_u_, lambda_}; }
+  void save() override { saved_ = {w_, z_l_, z_u_, lambda_}; }
   // A warm start from the primal point only: every multiplier 0 (IPOPT pushes the bounds' up to
   // warm_start_mult_bound_push).
-  void forget_multipliers() {
+  void forget_multipliers() override {
     z_l_.setZero(variables());
     z_u_.setZero(variables());
     lambda_.setZero(constraints_);
   }
-  void restore() {
+  void restore() override {
     w_ = saved_[0];
     z_l_ = saved_[1];
     z_u_ = saved_[2];
@@ -396,7 +346,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     return jac;
   }
 
-  double cost(const double* w) const {
+  double cost(const double* w) const override {
     double value = p_.time_optimal ? w[TranscriptionLayout::kT] : 0.0;
     std::vector<double> in;
     for (const Term& t : objective_terms_) {
@@ -418,7 +368,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     return value;
   }
 
-  double complementarity(const double* w) const {
+  double complementarity(const double* w) const override {
     double worst = 0.0;
     std::vector<double> in, out(static_cast<std::size_t>(l_.rows_per_element()));
     for (int e = 0; e < l_.elements; ++e) {
@@ -471,17 +421,15 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   // "" when the objective, its gradient, the constraints and their Jacobian (and, with the
   // exact Hessian, the Lagrangian's Hessian at unit multipliers) are finite at w; else the
   // first that is not, named by row or unknown, with its value.
-  std::string non_finite_at(const double* w) {
+  std::string non_finite_at(const double* w) override {
     ensure_structure();
-    Ipopt::Index n = variables(), m = constraints(), nnz_jac = 0, nnz_hess = 0;
-    IndexStyleEnum style;
-    get_nlp_info(n, m, nnz_jac, nnz_hess, style);
+    int n = 0, m = 0, nnz_jac = 0, nnz_hess = 0;
+    sizes(n, m, nnz_jac, nnz_hess);
     const auto text = [](double v) { return format_number(v); };
-    double f = 0.0;
-    eval_f(n, w, true, f);
+    const double f = objective(w);
     if (!std::isfinite(f)) return "the objective is " + text(f);
     std::vector<double> grad(static_cast<std::size_t>(n));
-    eval_grad_f(n, w, true, grad.data());
+    gradient(n, w, grad.data());
     for (int i = 0; i < n; ++i) {
       if (!std::isfinite(grad[static_cast<std::size_t>(i)])) {
         return "the objective's derivative in unknown " + std::to_string(i) + " is " +
@@ -489,17 +437,17 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       }
     }
     std::vector<double> g(static_cast<std::size_t>(m));
-    eval_g(n, w, true, m, g.data());
+    constraints(w, g.data());
     for (int r = 0; r < m; ++r) {
       if (!std::isfinite(g[static_cast<std::size_t>(r)])) {
         return "the " + row_name(r) + " is " + text(g[static_cast<std::size_t>(r)]);
       }
     }
-    std::vector<Ipopt::Index> rows(static_cast<std::size_t>(nnz_jac)),
+    std::vector<int> rows(static_cast<std::size_t>(nnz_jac)),
         cols(static_cast<std::size_t>(nnz_jac));
     std::vector<double> values(static_cast<std::size_t>(nnz_jac));
-    eval_jac_g(n, w, true, m, nnz_jac, rows.data(), cols.data(), nullptr);
-    eval_jac_g(n, w, true, m, nnz_jac, nullptr, nullptr, values.data());
+    jacobian_structure(nnz_jac, rows.data(), cols.data());
+    jacobian_values(w, nnz_jac, values.data());
     for (std::size_t k = 0; k < values.size(); ++k) {
       if (!std::isfinite(values[k])) {
         return "the derivative of the " + row_name(rows[k]) + " in unknown " +
@@ -507,12 +455,12 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       }
     }
     if (p_.exact_hessian && nnz_hess > 0) {
-      std::vector<Ipopt::Index> hr(static_cast<std::size_t>(nnz_hess)),
+      std::vector<int> hr(static_cast<std::size_t>(nnz_hess)),
           hc(static_cast<std::size_t>(nnz_hess));
       std::vector<double> h(static_cast<std::size_t>(nnz_hess));
       const std::vector<double> ones(static_cast<std::size_t>(m), 1.0);
-      eval_h(n, w, true, 1.0, m, ones.data(), true, nnz_hess, hr.data(), hc.data(), nullptr);
-      eval_h(n, w, true, 1.0, m, ones.data(), true, nnz_hess, nullptr, nullptr, h.data());
+      hessian_structure(nnz_hess, hr.data(), hc.data());
+      hessian_values(w, 1.0, ones.data(), nnz_hess, h.data());
       for (std::size_t k = 0; k < h.size(); ++k) {
         if (!std::isfinite(h[k])) {
           return "the second derivative in unknowns " + std::to_string(hr[k]) + " and " +
@@ -525,11 +473,11 @@ class Transcription::Nlp final : public Ipopt::TNLP {
 
   // The rows the current point violates most (at most `count`, largest first), named by kind
   // and place, e.g. "element 17 (stage 5) end row of state 8: 0.012"; "" when none is violated.
-  std::string worst_rows(int count) {
+  std::string worst_rows(int count) override {
     const int n = variables(), m = constraints();
     Eigen::VectorXd x_l(n), x_u(n), g_l(m), g_u(m), g(m);
-    get_bounds_info(n, x_l.data(), x_u.data(), m, g_l.data(), g_u.data());
-    eval_g(n, w_.data(), true, m, g.data());
+    bounds(n, x_l.data(), x_u.data(), m, g_l.data(), g_u.data());
+    constraints(w_.data(), g.data());
     std::vector<std::pair<double, int>> worst;
     for (int r = 0; r < m; ++r) {
       const double v = std::max({g_l[r] - g[r], g[r] - g_u[r], 0.0});
@@ -550,7 +498,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
 
   // The multipliers of the rows relaxed to <= sigma (Scholtes, not in a polish) at the last
   // point IPOPT returned: their sum and the largest; zeros otherwise.
-  std::pair<double, double> product_multipliers() const {
+  std::pair<double, double> product_multipliers() const override {
     if (p_.relaxation != Relaxation::kScholtes || polish_ || lambda_.size() != constraints_)
       return {0.0, 0.0};
     double sum = 0.0, largest = 0.0;
@@ -599,20 +547,16 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     if (elastic()) w_[slack()] = complementarity(w_.data());
   }
 
-  // --- Ipopt::TNLP ---
-  bool get_nlp_info(Ipopt::Index& n, Ipopt::Index& m, Ipopt::Index& nnz_jac, Ipopt::Index& nnz_hess,
-                    IndexStyleEnum& style) override {
+  // --- NlpProblem (ipopt_adapter.h) ---
+  void sizes(int& n, int& m, int& nnz_jac, int& nnz_hess) override {
     ensure_structure();
     n = variables();
     m = constraints();
-    nnz_jac = static_cast<Ipopt::Index>(jac_rows_.size() + polish_jac_.size());
-    nnz_hess = static_cast<Ipopt::Index>(hessian_.size());
-    style = C_STYLE;
-    return true;
+    nnz_jac = static_cast<int>(jac_rows_.size() + polish_jac_.size());
+    nnz_hess = static_cast<int>(hessian_.size());
   }
 
-  bool get_bounds_info(Ipopt::Index n, Ipopt::Number* x_l, Ipopt::Number* x_u, Ipopt::Index,
-                       Ipopt::Number* g_l, Ipopt::Number* g_u) override {
+  void bounds(int n, double* x_l, double* x_u, int, double* g_l, double* g_u) override {
     std::fill(x_l, x_l + n, -kInfinity);
     std::fill(x_u, x_u + n, kInfinity);
     if (l_.scaled && p_.time_optimal) {
@@ -682,12 +626,10 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     for (std::size_t r = 0; r < equal_.size(); ++r) {
       g_l[constraints_ + static_cast<int>(r)] = g_u[constraints_ + static_cast<int>(r)] = 0.0;
     }
-    return true;
   }
 
-  bool get_starting_point(Ipopt::Index n, bool init_x, Ipopt::Number* x, bool init_z,
-                          Ipopt::Number* z_l, Ipopt::Number* z_u, Ipopt::Index m, bool init_lambda,
-                          Ipopt::Number* lambda) override {
+  bool start(int n, bool init_x, double* x, bool init_z, double* z_l, double* z_u, int m,
+             bool init_lambda, double* lambda) override {
     if (init_x) std::copy(w_.data(), w_.data() + n, x);
     if (init_z) {
       if (z_l_.size() != n) return false;
@@ -701,8 +643,8 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     return true;
   }
 
-  bool eval_f(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Number& value) override {
-    value = p_.time_optimal ? x[TranscriptionLayout::kT] : 0.0;
+  double objective(const double* x) override {
+    double value = p_.time_optimal ? x[TranscriptionLayout::kT] : 0.0;
     std::vector<double> in;
     for (const Term& t : objective_terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
@@ -720,10 +662,10 @@ class Transcription::Nlp final : public Ipopt::TNLP {
         }
       }
     }
-    return true;
+    return value;
   }
 
-  bool eval_grad_f(Ipopt::Index n, const Ipopt::Number* x, bool, Ipopt::Number* grad) override {
+  void gradient(int n, const double* x, double* grad) override {
     std::fill(grad, grad + n, 0.0);
     if (p_.time_optimal) grad[TranscriptionLayout::kT] = 1.0;
     if (elastic() && !polish_) grad[slack()] = 1.0 / sigma_;
@@ -750,10 +692,9 @@ class Transcription::Nlp final : public Ipopt::TNLP {
             grad);
       }
     }
-    return true;
   }
 
-  bool eval_g(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Index, Ipopt::Number* g) override {
+  void constraints(const double* x, double* g) override {
     std::vector<double> in;
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, in);
@@ -779,24 +720,22 @@ class Transcription::Nlp final : public Ipopt::TNLP {
     for (std::size_t r = 0; r < equal_.size(); ++r) {
       g[constraints_ + static_cast<int>(r)] = x[l_.var(equal_[r], 0)] - x[l_.var(equal_[r] - 1, 0)];
     }
-    return true;
   }
 
-  bool eval_jac_g(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Index, Ipopt::Index nele,
-                  Ipopt::Index* rows, Ipopt::Index* cols, Ipopt::Number* values) override {
-    if (values == nullptr) {
-      const Ipopt::Index own = static_cast<Ipopt::Index>(jac_rows_.size());
-      for (Ipopt::Index k = 0; k < own; ++k) {
-        rows[k] = jac_rows_[static_cast<std::size_t>(k)];
-        cols[k] = jac_cols_[static_cast<std::size_t>(k)];
-      }
-      for (Ipopt::Index k = own; k < nele; ++k) {
-        rows[k] = polish_jac_[static_cast<std::size_t>(k - own)].first;
-        cols[k] = polish_jac_[static_cast<std::size_t>(k - own)].second;
-      }
-      return true;
+  void jacobian_structure(int nele, int* rows, int* cols) override {
+    const int own = static_cast<int>(jac_rows_.size());
+    for (int k = 0; k < own; ++k) {
+      rows[k] = jac_rows_[static_cast<std::size_t>(k)];
+      cols[k] = jac_cols_[static_cast<std::size_t>(k)];
     }
-    Ipopt::Index k = 0;
+    for (int k = own; k < nele; ++k) {
+      rows[k] = polish_jac_[static_cast<std::size_t>(k - own)].first;
+      cols[k] = polish_jac_[static_cast<std::size_t>(k - own)].second;
+    }
+  }
+
+  void jacobian_values(const double* x, int nele, double* values) override {
+    int k = 0;
     std::vector<double> base;
     const int rpe = l_.rows_per_element();
     Eigen::MatrixXd jac;
@@ -843,19 +782,17 @@ class Transcription::Nlp final : public Ipopt::TNLP {
       values[k++] = -1.0;
     }
     BFLOW_ASSERT(k == nele);
-    return true;
   }
 
-  bool eval_h(Ipopt::Index, const Ipopt::Number* x, bool, Ipopt::Number obj_factor, Ipopt::Index,
-              const Ipopt::Number* lambda, bool, Ipopt::Index nele, Ipopt::Index* rows,
-              Ipopt::Index* cols, Ipopt::Number* values) override {
-    if (values == nullptr) {
-      for (Ipopt::Index k = 0; k < nele; ++k) {
-        rows[k] = hessian_.rows()[static_cast<std::size_t>(k)];
-        cols[k] = hessian_.cols()[static_cast<std::size_t>(k)];
-      }
-      return true;
+  void hessian_structure(int nele, int* rows, int* cols) override {
+    for (int k = 0; k < nele; ++k) {
+      rows[k] = hessian_.rows()[static_cast<std::size_t>(k)];
+      cols[k] = hessian_.cols()[static_cast<std::size_t>(k)];
     }
+  }
+
+  void hessian_values(const double* x, double obj_factor, const double* lambda, int nele,
+                      double* values) override {
     std::fill(values, values + nele, 0.0);
     std::vector<double> base, weights(static_cast<std::size_t>(l_.rows_per_element()));
     for (int e = 0; e < l_.elements; ++e) {
@@ -890,28 +827,14 @@ class Transcription::Nlp final : public Ipopt::TNLP {
           [&](const auto* in, auto* out) { terms_.terminal(in, out); }, values);
     }
     if (p_.exact_hessian_scale != 1.0) {
-      for (Ipopt::Index k = 0; k < nele; ++k) values[k] *= p_.exact_hessian_scale;
+      for (int k = 0; k < nele; ++k) values[k] *= p_.exact_hessian_scale;
     }
-    return true;
   }
 
-  void finalize_solution(Ipopt::SolverReturn status, Ipopt::Index n, const Ipopt::Number* x,
-                         const Ipopt::Number* z_l, const Ipopt::Number* z_u, Ipopt::Index m,
-                         const Ipopt::Number*, const Ipopt::Number* lambda, Ipopt::Number,
-                         const Ipopt::IpoptData* data,
-                         Ipopt::IpoptCalculatedQuantities* cq) override {
-    kkt_error_ = constraint_violation_ = std::numeric_limits<double>::infinity();
-    // When IPOPT stops before its first iterate is complete (a function or derivative not
-    // finite at the start, too few degrees of freedom, ...), its quantities are not computed,
-    // and asking for them reads vectors that hold no values (SIGSEGV in IpBlasDasum).
-    const bool stopped_at_start = status == Ipopt::INVALID_NUMBER_DETECTED ||
-                                  status == Ipopt::TOO_FEW_DEGREES_OF_FREEDOM ||
-                                  status == Ipopt::INTERNAL_ERROR ||
-                                  status == Ipopt::INVALID_OPTION || status == Ipopt::OUT_OF_MEMORY;
-    if (cq != nullptr && data != nullptr && Ipopt::IsValid(data->curr()) && !stopped_at_start) {
-      kkt_error_ = cq->curr_nlp_error();
-      constraint_violation_ = cq->unscaled_curr_nlp_constraint_violation(Ipopt::NORM_MAX);
-    }
+  void finish(int n, const double* x, const double* z_l, const double* z_u, int m,
+              const double* lambda, double kkt_error, double constraint_violation) override {
+    kkt_error_ = kkt_error;
+    constraint_violation_ = constraint_violation;
     w_ = Eigen::Map<const Eigen::VectorXd>(x, n);
     z_l_ = Eigen::Map<const Eigen::VectorXd>(z_l, n);
     z_u_ = Eigen::Map<const Eigen::VectorXd>(z_u, n);
@@ -1124,7 +1047,7 @@ class Transcription::Nlp final : public Ipopt::TNLP {
   std::vector<Term> objective_terms_;
   int rows_elements_ = 0, rows_sums_ = 0, rows_path_ = 0, npath_ = 0, nterm_ = 0;
   int constraints_ = 0;
-  std::vector<Ipopt::Index> jac_rows_, jac_cols_;
+  std::vector<int> jac_rows_, jac_cols_;
   HessianBlocks hessian_;
   std::vector<std::vector<int>> pieces_;        // an element's Hessian pieces (local indices)
   std::vector<std::vector<int>> jac_pattern_;   // per element row: the local inputs it reads
@@ -1149,12 +1072,12 @@ double process_cpu_seconds() {
 }
 
 struct Transcription::Handle {
-  Ipopt::SmartPtr<Nlp> nlp;
+  std::unique_ptr<Nlp> nlp;
 };
 
 Transcription::Transcription(const ButcherTableau& tableau, const TranscriptionLayout& layout,
                              const TranscriptionSetup& setup, const TranscriptionTerms* terms)
-    : handle_(new Handle{new Nlp(tableau, layout, setup, terms)}) {}
+    : handle_(new Handle{std::make_unique<Nlp>(tableau, layout, setup, terms)}) {}
 Transcription::~Transcription() = default;
 const TranscriptionLayout& Transcription::layout() const { return handle_->nlp->layout(); }
 int Transcription::constraints() const { return handle_->nlp->constraints(); }
@@ -1200,331 +1123,7 @@ std::vector<int> Transcription::sides(const Eigen::VectorXd& w, int e, double to
   return l.dcs->sides(vmax, tol);
 }
 
-struct HomotopySolver::Impl {
-  IpoptSettings settings;
-  std::string linear_solver;  // the one in use: settings' or the caller's string option
-  Ipopt::SmartPtr<Ipopt::IpoptApplication> app;
-
-  ~Impl() {
-    // Releasing the application ends its MUMPS instance (dmumps_c with JOB = -2).
-    const std::lock_guard<std::recursive_mutex> lock(ipopt_mutex());
-    app = nullptr;
-  }
-
-  // One NLP at the options set on `app`, recorded in `steps`. IPOPT and MUMPS run under the
-  // process's lock, one NLP at a time (ipopt_mutex, linear_solver.h).
-  HomotopyStep solve(Transcription::Nlp& nlp, double sigma, bool polish, int index,
-                     Ipopt::ApplicationReturnStatus& status) {
-    apply_ipopt_options(*app, settings, settings.who);
-    const std::lock_guard<std::recursive_mutex> lock(ipopt_mutex());
-    const double start = process_cpu_seconds();
-    nlp.set_cancel(settings.cancelled ? &settings.cancelled : nullptr);
-    const ScopedMumpsAmalgamation fronts(settings.mumps_amalgamation && linear_solver == "mumps");
-    nlp.keep_start();
-    nlp.clear_missed();
-    status = app->OptimizeTNLP(&nlp);
-    int earlier_iterations = 0;
-    bool widened = false;
-    if (status != Ipopt::Invalid_Option && status != Ipopt::User_Requested_Stop &&
-        nlp.structure_missed() && !nlp.full_structure()) {
-      // An entry left out of the structure was not zero: the derivatives IPOPT used were
-      // wrong, so the NLP again from its start with every candidate declared.
-      earlier_iterations =
-          Ipopt::IsValid(app->Statistics()) ? app->Statistics()->IterationCount() : 0;
-      widened = true;
-      nlp.widen_structure();
-      nlp.back_to_start();
-      nlp.clear_missed();
-      // The two solves share the NLP's max_iter (what is left of a budget, or the cap per NLP):
-      // the second gets what the first left, so that the NLP never takes more than was given.
-      Ipopt::OptionsList& o = *app->Options();
-      int max_iter = 0;
-      const bool capped = o.GetIntegerValue("max_iter", max_iter, "");
-      if (capped) o.SetIntegerValue("max_iter", std::max(0, max_iter - earlier_iterations));
-      status = app->OptimizeTNLP(&nlp);
-      if (capped) o.SetIntegerValue("max_iter", max_iter);
-    }
-    if (status == Ipopt::Invalid_Option) {
-      // Not an outcome of the NLP: no NLP of this solver can run.
-      const std::string what = settings.who + ": IPOPT refused its options (Invalid_Option) " +
-                               "with linear solver \"" + linear_solver +
-                               "\"; print_level 5 shows IPOPT's reason";
-      if (linear_solver != "mumps") throw LinearSolverUnavailable(what);
-      throw InvalidArgument(what);
-    }
-    HomotopyStep step;
-    step.index = index;
-    step.sigma = sigma;
-    step.polish = polish;
-    step.iterations = earlier_iterations +
-                      (Ipopt::IsValid(app->Statistics()) ? app->Statistics()->IterationCount() : 0);
-    step.structure_widened = widened;
-    step.cpu_seconds = process_cpu_seconds() - start;
-    step.ipopt_status = ipopt_status_name(status);
-    if (status != Ipopt::Solve_Succeeded && status != Ipopt::Solved_To_Acceptable_Level)
-      step.worst_rows = nlp.worst_rows(3);
-    step.objective = nlp.cost(nlp.solution().data());
-    step.complementarity = nlp.complementarity(nlp.solution().data());
-    step.kkt_error = nlp.kkt_error();
-    step.constraint_violation = nlp.constraint_violation();
-    std::tie(step.product_multipliers, step.largest_product_multiplier) = nlp.product_multipliers();
-    return step;
-  }
-};
-
-HomotopySolver::HomotopySolver(const IpoptSettings& settings) : impl_(new Impl) {
-  impl_->settings = settings;
-  const std::lock_guard<std::recursive_mutex> lock(ipopt_mutex());
-  impl_->app = IpoptApplicationFactory();
-  impl_->app->RethrowNonIpoptException(false);
-  // Before IPOPT sees it: a solver missing from its library makes IPOPT 3.11 return
-  // Invalid_Option at the first NLP, or end the process (HSL_MA97).
-  impl_->linear_solver = settings.linear_solver;
-  for (const auto& [name, value] : settings.ipopt_string_options) {
-    if (name == "linear_solver") impl_->linear_solver = value;
-  }
-  check_linear_solver(impl_->linear_solver, settings.who);
-  set_ipopt_defaults(*impl_->app, settings.print_level, settings.exact_hessian,
-                     settings.max_iterations, settings.linear_solver);
-  apply_ipopt_options(*impl_->app, settings, settings.who);
-  if (impl_->app->Initialize() != Ipopt::Solve_Succeeded) {
-    throw InvalidArgument(settings.who + ": IPOPT failed to initialise");
-  }
-}
-HomotopySolver::~HomotopySolver() = default;
-
-HomotopyOutcome HomotopySolver::run(Transcription& transcription, const HomotopyRules& rules,
-                                    const std::function<void(const HomotopyStep&)>& on_step) {
-  Transcription::Nlp& nlp = *transcription.handle_->nlp;
-  Ipopt::OptionsList& o = *impl_->app->Options();
-  HomotopyOutcome out;
-  double sigma = rules.sigma_initial, last_sigma = sigma;
-  bool first = true, finishing = false;
-  int retries = 0;
-  double last_objective = std::numeric_limits<double>::quiet_NaN();
-  std::vector<std::vector<int>> polished_sides;  // the active set of the last early polish
-  while (true) {
-    nlp.set_sigma(sigma);
-    if (rules.max_total_iterations > 0) {
-      const int left = rules.max_total_iterations - out.iterations;
-      if (left <= 0) {
-        out.budget_exhausted = true;
-        out.budget_exhausted_before = true;
-        out.failed_status =
-            "no iterations left of the budget of " + std::to_string(rules.max_total_iterations);
-        out.failed_sigma = sigma;
-        out.failed_complementarity = nlp.complementarity(nlp.solution().data());
-        // (After an NLP handed on unsolved, back to the last solved one.)
-        if (out.any_solved) nlp.restore();
-        return out;
-      }
-      o.SetIntegerValue("max_iter", std::min(impl_->settings.max_iterations, left));
-    } else {
-      o.SetIntegerValue("max_iter", impl_->settings.max_iterations);
-    }
-    const bool final_nlp = sigma <= rules.sigma_final || finishing;
-    // Intermediate problems only need to be solved to the accuracy sigma allows.
-    const double tol =
-        final_nlp ? rules.nlp_tolerance
-                  : std::max(rules.nlp_tolerance, rules.intermediate_tolerance_factor * sigma);
-    o.SetNumericValue("tol", tol);
-    o.SetNumericValue("acceptable_tol",
-                      std::max(rules.acceptable_tol_min, rules.acceptable_tol_factor * tol));
-    o.SetNumericValue("acceptable_constr_viol_tol",
-                      std::min(rules.acceptable_violation_max,
-                               std::max({tol, rules.acceptable_violation_min,
-                                         rules.acceptable_violation_sigma * sigma})));
-    o.SetNumericValue("acceptable_compl_inf_tol", rules.acceptable_compl_inf_tol);
-    o.SetIntegerValue("acceptable_iter", rules.acceptable_iter);
-    const bool zero_start = first && rules.first_from_zero_multipliers;
-    o.SetStringValue("warm_start_init_point",
-                     (!first && rules.warm_start) || zero_start ? "yes" : "no");
-    if (zero_start) {
-      // nosnoc's start: IPOPT's warm start from the guess with every multiplier 0.
-      o.SetNumericValue("mu_init", 0.1);
-      o.SetNumericValue("warm_start_bound_push", 1e-3);
-      o.SetNumericValue("warm_start_mult_bound_push", 1e-3);
-      o.SetNumericValue("warm_start_slack_bound_push", 1e-3);
-      nlp.forget_multipliers();
-    } else if (!first) {
-      o.SetNumericValue("mu_init", rules.later_mu_init > 0.0
-                                       ? rules.later_mu_init
-                                       : std::max(rules.mu_init_min, 1e-2 * sigma));
-      // With the multipliers the point stays at its bounds; without, IPOPT's pushes (1e-3).
-      const double push = rules.warm_start_multipliers ? 1e-9 : 1e-3;
-      o.SetNumericValue("warm_start_bound_push", push);
-      o.SetNumericValue("warm_start_mult_bound_push", push);
-      o.SetNumericValue("warm_start_slack_bound_push", push);
-      if (rules.warm_start && !rules.warm_start_multipliers) nlp.forget_multipliers();
-    } else {
-      o.SetNumericValue("mu_init", 0.1);
-    }
-    Ipopt::ApplicationReturnStatus status;
-    HomotopyStep step = impl_->solve(nlp, sigma, false, static_cast<int>(out.steps.size()), status);
-    out.iterations += step.iterations;
-    out.steps.push_back(step);
-    if (on_step) on_step(step);
-    if (status == Ipopt::User_Requested_Stop) {
-      out.cancelled = true;
-      out.failed_status = step.ipopt_status;
-      out.failed_sigma = sigma;
-      out.failed_complementarity = step.complementarity;
-      if (out.any_solved) nlp.restore();
-      return out;
-    }
-    // A square problem (every unknown pinned) is reported as Feasible_Point_Found.
-    const bool solved = status == Ipopt::Solve_Succeeded ||
-                        status == Ipopt::Solved_To_Acceptable_Level ||
-                        status == Ipopt::Feasible_Point_Found;
-    const bool out_of_budget =
-        !solved && rules.max_total_iterations > 0 && out.iterations >= rules.max_total_iterations;
-    const auto next_sigma = [&rules](double current) {
-      double next = rules.sigma_factor * current;
-      if (rules.superlinear) next = std::min(next, std::pow(current, 1.5));
-      // Round-off must not leave one more NLP just above sigma_final.
-      if (next < rules.sigma_final * (1.0 + 1e-9)) next = rules.sigma_final;
-      return std::max(next, rules.sigma_final);
-    };
-    if (!solved && !out_of_budget && rules.continue_after_failure && !final_nlp && !finishing &&
-        status != Ipopt::Invalid_Number_Detected) {
-      // nosnoc's rule: the failed NLP's last iterate starts the next, smaller sigma.
-      out.continued.push_back(sigma);
-      first = false;
-      sigma = next_sigma(sigma);
-      continue;
-    }
-    // (A failed re-solve at nlp_tolerance is not retried: its sigma is the last solved one.)
-    if (!solved && !out_of_budget && !rules.continue_after_failure && out.any_solved &&
-        !finishing && retries < rules.max_retries) {
-      // Too large a step in sigma: back to the last solution, half the step (in log sigma).
-      ++retries;
-      nlp.restore();
-      sigma = std::sqrt(sigma * last_sigma);
-      continue;
-    }
-    if (!solved) {
-      out.infeasible = status == Ipopt::Infeasible_Problem_Detected;
-      out.budget_exhausted = out_of_budget;
-      out.failed_status = out_of_budget ? step.ipopt_status + " (the budget of " +
-                                              std::to_string(rules.max_total_iterations) +
-                                              " iterations used up)"
-                                        : step.ipopt_status;
-      out.failed_sigma = sigma;
-      out.failed_complementarity = step.complementarity;
-      if (out.any_solved) nlp.restore();
-      return out;
-    }
-    out.any_solved = true;
-    first = false;
-    nlp.save();
-    out.last_sigma = last_sigma = sigma;
-    out.acceptable_only = status == Ipopt::Solved_To_Acceptable_Level;
-    const double cost_moved = std::abs(step.objective - last_objective);
-    last_objective = step.objective;
-    // (sigma_initial times powers of the factor lands within round-off of a round threshold.)
-    if (rules.early_polish_sigma > 0.0 && sigma <= rules.early_polish_sigma * (1.0 + 1e-9) &&
-        !final_nlp && !finishing) {
-      // The active set the relaxation has settled on, fixed: when its exact solution is about
-      // as good as the relaxed one, the smaller sigmas would only confirm it.
-      const double active_tol = std::clamp(std::sqrt(sigma), 1e-9, 1e-4);
-      std::vector<std::vector<int>> sides;
-      for (int e = 0; e < nlp.layout().elements; ++e)
-        sides.push_back(transcription.sides(nlp.solution(), e, active_tol));
-      // An early polish is part of the homotopy: it gets what is left of the budget, if any.
-      const int left = rules.max_total_iterations > 0 ? rules.max_total_iterations - out.iterations
-                                                      : impl_->settings.max_iterations;
-      if (sides != polished_sides && left > 0) {
-        polished_sides = sides;
-        const double slack = std::max(1e-6 * (1.0 + std::abs(step.objective)),
-                                      std::isfinite(cost_moved) ? cost_moved : 0.0);
-        // Only an exact FESD solution ends the homotopy early (every product zero): where the
-        // active set read this far up is not consistent, the polish leaves small products, and
-        // the smaller sigmas are still needed.
-        const PolishOutcome p = polish(transcription, active_tol, rules.nlp_tolerance, 0.0,
-                                       static_cast<int>(out.steps.size()), on_step, slack, left);
-        out.iterations += p.step.iterations;
-        out.steps.push_back(p.step);
-        if (p.kept) {
-          // Once more from the polished point, as the final polish starts from the solution at
-          // sigma_final: a polish from a relaxed point this far up ends as exactly as IPOPT's
-          // tolerance asks, one from an exact FESD solution as exactly as round-off allows.
-          const double again_tol = std::clamp(std::sqrt(rules.sigma_final), 1e-9, 1e-4);
-          const int still_left = rules.max_total_iterations > 0
-                                     ? rules.max_total_iterations - out.iterations
-                                     : impl_->settings.max_iterations;
-          out.result_step = static_cast<int>(out.steps.size()) - 1;
-          if (still_left > 0) {
-            const PolishOutcome q =
-                polish(transcription, again_tol, rules.nlp_tolerance, 0.0,
-                       static_cast<int>(out.steps.size()), on_step, -1.0, still_left);
-            out.iterations += q.step.iterations;
-            out.steps.push_back(q.step);
-            out.result_step = static_cast<int>(out.steps.size()) - (q.kept ? 1 : 2);
-          }
-          out.done = true;
-          out.polished_early = true;
-          out.acceptable_only = false;
-          return out;
-        }
-        out.polishes_not_kept.push_back(sigma);
-      }
-    }
-    const bool within =
-        rules.stop_complementarity > 0.0 && step.complementarity <= rules.stop_complementarity;
-    if (final_nlp || (within && tol <= rules.nlp_tolerance)) {
-      out.done = true;
-      out.stopped_early = sigma > rules.sigma_final;
-      return out;
-    }
-    if (within) {
-      // Solved only to the accuracy sigma allows: once more at nlp_tolerance.
-      finishing = true;
-      continue;
-    }
-    sigma = next_sigma(sigma);
-  }
-}
-
-PolishOutcome HomotopySolver::polish(Transcription& transcription, double active_tol,
-                                     double nlp_tolerance, double complementarity_tolerance,
-                                     int index,
-                                     const std::function<void(const HomotopyStep&)>& on_step,
-                                     double cost_slack, int max_iterations) {
-  Transcription::Nlp& nlp = *transcription.handle_->nlp;
-  const TranscriptionLayout& l = nlp.layout();
-  Ipopt::OptionsList& o = *impl_->app->Options();
-  std::vector<std::vector<int>> sides;
-  for (int e = 0; e < l.elements; ++e)
-    sides.push_back(transcription.sides(nlp.solution(), e, active_tol));
-  PolishOutcome out;
-  out.cost_before = nlp.cost(nlp.solution().data());
-  nlp.save();
-  nlp.enter_polish(sides);
-  o.SetNumericValue("tol", nlp_tolerance);
-  o.SetNumericValue("acceptable_tol", nlp_tolerance);
-  o.SetIntegerValue("max_iter", max_iterations > 0
-                                    ? std::min(max_iterations, impl_->settings.max_iterations)
-                                    : impl_->settings.max_iterations);
-  o.SetStringValue("warm_start_init_point", "no");
-  o.SetNumericValue("mu_init", 1e-9);
-  o.SetNumericValue("bound_push", 1e-12);
-  o.SetNumericValue("bound_frac", 1e-12);
-  Ipopt::ApplicationReturnStatus status;
-  out.step = impl_->solve(nlp, 0.0, true, index, status);
-  if (on_step) on_step(out.step);
-  const double slack = cost_slack >= 0.0 ? cost_slack : 1e-6 * (1.0 + std::abs(out.cost_before));
-  // A polish with as many equations as free unknowns (every control pinned, e.g. by a clock
-  // constraint) is a square system, which IPOPT reports as Feasible_Point_Found.
-  out.kept = (status == Ipopt::Solve_Succeeded || status == Ipopt::Feasible_Point_Found) &&
-             out.step.complementarity <= complementarity_tolerance &&
-             out.step.objective <= out.cost_before + slack;
-  if (!out.kept) nlp.restore();
-  nlp.leave_polish();
-  // The IPOPT defaults again for a later solve.
-  o.SetNumericValue("bound_push", 1e-2);
-  o.SetNumericValue("bound_frac", 1e-2);
-  return out;
-}
+HomotopyNlp& homotopy_nlp(Transcription& transcription) { return *transcription.handle_->nlp; }
 
 }  // namespace fesd
 }  // namespace bflow

@@ -316,7 +316,7 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
                           " weigh the element lengths, which standard time-stepping fixes");
   }
   // Before the simulated guess: HomotopySolver checks it again, for every solver it builds.
-  check_linear_solver(o.linear_solver, "ocp");
+  check_linear_solver(o.linear_solver, o.linear_solver_library, "ocp");
 }
 
 // Lower or upper bound k of an optional bound vector.
@@ -785,6 +785,9 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   result.constraints = nlp.constraints();
 
   fesd::HomotopySolver solver(fesd::ipopt_settings(options, "ocp"));
+  result.ipopt = ipopt_description();
+  result.linear_solver =
+      linear_solver_description(solver.linear_solver(), solver.linear_solver_library());
   fesd::HomotopyRules rules = fesd::homotopy_schedule(options);
   rules.warm_start = options.warm_start;
   rules.warm_start_multipliers = options.warm_start_multipliers;

@@ -19,7 +19,14 @@ from typing import Optional
 
 import numpy as np
 
-from . import _bflow
+try:
+    from . import _bflow
+except ImportError as error:  # the extension's IPOPT is the installed casadi package's
+    if "libipopt" not in str(error):
+        raise
+    raise ImportError(
+        f"bflow's extension links the IPOPT of the casadi package ({error}); install it beside "
+        "bflow: pip install casadi==3.8.2") from error
 from ._errors import ModelError
 
 
@@ -494,7 +501,7 @@ _FESD_DEFAULTS = {"irma": (100.0, 20), "crossing": (1.0, 4), "sliding-enter": (1
 _FESD_OPTIONS = ("scheme", "stages", "elements", "standard", "formulation", "lifting_depth",
                  "sigma_initial", "sigma_final", "sigma_factor", "nlp_tolerance",
                  "exact_hessian", "max_nlp_iterations", "newton", "sensitivities",
-                 "linear_solver")
+                 "linear_solver", "linear_solver_library")
 
 
 def _interrupted(result):
@@ -522,12 +529,15 @@ def fesd_simulate(model, T: Optional[float] = None, x0=None, *,
     Options: scheme ("radau", "gauss"), stages (n_s, 2), elements (N_FE, 3), formulation ("step",
     "stewart"), lifting_depth, standard, sigma_initial, sigma_final, sigma_factor,
     nlp_tolerance, exact_hessian, max_nlp_iterations, newton, sensitivities (dx(T)/dx0, on),
-    linear_solver. ``progress=True`` prints one line per integration step on stderr.
+    linear_solver ("mumps", "spral", HSL's "ma27" ... "ma97", "pardiso"),
+    linear_solver_library (the HSL or PARDISO library file). ``progress=True`` prints one line
+    per integration step on stderr.
 
     Returns a FesdResult: ok (the run reached T), status ("converged", "step failed", "invalid
     model"), message (why not ok, and notes), x_end, grid, states, step_sizes, switch_times,
-    active_sets, sensitivity and the counters of what the solver did (halved_steps,
-    newton_steps, acceptable_only_steps). A horizon whose steps T / steps cannot be integrated
+    active_sets, sensitivity, the solver stack (ipopt, e.g. "IPOPT 3.14.19", and linear_solver,
+    e.g. "mumps 5.8.2") and the counters of what the solver did (halved_steps, newton_steps,
+    acceptable_only_steps). A horizon whose steps T / steps cannot be integrated
     (above 1e18, or elements below the smallest normal double) is a ValueError naming T and
     steps. The GIL is released while it runs; calls from several threads are safe, their IPOPT
     solves taking turns (one at a time in a process). Ctrl-C stops the run between steps or
@@ -575,7 +585,7 @@ _OCP_OPTIONS = ("elements", "collocation_stages", "scheme", "formulation", "stan
                 "relaxation", "sigma_initial", "sigma_final", "sigma_factor", "nlp_tolerance",
                 "complementarity_tolerance", "polish", "early_polish_sigma",
                 "max_total_iterations", "exact_hessian", "lifting_depth", "linear_solver",
-                "cross_complementarity")
+                "linear_solver_library", "cross_complementarity")
 
 
 _OCP_PROBLEM = ("x0", "T", "time_optimal", "T_min", "T_max", "x_lower", "x_upper", "u_lower",
@@ -607,7 +617,8 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
     collocation_stages (2), scheme, formulation, standard, relaxation ("scholtes", "l1",
     "elastic"), sigma_initial (100), sigma_final (1e-10), sigma_factor, nlp_tolerance,
     complementarity_tolerance, polish, early_polish_sigma, max_total_iterations, exact_hessian,
-    lifting_depth, linear_solver, cross_complementarity ("element-sums", "point-pairs",
+    lifting_depth, linear_solver, linear_solver_library, cross_complementarity ("element-sums",
+    "point-pairs",
     "point-sums"; FESD only: with standard=True it is refused, and a contact example's own
     choice is left out). ``progress=True`` prints one line per NLP on stderr. The GIL is
     released while IPOPT runs; calls from several threads are safe, their NLPs taking turns

@@ -93,6 +93,7 @@ void bind_fesd(nb::module_& m) {
       .def_rw("newton", &FesdOptions::newton)
       .def_rw("sensitivities", &FesdOptions::sensitivities)
       .def_rw("linear_solver", &FesdOptions::linear_solver)
+      .def_rw("linear_solver_library", &FesdOptions::linear_solver_library)
       .def_rw("progress", &FesdOptions::progress);
 
   nb::class_<FesdStepReport>(m, "FesdStepReport", "One integration step taken by fesd_simulate.")
@@ -125,6 +126,9 @@ void bind_fesd(nb::module_& m) {
       .def_ro("switch_times", &FesdResult::switch_times)
       .def_ro("active_sets", &FesdResult::active_sets)
       .def_ro("max_complementarity", &FesdResult::max_complementarity)
+      .def_ro("ipopt", &FesdResult::ipopt, "the IPOPT the NLPs ran on, e.g. 'IPOPT 3.14.19'")
+      .def_ro("linear_solver", &FesdResult::linear_solver,
+              "IPOPT's linear solver with its version or library, e.g. 'mumps 5.8.2'")
       .def_ro("halved_steps", &FesdResult::halved_steps)
       .def_ro("newton_steps", &FesdResult::newton_steps)
       .def_ro("acceptable_only_steps", &FesdResult::acceptable_only_steps)

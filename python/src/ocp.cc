@@ -68,6 +68,7 @@ void bind_ocp(nb::module_& m) {
       .def_rw("exact_hessian", &OcpOptions::exact_hessian)
       .def_rw("lifting_depth", &OcpOptions::lifting_depth)
       .def_rw("linear_solver", &OcpOptions::linear_solver)
+      .def_rw("linear_solver_library", &OcpOptions::linear_solver_library)
       .def_prop_rw(
           "cross_complementarity",
           [](const OcpOptions& o) { return std::string(to_string(o.cross_complementarity)); },
@@ -109,6 +110,9 @@ void bind_ocp(nb::module_& m) {
       .def_ro("active_sets", &OcpResult::active_sets)
       .def_ro("max_complementarity", &OcpResult::max_complementarity)
       .def_ro("ipopt_status", &OcpResult::ipopt_status)
+      .def_ro("ipopt", &OcpResult::ipopt, "the IPOPT the NLPs ran on, e.g. 'IPOPT 3.14.19'")
+      .def_ro("linear_solver", &OcpResult::linear_solver,
+              "IPOPT's linear solver with its version or library, e.g. 'mumps 5.8.2'")
       .def_ro("kkt_error", &OcpResult::kkt_error)
       .def_ro("polished", &OcpResult::polished)
       .def_ro("homotopy", &OcpResult::homotopy)

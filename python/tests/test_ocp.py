@@ -2,6 +2,8 @@
 API's results through `bflow ocp`, and the same problems written in SymPy against both."""
 
 import json
+import os
+import re
 import math
 import subprocess
 
@@ -249,3 +251,22 @@ def test_ctrl_c_stops_a_long_solve_with_the_partial_result():
     waited = time.monotonic() - sent
     assert out.strip() == "KeyboardInterrupt cancelled True", (out, err[-2000:])
     assert waited < 10.0, waited
+
+
+def test_the_results_name_the_solver_stack_the_command_uses(cli):
+    """OcpResult and FesdResult name IPOPT and the linear solver with their versions, as the
+    command's JSON does; the extension's IPOPT is the one in the installed casadi package."""
+    r = bflow.ocp_solve("braking-block", N=2, elements=1)
+    f = bflow.fesd_simulate("crossing")
+    assert re.fullmatch(r"IPOPT 3\.\d+\.\d+", r.ipopt)
+    assert re.fullmatch(r"mumps 5\.\d+\.\d+", r.linear_solver)
+    assert (f.ipopt, f.linear_solver) == (r.ipopt, r.linear_solver)
+    command = json.loads(subprocess.run(
+        [cli, "ocp", "--example", "braking-block", "--N", "2", "--nfe", "1", "--quiet",
+         "--compact"], capture_output=True, text=True, check=True).stdout)
+    assert (command["ipopt"], command["linear_solver"]) == (r.ipopt, r.linear_solver)
+    import casadi  # noqa: F401  (the package whose libipopt.so.3 the extension's run path names)
+    casadi_dir = os.path.dirname(casadi.__file__)
+    with open("/proc/self/maps") as maps:
+        loaded = {line.split()[-1] for line in maps if line.rstrip().endswith("libipopt.so.3")}
+    assert loaded == {os.path.realpath(os.path.join(casadi_dir, "libipopt.so.3"))}

@@ -18,6 +18,7 @@
 #include "bflow/fesd/linear_solver.h"
 #include "bflow/integrators/hybrid_flow.h"
 #include "bflow/integrators/model_adapter.h"
+#include "support/derivative_checker.h"
 
 namespace bflow {
 namespace {
@@ -471,8 +472,9 @@ TEST(OcpStatus, TheBudgetBoundsTheEarlyPolish) {
                 to_string(r.status), r.ipopt_iterations, r.message.c_str());
     // Cut before the free run's end, and it says so.
     ASSERT_EQ(r.status, OcpStatus::kBudgetExhausted) << r.message;
-    EXPECT_THAT(r.message, testing::StartsWith("the budget of " + std::to_string(budget) +
-                                               " IPOPT iterations (max_total_iterations) ran out"));
+    EXPECT_THAT(r.message,
+                ::testing::StartsWith("the budget of " + std::to_string(budget) +
+                                      " IPOPT iterations (max_total_iterations) ran out"));
     EXPECT_FALSE(r.polished);
     // No final polish after a cut: every iteration is budgeted, and the budget is spent exactly.
     EXPECT_EQ(budgeted_iterations(r, options), r.ipopt_iterations);
@@ -487,8 +489,8 @@ TEST(OcpStatus, TheBudgetBoundsTheEarlyPolish) {
       EXPECT_EQ(solved, r.homotopy.rend());
     } else if (budget > free.homotopy.front().iterations) {
       ASSERT_NE(solved, r.homotopy.rend());
-      EXPECT_THAT(r.message, testing::HasSubstr("the result is the solution at sigma = " +
-                                                format_number(solved->sigma)));
+      EXPECT_THAT(r.message, ::testing::HasSubstr("the result is the solution at sigma = " +
+                                                  format_number(solved->sigma)));
       EXPECT_EQ(r.objective, solved->objective);
     }
     if (budget == into_polish) {
@@ -535,7 +537,7 @@ TEST(OcpStatus, ResidualAboveTheToleranceIsReported) {
   EXPECT_EQ(r.status, OcpStatus::kComplementarityNotReached) << r.message;
   EXPECT_GT(r.max_complementarity, 1e-9);
   EXPECT_LE(r.max_complementarity, 1e-7 * (1 + 1e-6));
-  EXPECT_THAT(r.message, testing::HasSubstr("above the tolerance 1e-09"));
+  EXPECT_THAT(r.message, ::testing::HasSubstr("above the tolerance 1e-09"));
 }
 
 // The exact Hessian (by pieces of each element, HessianJet) passes IPOPT's own
@@ -561,10 +563,10 @@ TEST(OcpHessian, IpoptsCheckerFindsNoError) {
         ocp_solve(adapt_ocp(BrakingBlock{}), BrakingBlock::problem(), o);
       }
       const std::string text = ::testing::internal::GetCapturedStdout();
-      EXPECT_THAT(text, testing::HasSubstr("Starting derivative checker for second derivatives"))
-          << car << probe;
-      EXPECT_THAT(text, testing::HasSubstr("No errors detected by derivative checker"))
-          << car << probe;
+      // Judged by the checker's stated criterion (support/derivative_checker.h).
+      bflow::testing::expect_checker_passes(
+          bflow::testing::parse_checker_output(text),
+          std::string(car ? "car" : "block") + (probe ? ", probed" : ", full"));
     }
   }
 }
@@ -607,7 +609,7 @@ TEST(OcpSparsity, ABranchNoProbeTookWidensTheStructureAndKeepsTheOptimum) {
   int widened = 0;
   for (const auto& step : probed.homotopy) widened += step.structure_widened ? 1 : 0;
   EXPECT_EQ(widened, 1);
-  EXPECT_THAT(probed.notes, testing::Contains(testing::HasSubstr(
+  EXPECT_THAT(probed.notes, ::testing::Contains(::testing::HasSubstr(
                                 "a derivative outside the probed sparsity was nonzero")));
   for (const auto& step : full.homotopy) EXPECT_FALSE(step.structure_widened);
   // The result reports the structure of its last NLP: the widened one is every candidate.
@@ -648,6 +650,7 @@ TEST(OcpSparsity, TheWidenedNlpStaysWithinTheBudget) {
 // a default solve and on none when switched off; both solves reach T* = 40/3 (the answers of every
 // other test here are computed with it on).
 TEST(OcpLinearAlgebra, SmallFrontAmalgamationFollowsTheOption) {
+  if (!mumps_interposed()) GTEST_SKIP() << "this build's MUMPS amalgamates small fronts itself";
   OcpOptions o;
   o.stages = 5;
   const long before = mumps_amalgamated_analyses();
@@ -689,7 +692,7 @@ TEST(OcpHomotopy, EarlyPolishEndsTheHomotopyAtTheExactOptimum) {
   const double stop = early.homotopy[early.homotopy.size() - 3].sigma;
   EXPECT_LE(stop, 1e-4 * (1 + 1e-12));
   EXPECT_GT(stop, o.sigma_final);
-  EXPECT_THAT(early.notes, testing::Contains(testing::HasSubstr("polished at sigma = ")));
+  EXPECT_THAT(early.notes, ::testing::Contains(::testing::HasSubstr("polished at sigma = ")));
   // The first polish is tried right after the first NLP at sigma <= 1e-4, and none before. On
   // the schedule 100 * 0.1^k that NLP is the one at 100 * 0.1^6, which is 1e-4 only to round-off
   // (1.0000000000000003e-4): the threshold allows for that, or the first try would wait for
@@ -707,24 +710,39 @@ TEST(OcpHomotopy, EarlyPolishEndsTheHomotopyAtTheExactOptimum) {
   EXPECT_EQ(early.max_complementarity, 0.0);
 }
 
-// The early polish's cost allowance is what the last step in sigma moved the cost. On the turbo
-// car at N = 10 the relaxed NLP at sigma = 1e-4 costs 13.3333128 and its polish 40/3: 2.05e-5
-// more, above the plain 1e-6 (1 + |J|) = 1.43e-5 but within the 1.85e-4 the step from 1e-3
-// moved the cost (measured). So the first polish is kept and ends the homotopy there; with the
-// plain allowance it is refused and the homotopy runs on to 1e-10.
+// The early polish's cost allowance is what the last step in sigma moved the cost, at least
+// 1e-6 (1 + |J|): an early polish is kept (and ends the homotopy, followed by one more polish
+// from its point) exactly when IPOPT solved it, every product is zero and its cost is at most
+// the relaxed NLP's plus that allowance. Checked on every early polish of the turbo car's
+// homotopies for N = 5 ... 15 from the recorded steps, whatever path IPOPT takes; on some N
+// the allowance of the cost moved decides (the polish costs more than the plain 1e-6 (1 + |J|)
+// above the relaxed NLP, and is kept), the case the rule is for (measured with IPOPT 3.14.19:
+// 9 of 13 early polishes).
 TEST(OcpHomotopy, EarlyPolishAllowsTheCostTheLastSigmaStepMoved) {
-  const OcpResult r = solve_car(10);
-  ASSERT_EQ(r.status, OcpStatus::kSolved) << r.message;
-  EXPECT_NEAR(r.T, TurboCar::kOptimalTime, 1e-8);
-  EXPECT_THAT(r.notes, testing::Contains(testing::HasSubstr("polished at sigma = ")));
-  EXPECT_THAT(r.notes, testing::Not(testing::Contains(testing::HasSubstr("was not kept"))));
-  ASSERT_GE(r.homotopy.size(), 3u);
-  const OcpHomotopyStep& relaxed = r.homotopy[r.homotopy.size() - 3];
-  EXPECT_FALSE(relaxed.polish);
-  EXPECT_LE(relaxed.sigma, 1e-4 * (1 + 1e-9));  // the first NLP at sigma <= early_polish_sigma
-  // The case the rule is for: the polish costs more than the plain allowance above the relaxed
-  // NLP.
-  EXPECT_GT(r.objective - relaxed.objective, 1e-6 * (1.0 + std::abs(relaxed.objective)));
+  int polishes = 0, decided_by_the_step = 0;
+  for (int n = 5; n <= 15; ++n) {
+    const OcpResult r = solve_car(n);
+    ASSERT_EQ(r.status, OcpStatus::kSolved) << n << ": " << r.message;
+    const std::vector<OcpHomotopyStep>& h = r.homotopy;
+    for (std::size_t k = 2; k + 1 < h.size(); ++k) {
+      if (!h[k].polish || h[k - 1].polish) continue;  // an early polish follows a relaxed NLP
+      const OcpHomotopyStep& relaxed = h[k - 1];
+      const double plain = 1e-6 * (1.0 + std::abs(relaxed.objective));
+      const double moved = h[k - 2].polish ? 0.0 : std::abs(relaxed.objective - h[k - 2].objective);
+      const bool solved =
+          h[k].ipopt_status == "Solve_Succeeded" || h[k].ipopt_status == "Feasible_Point_Found";
+      const bool within = h[k].objective <= relaxed.objective + std::max(plain, moved);
+      const bool kept = h[k + 1].polish;  // else the homotopy went on with a relaxed NLP
+      EXPECT_EQ(kept, solved && h[k].complementarity <= 0.0 && within)
+          << "N = " << n << ", polish after sigma = " << relaxed.sigma;
+      ++polishes;
+      if (kept && h[k].objective > relaxed.objective + plain) ++decided_by_the_step;
+    }
+  }
+  EXPECT_GE(polishes, 5);
+  EXPECT_GE(decided_by_the_step, 1);
+  std::printf("early polishes: %d, kept by the allowance of the cost moved: %d\n", polishes,
+              decided_by_the_step);
 }
 
 // Without a branch the probed structure is kept through the whole homotopy and is smaller than
@@ -1077,7 +1095,7 @@ TEST(OcpFeatures, FeedbackPolicyGuessIsSimulatedStageByStage) {
   problem.u_lower = Eigen::VectorXd::Constant(1, -1.0);
   problem.u_upper = Eigen::VectorXd::Constant(1, 1.0);
   const OcpResult bounded = ocp_solve(model, problem, options);
-  EXPECT_THAT(bounded.notes, testing::Contains(testing::HasSubstr(
+  EXPECT_THAT(bounded.notes, ::testing::Contains(::testing::HasSubstr(
                                  "the guess policy's controls were clamped into the bounds on 2 "
                                  "of 10 stages")));
 
@@ -1121,18 +1139,21 @@ TEST(OcpLinearSolver, MumpsExplicitlyIsTheDefaultAndOthersAreChecked) {
     ADD_FAILURE() << "an unknown name is not a missing library";
   } catch (const InvalidArgument& e) {
     EXPECT_EQ(std::string(e.what()),
-              "ocp: unknown linear solver \"ma-27\"; use mumps, ma27, ma57, ma77, ma86, ma97 or "
-              "pardiso");
+              "ocp: unknown linear solver \"ma-27\"; use mumps, spral, ma27, ma57, ma77, ma86, "
+              "ma97, pardiso or pardisomkl");
   }
-  if (!linear_solver_load_error("ma27", "libhsl.so").empty()) {
+  const std::string files = linear_solver_library("ma27", "ocp");
+  const std::string first = files.substr(0, files.find(' '));
+  if (!linear_solver_load_error("ma27", first).empty()) {
     o.linear_solver = "ma27";
     try {
       ocp_solve(adapt_ocp(BrakingBlock{}), p, o);
-      ADD_FAILURE() << "ma27 was taken without libhsl.so";
+      ADD_FAILURE() << "ma27 was taken without " << first;
     } catch (const LinearSolverUnavailable& e) {
-      EXPECT_THAT(e.what(), testing::StartsWith("ocp: linear solver \"ma27\" needs HSL's "
-                                                "libhsl.so, which cannot be loaded (libhsl.so: "));
-      EXPECT_THAT(e.what(), testing::HasSubstr("LD_LIBRARY_PATH"));
+      EXPECT_THAT(e.what(),
+                  ::testing::StartsWith("ocp: linear solver \"ma27\" needs HSL's " + first));
+      EXPECT_THAT(e.what(), ::testing::HasSubstr("which cannot be loaded (" + first + ": "));
+      EXPECT_THAT(e.what(), ::testing::HasSubstr("LD_LIBRARY_PATH"));
     }
   }
   EXPECT_TRUE(steps.empty()) << "an NLP was solved before the refusal";

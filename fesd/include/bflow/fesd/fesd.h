@@ -137,13 +137,22 @@ struct FesdOptions {
   bool sensitivities = true;
   int print_level = 0;  ///< IPOPT's print_level (0 silent)
   /** IPOPT's linear solver, one of kLinearSolvers (linear_solver.h): "mumps" (linked into
-      IPOPT), HSL's "ma27", "ma57", "ma77", "ma86", "ma97" (from libhsl.so) or "pardiso".
+      IPOPT, MUMPS 5.8.2 with METIS in the default build), "spral" (linked into IPOPT 3.14),
+      HSL's "ma27", "ma57", "ma77", "ma86", "ma97" (from Coin-HSL's library), "pardiso" or
+      "pardisomkl" (where IPOPT has MKL).
       @throws InvalidArgument (from fesd_simulate) for another name, LinearSolverUnavailable
-      when its library cannot be loaded (docs/ocp.md, "Linear solvers: MUMPS and HSL"). */
+      when its library cannot be loaded (docs/ocp.md, "Linear solvers"). */
   std::string linear_solver = "mumps";
-  /** With MUMPS, its amalgamation of small fronts (KEEP(197) = 1, which IPOPT 3.11 cannot
-      set; bflow::ScopedMumpsAmalgamation): about half the cost of an IPOPT iteration on
-      FESD's KKT matrices with Debian's MUMPS 5.5.1; other round-off, the same solutions. */
+  /** The library file of an HSL solver or of PARDISO, by name (found as the dynamic loader
+      finds libraries) or path: "" tries libcoinhsl.so, then libhsl.so (libpardiso.so for
+      pardiso). IPOPT 3.14 only (its hsllib and pardisolib); a build on IPOPT 3.11 loads the
+      fixed names and refuses another. */
+  std::string linear_solver_library;
+  /** With a MUMPS before 5.8 (the IPOPT 3.11 fallback build), its amalgamation of small fronts
+      (KEEP(197) = 1, which IPOPT 3.11 cannot set; bflow::ScopedMumpsAmalgamation): about half
+      the cost of an IPOPT iteration on FESD's KKT matrices with Debian's MUMPS 5.5.1; other
+      round-off, the same solutions. MUMPS 5.8 (the default build) amalgamates by itself, and
+      this has no effect there. */
   bool mumps_amalgamation = true;
   /** Further IPOPT options, set after bflow's, both once at the start and before every NLP of
       the homotopy (which resets tol, mu_init, warm_start_*, acceptable_* each time), so these
@@ -188,6 +197,11 @@ struct FesdResult {
   std::vector<std::vector<int>> active_sets;
   /** Largest complementarity product at the final sigma, over all steps. */
   double max_complementarity = 0.0;
+  /** The solver stack the step NLPs ran on (also when Newton's method solved every step):
+      "IPOPT 3.14.19" and "mumps 5.8.2" (ipopt_description and linear_solver_description,
+      linear_solver.h). */
+  std::string ipopt;
+  std::string linear_solver;
   /** Integration steps whose homotopy failed and that were replaced by their two halves (at
       most four times in a row); the grid then has more elements than N_sim N_FE. */
   int halved_steps = 0;

@@ -162,7 +162,7 @@ struct TranscriptionSetup {
   double exact_hessian_scale = 1.0;
 };
 
-class HomotopySolver;
+class HomotopyNlp;
 
 /** One transcription: its unknowns at the current point, the relaxed NLP at sigma (given to
     IPOPT by HomotopySolver), and the FESD equations' values and derivatives for the Newton and
@@ -220,9 +220,9 @@ class Transcription {
                                    Eigen::VectorXd* values = nullptr) const;
 
  private:
-  friend class HomotopySolver;
+  friend HomotopyNlp& homotopy_nlp(Transcription& transcription);
   class Nlp;
-  // An IPOPT SmartPtr behind an opaque handle: no IPOPT type in this header.
+  // The NLP behind an opaque handle: no IPOPT type in this header.
   struct Handle;
   std::unique_ptr<Handle> handle_;
 };
@@ -239,6 +239,8 @@ struct IpoptSettings {
   bool exact_hessian = true;
   int max_iterations = 3000;
   std::string linear_solver = "mumps";  ///< one of kLinearSolvers (linear_solver.h)
+  /** The file of an HSL or PARDISO solver ("": the default names, check_linear_solver). */
+  std::string linear_solver_library;
   /** With MUMPS: its amalgamation of small fronts (ScopedMumpsAmalgamation, linear_solver.h). */
   bool mumps_amalgamation = true;
   std::vector<std::pair<std::string, std::string>> ipopt_string_options;
@@ -260,6 +262,7 @@ IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
   s.exact_hessian = options.exact_hessian;
   s.max_iterations = options.max_nlp_iterations;
   s.linear_solver = options.linear_solver;
+  s.linear_solver_library = options.linear_solver_library;
   s.mumps_amalgamation = options.mumps_amalgamation;
   s.ipopt_string_options = options.ipopt_string_options;
   s.ipopt_numeric_options = options.ipopt_numeric_options;
@@ -455,6 +458,11 @@ class HomotopySolver {
                        double complementarity_tolerance, int index,
                        const std::function<void(const HomotopyStep&)>& on_step = {},
                        double cost_slack = -1.0, int max_iterations = 0);
+
+  /** The linear solver in use (the settings' or the caller's IPOPT string option) and the file
+      IPOPT loads it from ("" when linked into IPOPT). */
+  const std::string& linear_solver() const;
+  const std::string& linear_solver_library() const;
 
  private:
   struct Impl;

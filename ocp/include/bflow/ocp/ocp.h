@@ -467,15 +467,24 @@ struct OcpOptions {
   bool continue_after_failure = false;
   int print_level = 0;  ///< IPOPT's print_level
   /** IPOPT's linear solver for every NLP (and for the simulated guess): "mumps" (linked into
-      IPOPT) or HSL's "ma27", "ma57", "ma77", "ma86", "ma97" (loaded from libhsl.so), or
-      "pardiso" (libpardiso.so); kLinearSolvers in bflow/fesd/linear_solver.h. nosnoc's
+      IPOPT, MUMPS 5.8.2 with METIS in the default build), "spral" (linked into IPOPT 3.14),
+      HSL's "ma27", "ma57", "ma77", "ma86", "ma97" (from Coin-HSL's library), "pardiso"
+      (pardiso-project.org's) or "pardisomkl" (where IPOPT has MKL); kLinearSolvers in
+      bflow/fesd/linear_solver.h. nosnoc's
       benchmarks use MA27. Checked before anything is computed.
       @throws InvalidArgument (from ocp_solve) for another name, LinearSolverUnavailable when its
-      library cannot be loaded (docs/ocp.md, "Linear solvers: MUMPS and HSL"). */
+      library cannot be loaded (docs/ocp.md, "Linear solvers"). */
   std::string linear_solver = "mumps";
-  /** With MUMPS, its amalgamation of small fronts (KEEP(197) = 1, which IPOPT 3.11 cannot
-      set; bflow::ScopedMumpsAmalgamation): about half the cost of an IPOPT iteration on
-      FESD's KKT matrices with Debian's MUMPS 5.5.1; other round-off, the same solutions. */
+  /** The library file of an HSL solver or of PARDISO, by name (found as the dynamic loader
+      finds libraries) or path: "" tries libcoinhsl.so, then libhsl.so (libpardiso.so for
+      pardiso). IPOPT 3.14 only (its hsllib and pardisolib); a build on IPOPT 3.11 loads the
+      fixed names and refuses another. */
+  std::string linear_solver_library;
+  /** With a MUMPS before 5.8 (the IPOPT 3.11 fallback build), its amalgamation of small fronts
+      (KEEP(197) = 1, which IPOPT 3.11 cannot set; bflow::ScopedMumpsAmalgamation): about half
+      the cost of an IPOPT iteration on FESD's KKT matrices with Debian's MUMPS 5.5.1; other
+      round-off, the same solutions. MUMPS 5.8 (the default build) amalgamates by itself, and
+      this has no effect there. */
   bool mumps_amalgamation = true;
   /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
   std::function<void(const OcpHomotopyStep&)> progress;
@@ -545,6 +554,11 @@ struct OcpResult {
       "solved" needs kkt_error <= nlp_tolerance whichever way IPOPT stopped. */
   std::string ipopt_status;
   double kkt_error = std::numeric_limits<double>::infinity();
+  /** The solver stack the NLPs ran on: "IPOPT 3.14.19" (ipopt_description) and the linear
+      solver with its version or library, "mumps 5.8.2", "ma57 (libcoinhsl.so)"
+      (linear_solver_description, bflow/fesd/linear_solver.h). */
+  std::string ipopt;
+  std::string linear_solver;
   /** The result is the polished solution (active set fixed, every product zero). */
   bool polished = false;
   std::vector<OcpHomotopyStep> homotopy;
