@@ -29,8 +29,8 @@ import peer_nosnoc
 import peers_common as common
 
 TURBO_CAR_T = 40.0 / 3.0
-TURBO_CAR_N = (3, 4, 5, 6, 7, 8, 9, 10, 12, 15)
-BRAKING_BLOCK_N = (5, 8, 10, 15, 20)
+TURBO_CAR_N = tuple(range(3, 26))
+BRAKING_BLOCK_N = tuple(range(4, 26))
 FORMULATIONS = ("step", "stewart")
 CONFIGS = ("bflow-default", "bflow-no-early-polish", "nosnoc-default")
 # The configurations repeated up to --repeat times (median CPU kept); the other runs once.

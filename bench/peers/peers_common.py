@@ -54,8 +54,8 @@ def read_ipopt_log(path):
     NLP's problem statistics (as IPOPT sees the NLP) and, summed over every NLP, the CPU time
     (user + sys) of the algorithm, the function and derivative evaluations and the KKT
     factorisations (the linear solves less back-solves, symbolic factorisation, scaling and
-    structure conversion, as for bflow's IPOPT 3.11, whose MUMPS interface leaves the
-    factorisation timer at 0), and the number of MUMPS factorisations."""
+    structure conversion, as for IPOPT 3.11, whose MUMPS interface leaves the factorisation
+    timer at 0), and the number of MUMPS factorisations."""
     out = {"variables": None, "equalities": None, "inequalities": None,
            "jacobian_nonzeros": None, "hessian_nonzeros": None, "ipopt_cpu_s": 0.0,
            "functions_cpu_s": 0.0, "hessian_cpu_s": 0.0, "factorization_cpu_s": 0.0,
@@ -157,10 +157,14 @@ def machine(build_dir):
             compiler = _command_first_line([path, "--version"])
         info["build_type"] = build_type
     info["compiler"] = compiler
-    info["bflow_ipopt"] = _command_first_line(["pkg-config", "--modversion", "ipopt"])
-    info["bflow_mumps"] = _command_first_line(
-        ["dpkg-query", "-W", "-f=${Package} ${Version}", "libmumps-seq-5.5"]) or \
-        _command_first_line(["dpkg-query", "-W", "-f=${Package} ${Version}", "libmumps-5.5"])
+    # The solver stack the build links (cmake/BflowIpopt.cmake records it in the cache).
+    info["bflow_ipopt"] = None
+    info["bflow_mumps"] = None
+    if os.path.exists(cache):
+        info["bflow_ipopt"] = _first(cache, r"^BFLOW_IPOPT_FOUND_VERSION:\w+=(.*)$")
+        mumps = _first(cache, r"^BFLOW_MUMPS_FOUND_VERSION:\w+=(.*)$")
+        info["bflow_mumps"] = f"MUMPS {mumps}" if mumps else None
+        info["bflow_ipopt_prefix"] = _first(cache, r"^BFLOW_IPOPT_RESOLVED:\w+=(.*)$")
     info["git"] = _command_first_line(["git", "-C", ROOT, "describe", "--always", "--dirty"])
     info["date"] = time.strftime("%Y-%m-%d %H:%M %Z")
     info["load_average_before"] = os.getloadavg()[0]
