@@ -42,9 +42,11 @@ MATCHED = {
 }
 
 
-def matched_bflow_flags(rho_h):
+def matched_bflow_flags(rho_h, state_bounds=True):
+    """state_bounds: the problem bounds its states (nosnoc then bounds them at every stage point,
+    and so does bflow; bflow refuses the flag for a problem without state bounds)."""
     tol = MATCHED["ipopt_tol"]
-    return [
+    flags = [
         "--cross", "point-pairs", "--sigma-initial", "1", "--sigma-factor", "0.1",
         "--sigma-final", repr(COMP_TOL), "--complementarity-tolerance", repr(COMP_TOL),
         "--stop-at-complementarity", "--nlp-tolerance", repr(tol),
@@ -52,10 +54,10 @@ def matched_bflow_flags(rho_h):
         "--no-polish", "--warm-start", "cold", "--later-mu-init", "0.1",
         "--acceptable-tolerance", "1e-6", "--acceptable-iterations", "15",
         "--max-nlp-iterations", "500", "--continue-after-failure", "--neutral-guess",
-        "--x-bounds-at-stage-points",
         f"--ipopt-num=dual_inf_tol={tol!r}", f"--ipopt-num=compl_inf_tol={tol!r}",
         f"--ipopt-num=mu_target={tol!r}", "--ipopt-str=mu_oracle=quality-function",
     ]
+    return flags + (["--x-bounds-at-stage-points"] if state_bounds else [])
 
 
 # The problems. rho_h: the weight of nosnoc's HEURISTIC_MEAN step equilibration,
@@ -106,7 +108,8 @@ def bflow_command(binary, case, setting):
     else:
         cmd += ["--stages", str(case["N"])]
     if setting == "matched":
-        cmd += matched_bflow_flags(case["rho_h"])
+        # The braking block has no state bounds.
+        cmd += matched_bflow_flags(case["rho_h"], case["problem"] != "braking-block")
     elif is_simulation(case):
         cmd += ["--solver", "fesd"]  # fesd_simulate with its own rules (Newton first)
     return cmd

@@ -105,6 +105,10 @@ class IpoptSession {
     NlpStatus status = NlpStatus::kOther;
     int iterations = 0;
   };
+  /** One NLP from the problem's start, as a new problem: IPOPT analyses the KKT matrix's
+      structure again. (IPOPT's ReOptimizeTNLP with warm_start_same_structure, which keeps that
+      analysis between NLPs of one structure, changed the outcomes: docs/ocp.md, "IPOPT
+      3.14's options".) */
   Outcome optimize(NlpProblem& problem);
 
  private:

@@ -794,6 +794,7 @@ class Transcription::Nlp final : public HomotopyNlp {
   void hessian_values(const double* x, double obj_factor, const double* lambda, int nele,
                       double* values) override {
     std::fill(values, values + nele, 0.0);
+    hessian_.begin_evaluation();
     std::vector<double> base, weights(static_cast<std::size_t>(l_.rows_per_element()));
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, base);
@@ -826,6 +827,7 @@ class Transcription::Nlp final : public HomotopyNlp {
           terminal_globals(), base, nterm_, lambda + rows_elements_ + rows_sums_ + rows_path_,
           [&](const auto* in, auto* out) { terms_.terminal(in, out); }, values);
     }
+    hessian_.end_evaluation();
     if (p_.exact_hessian_scale != 1.0) {
       for (int k = 0; k < nele; ++k) values[k] *= p_.exact_hessian_scale;
     }

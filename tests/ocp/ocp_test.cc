@@ -314,59 +314,56 @@ TEST(OcpRelaxations, ElasticModeReachesTheExactOptima) {
 }
 
 // The multipliers of the relaxed products against the optimal cost's slope in sigma (the
-// envelope theorem: dJ/dsigma = -sum mu), on the braking block (N = 10) by central differences
-// of single NLPs at sigma +- d and sigma +- 2 d, d = 10 % of sigma. The reference's error:
-// D(d) = (J(sigma + d) - J(sigma - d)) / (2 d) = J'(sigma) + J''' d^2 / 6 + O(d^4), and each J
-// carries the error e that IPOPT's stop leaves in the objective, so |D(d) - J'| <= J''' d^2 / 6
-// + n(d), n(d) = (e(sigma + d) + e(sigma - d)) / (2 d). The truncation is estimated from the
-// two deltas: D(2 d) - D(d) = J''' d^2 / 2 + O(d^4), so J''' d^2 / 6 is |D(2 d) - D(d)| / 3 to
-// within (n(d) + n(2 d)) / 3. The bound is the sum of the three. e is 10 (1 + |J|) times the
-// NLP's KKT error (IPOPT's scaled optimality error, at most its tol 1e-10 when it reports
-// Solve_Succeeded; an NLP may stop at its acceptable level instead, with the larger error it
-// reports): the objective's error is that error times multipliers of order 1 here, and the
-// difference of two neighbours' J at d = 1 % of sigma put it at 5e-11 (there the 1.3e-3 between
-// sum mu and D(d) at sigma = 1e-3 on one machine, 4e-4 on another, was this noise divided by
-// 2 d). The bound must stay below 10 % of sum mu, so that a multiplier off by a factor of 2 or of
-// the wrong sign fails.
+// envelope theorem: dJ/dsigma = -sum mu), on the braking block (N = 10) by differences along one
+// homotopy through sigma / q^2, sigma / q, sigma, q sigma, q^2 sigma (q = 0.9, every NLP solved
+// to nlp_tolerance and warm-started from the previous one, so that all five lie on one branch
+// of relaxed optima: single NLPs from the guess at neighbouring sigma may land on different
+// branches, whose costs differ by more than the slope's change). On the geometric grid the
+// central differences D(1) of the neighbours sigma / q and q sigma and D(2) of sigma / q^2 and
+// q^2 sigma are J'(sigma) + O(d^2), d_1 = (1/q - q) sigma / 2 and d_2 = (1/q^2 - q^2) sigma / 2
+// (the third derivative's term and the second's times the grid's asymmetry); their difference
+// is (d_2^2 / d_1^2 - 1) times the truncation of D(1) to leading order, which bounds it. Each J
+// carries the error e that IPOPT's stop leaves in the objective, 10 (1 + |J|) times the NLP's
+// KKT error (at most its tol 1e-10 when it reports Solve_Succeeded), so n = (e_- + e_+) / (2 d)
+// is added. The bound must stay below 10 % of sum mu, so that a multiplier off by a factor of 2
+// or of the wrong sign fails.
 TEST(OcpStationarity, ProductMultipliersAreTheCostsSlopeInSigma) {
-  struct Nlp {
-    double objective, error;
-  };
-  const auto nlp_at = [](double sigma) {
-    OcpOptions options;
-    options.sigma_initial = options.sigma_final = sigma;
-    options.polish = false;
-    options.acceptable_iterations = 0;  // no stop at IPOPT's acceptable level: its tol or nothing
-    const OcpResult r = solve_block(10, options);
-    EXPECT_FALSE(r.homotopy.empty());
-    return r.homotopy.empty() ? OcpHomotopyStep{} : r.homotopy.front();
-  };
-  const auto reference = [&nlp_at](double sigma) {
-    const OcpHomotopyStep step = nlp_at(sigma);
-    const bool stopped =
-        step.ipopt_status == "Solve_Succeeded" || step.ipopt_status == "Solved_To_Acceptable_Level";
-    EXPECT_TRUE(stopped) << "sigma " << sigma << ": " << step.ipopt_status;
-    const double kkt = std::max(OcpOptions{}.nlp_tolerance, step.kkt_error);
-    std::printf("  J(%.6g) = %.15g, %s, KKT error %.2e\n", sigma, step.objective,
-                step.ipopt_status.c_str(), step.kkt_error);
-    return Nlp{step.objective, 10.0 * (1.0 + std::abs(step.objective)) * kkt};
-  };
+  constexpr double q = 0.9;
   for (const double sigma : {1e-1, 1e-3}) {
     SCOPED_TRACE("sigma " + std::to_string(sigma));
-    const double d = 0.1 * sigma;
-    const OcpHomotopyStep at = nlp_at(sigma);
-    ASSERT_EQ(at.ipopt_status, "Solve_Succeeded");
-    const Nlp minus2 = reference(sigma - 2 * d), minus = reference(sigma - d),
-              plus = reference(sigma + d), plus2 = reference(sigma + 2 * d);
-    const double slope = (plus.objective - minus.objective) / (2 * d);
-    const double slope2 = (plus2.objective - minus2.objective) / (4 * d);
-    const double noise = (plus.error + minus.error) / (2 * d);
-    const double noise2 = (plus2.error + minus2.error) / (4 * d);
-    const double truncation = std::abs(slope2 - slope) / 3.0 + (noise + noise2) / 3.0;
+    OcpOptions options;
+    options.sigma_initial = sigma / (q * q);
+    options.sigma_factor = q;
+    options.sigma_final = sigma * q * q * (1.0 - 1e-12);
+    options.intermediate_tolerance_factor = 0.0;  // every NLP to nlp_tolerance
+    options.polish = false;
+    options.early_polish_sigma = 0.0;
+    options.acceptable_iterations = 0;  // no stop at IPOPT's acceptable level: its tol or nothing
+    const OcpResult r = solve_block(10, options);
+    ASSERT_GE(r.homotopy.size(), 5u) << r.message;
+    const std::vector<OcpHomotopyStep> h(r.homotopy.begin(), r.homotopy.begin() + 5);
+    for (const OcpHomotopyStep& step : h) {
+      ASSERT_EQ(step.ipopt_status, "Solve_Succeeded") << step.sigma;
+      std::printf("  J(%.6g) = %.15g, KKT error %.2e\n", step.sigma, step.objective,
+                  step.kkt_error);
+    }
+    const OcpHomotopyStep& at = h[2];
+    ASSERT_NEAR(at.sigma, sigma, 1e-12 * sigma);
+    const auto error = [](const OcpHomotopyStep& step) {
+      return 10.0 * (1.0 + std::abs(step.objective)) *
+             std::max(OcpOptions{}.nlp_tolerance, step.kkt_error);
+    };
+    const double slope = (h[1].objective - h[3].objective) / (h[1].sigma - h[3].sigma);
+    const double slope2 = (h[0].objective - h[4].objective) / (h[0].sigma - h[4].sigma);
+    const double d1 = (h[1].sigma - h[3].sigma) / 2, d2 = (h[0].sigma - h[4].sigma) / 2;
+    const double noise = (error(h[1]) + error(h[3])) / (2 * d1);
+    const double noise2 = (error(h[0]) + error(h[4])) / (2 * d2);
+    const double truncation =
+        (std::abs(slope2 - slope) + noise + noise2) / (d2 * d2 / (d1 * d1) - 1.0);
     const double bound = truncation + noise;
     const double off = std::abs(at.product_multipliers + slope);
     std::printf(
-        "sigma %g: sum mu %.10g, largest %.6g, -D(d) %.10g, -D(2d) %.10g; |sum mu + D(d)| %.2e "
+        "sigma %g: sum mu %.10g, largest %.6g, -D(1) %.10g, -D(2) %.10g; |sum mu + D(1)| %.2e "
         "against the bound %.2e (truncation %.2e, the NLPs' errors %.2e), %.2e of sum mu\n",
         sigma, at.product_multipliers, at.largest_product_multiplier, -slope, -slope2, off, bound,
         truncation, noise, bound / at.product_multipliers);

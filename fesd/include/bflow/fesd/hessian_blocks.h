@@ -30,6 +30,14 @@ namespace fesd {
 // lanes, so that a dependence the NaN pass cannot see (Ceres's pow(f, g) at f = 0 returns a Jet
 // without f's lanes) costs time, never exactness. The monoped's field piece depends on 13 of its
 // 16 unknowns (not on its horizontal position, its height or the clock).
+//
+// An evaluation of the whole Hessian repeats the same calls of add in the same order (every
+// element's pieces, then the costs and constraints). Between begin_evaluation() and
+// end_evaluation() each call's plan (its lane order and the position in `values` of every pair
+// of lanes) is kept at its place in that sequence and used again by the same call of the next
+// evaluation (the same globals), so that an evaluation repeats neither the NaN pass nor the
+// search for the positions. A lane order read at another point stays exact (every free unknown
+// keeps a lane; it is only the order), and the positions depend on the globals alone.
 class HessianBlocks {
  public:
   // Registers every pair of the block's unknowns (call for every block before values are added).
@@ -46,6 +54,7 @@ class HessianBlocks {
   }
   // Forgets every registered pair (and the misses).
   void clear() {
+    plans_.clear();
     position_.clear();
     rows_.clear();
     cols_.clear();
@@ -56,6 +65,13 @@ class HessianBlocks {
   // since the last clear_missed(): the registered structure is too small for them.
   long missed() const { return missed_; }
   void clear_missed() { missed_ = 0; }
+  // One evaluation of the whole Hessian: the calls of add between these two use and keep the
+  // plans of the previous evaluation's calls at the same places (see above).
+  void begin_evaluation() {
+    planning_ = true;
+    call_ = 0;
+  }
+  void end_evaluation() { planning_ = false; }
   std::size_t size() const { return rows_.size(); }
   const std::vector<int>& rows() const { return rows_; }
   const std::vector<int>& cols() const { return cols_; }
@@ -67,12 +83,27 @@ class HessianBlocks {
   void add(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
            const double* weights, Eval eval, double* values) {
     if (!index_ready_) build_index();
-    const std::vector<int>& deps = lane_order(globals, base, outputs, weights, eval);
+    Plan* plan = nullptr;
+    bool fresh = true;
+    if (planning_) {
+      if (call_ >= plans_.size()) plans_.resize(call_ + 1);
+      plan = &plans_[call_++];
+      fresh = plan->globals != globals;
+      if (fresh) {
+        plan->globals = globals;
+        plan->deps = lane_order(globals, base, outputs, weights, eval);
+        plan->positions.clear();
+      }
+    }
+    const std::vector<int>& deps =
+        plan != nullptr ? plan->deps : lane_order(globals, base, outputs, weights, eval);
     const int count = static_cast<int>(deps.size());
     if (count == 0) return;
+    Positions positions{plan != nullptr ? &plan->positions : nullptr, fresh, 0};
     constexpr int kLanes = HessianScalar::kLanes;
     if (count <= kLanes) {
-      pass(globals, base, outputs, weights, eval, deps, 0, count, count, 0, true, true, values);
+      pass(globals, base, outputs, weights, eval, deps, 0, count, count, 0, true, true, positions,
+           values);
       return;
     }
     // More unknowns than lanes: groups of half the lanes, two at a time. Pair (0, 1) gives the
@@ -83,12 +114,26 @@ class HessianBlocks {
       for (int gb = ga + 1; gb < groups; ++gb) {
         pass(globals, base, outputs, weights, eval, deps, ga * kGroup,
              std::min(kGroup, count - ga * kGroup), gb * kGroup,
-             std::min(kGroup, count - gb * kGroup), ga == 0 && gb == 1, ga == 0, values);
+             std::min(kGroup, count - gb * kGroup), ga == 0 && gb == 1, ga == 0, positions, values);
       }
     }
   }
 
  private:
+  // A call's plan: its globals, lane order and, pass after pass, the position of every pair of
+  // lanes it adds (-1: not registered).
+  struct Plan {
+    std::vector<int> globals;
+    std::vector<int> deps;
+    std::vector<long> positions;
+  };
+  // Where a call's passes read (fresh: write) their positions.
+  struct Positions {
+    std::vector<long>* list;  // null: no plan, every position searched
+    bool fresh;
+    std::size_t next;
+  };
+
   // The free entries of `globals` (local indices), those that some output of nonzero weight
   // visibly depends on first.
   template <typename Eval>
@@ -132,7 +177,8 @@ class HessianBlocks {
   template <typename Eval>
   void pass(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
             const double* weights, Eval& eval, const std::vector<int>& deps, int first_a, int na,
-            int first_b, int nb, bool diagonal_a, bool diagonal_b, double* values) {
+            int first_b, int nb, bool diagonal_a, bool diagonal_b, Positions& positions,
+            double* values) {
     thread_local std::vector<HessianScalar> in, out;
     in.resize(globals.size());
     out.resize(static_cast<std::size_t>(outputs));
@@ -168,10 +214,19 @@ class HessianBlocks {
         if (!in_a && !j_in_a && !diagonal_b) continue;
         const int gj = globals[static_cast<std::size_t>(local[j])];
         const double value = sum[static_cast<std::size_t>(HessianScalar::at(i, j))];
+        long at;
+        if (positions.list == nullptr) {
+          if (value == 0.0) continue;
+          at = find(std::max(gi, gj), std::min(gi, gj));
+        } else if (positions.fresh) {
+          at = find(std::max(gi, gj), std::min(gi, gj));
+          positions.list->push_back(at);
+        } else {
+          at = (*positions.list)[positions.next++];
+        }
         if (value == 0.0) continue;
         // Two locals may name one unknown (never in FESD's blocks, but allowed): each pair of
         // lanes is one term of the chain rule, the diagonal counted once per lane pair.
-        const long at = find(std::max(gi, gj), std::min(gi, gj));
         if (at < 0) {
           ++missed_;
         } else {
@@ -209,6 +264,7 @@ class HessianBlocks {
       rows_.push_back(a);
       cols_.push_back(b);
       index_ready_ = false;
+      plans_.clear();  // a pair a plan found missing may be there now
     }
   }
   // The position of the pair (a, b), a >= b, or -1 when it is not registered.
@@ -221,6 +277,9 @@ class HessianBlocks {
     return index_positions_[static_cast<std::size_t>(it - index_cols_.begin())];
   }
 
+  std::vector<Plan> plans_;
+  std::size_t call_ = 0;
+  bool planning_ = false;
   std::map<std::pair<int, int>, int> position_;
   std::vector<int> rows_, cols_;
   bool index_ready_ = false;
