@@ -208,8 +208,10 @@ turbo car at an N that is a multiple of 5 off 40/3, the braking block more than 
 J*) ended at another stationary point: the exit code stays 0, and the notice ends "notes" and
 is printed as one "warning: ocp: ..." line on stderr.
 
-"ipopt" and "linear_solver" in the JSON name the solver stack: "IPOPT 3.14.19" and IPOPT's
-linear solver with its version or library, "mumps 5.8.2" by default (--linear-solver).
+"ipopt", "linear_solver" and "blas" in the JSON name the solver stack: "IPOPT 3.14.19",
+IPOPT's linear solver with its version or library, "mumps 5.8.2" by default (--linear-solver),
+and the BLAS under it with its threads, "OpenBLAS 0.3.24, 1 thread" and the library
+(--blas-threads).
 HSL's solvers come from Coin-HSL's library, which no package ships (docs/ocp.md, "Linear
 solvers"): when it cannot be loaded, the command exits with code 2 before solving, with one
 line "error: --linear-solver: ..." naming the file and the loader's reason.)";
@@ -274,7 +276,36 @@ struct NumericTexts {
   std::optional<std::string> fesd_stages, fesd_nfe, fesd_nsim, fesd_t, fesd_lifting;
   std::optional<std::string> ocp_n, ocp_nfe, ocp_stages, ocp_sigma0, ocp_sigma_final, ocp_tol,
       ocp_max_iterations, ocp_lifting, ocp_early_polish_sigma;
+  std::optional<std::string> fesd_blas_threads, ocp_blas_threads;
 };
+
+// The "Solver" group of fesd and ocp: the options both pass to IPOPT (SolverCommandOptions);
+// --blas-threads as typed, read by read_numbers.
+void add_solver_options(CLI::App* command, SolverCommandOptions& s,
+                        std::optional<std::string>& blas_threads) {
+  const char* group = "Solver (IPOPT and its linear solver; the same for fesd and ocp)";
+  command
+      ->add_option("--linear-solver", s.linear_solver,
+                   "IPOPT's linear solver: mumps (MUMPS with METIS), spral, HSL's ma27, ma57, "
+                   "ma77, ma86, ma97 (from Coin-HSL's library), pardiso (pardiso-project.org's) or "
+                   "pardisomkl (where IPOPT has MKL); see docs/ocp.md, \"Linear solvers\"")
+      ->type_name("NAME")
+      ->capture_default_str()
+      ->group(group);
+  command
+      ->add_option("--linear-solver-library", s.linear_solver_library,
+                   "the library of an HSL solver or of PARDISO, a file name the loader finds or a "
+                   "path (default: libcoinhsl.so, then libhsl.so; libpardiso.so)")
+      ->type_name("FILE")
+      ->group(group);
+  command
+      ->add_option("--blas-threads", blas_threads,
+                   "OpenBLAS's threads while IPOPT solves, >= 0; 0: OpenBLAS's own count "
+                   "(OPENBLAS_NUM_THREADS, else one per core). FESD's KKT matrices are too small "
+                   "for threads (default 1); \"blas\" in the JSON names the BLAS and the count")
+      ->type_name("N")
+      ->group(group);
+}
 
 int read_int(const std::string& text, const char* option) {
   return static_cast<int>(parse_integer(text, option, std::numeric_limits<int>::min(),
@@ -308,6 +339,9 @@ void read_numbers(const NumericTexts& t, JumpOptions& jump, FesdCommandOptions& 
   if (t.ocp_max_iterations)
     ocp.max_iterations = read_int(*t.ocp_max_iterations, "--max-iterations");
   if (t.ocp_lifting) ocp.lifting = read_int(*t.ocp_lifting, "--lifting");
+  if (t.fesd_blas_threads)
+    fesd.solver.blas_threads = read_int(*t.fesd_blas_threads, "--blas-threads");
+  if (t.ocp_blas_threads) ocp.solver.blas_threads = read_int(*t.ocp_blas_threads, "--blas-threads");
   if (t.ocp_early_polish_sigma) {
     ocp.early_polish_sigma = read_double(*t.ocp_early_polish_sigma, "--early-polish-sigma");
   }
@@ -457,18 +491,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
     fesd->add_flag(
         "--exact-hessian", fesd_options.exact_hessian,
         "IPOPT with the exact Hessian (second-order AD by pieces) instead of limited-memory");
-    fesd->add_option(
-            "--linear-solver", fesd_options.linear_solver,
-            "IPOPT's linear solver: mumps (MUMPS with METIS), spral, HSL's ma27, ma57, "
-            "ma77, ma86, ma97 (from Coin-HSL's library), pardiso (pardiso-project.org's) or "
-            "pardisomkl (where IPOPT has MKL); see docs/ocp.md, \"Linear solvers\"")
-        ->type_name("NAME")
-        ->capture_default_str();
-    fesd->add_option(
-            "--linear-solver-library", fesd_options.linear_solver_library,
-            "the library of an HSL solver or of PARDISO, a file name the loader finds or a "
-            "path (default: libcoinhsl.so, then libhsl.so; libpardiso.so)")
-        ->type_name("FILE");
+    add_solver_options(fesd, fesd_options.solver, numbers.fesd_blas_threads);
     fesd->add_flag("--standard", fesd_options.standard,
                    "Standard time-stepping: fixed steps, no switch detection");
     fesd->add_flag("--trajectory", fesd_options.trajectory,
@@ -548,17 +571,7 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                     "is budget_exhausted with the last solved NLP's result (default 0: no limit "
                     "but 3000 per NLP, 10000 for the monoped)")
         ->type_name("K");
-    ocp->add_option(
-           "--linear-solver", ocp_options.linear_solver,
-           "IPOPT's linear solver: mumps (MUMPS with METIS), spral, HSL's ma27, ma57, "
-           "ma77, ma86, ma97 (from Coin-HSL's library), pardiso (pardiso-project.org's) or "
-           "pardisomkl (where IPOPT has MKL); see docs/ocp.md, \"Linear solvers\"")
-        ->type_name("NAME")
-        ->capture_default_str();
-    ocp->add_option("--linear-solver-library", ocp_options.linear_solver_library,
-                    "the library of an HSL solver or of PARDISO, a file name the loader finds or a "
-                    "path (default: libcoinhsl.so, then libhsl.so; libpardiso.so)")
-        ->type_name("FILE");
+    add_solver_options(ocp, ocp_options.solver, numbers.ocp_blas_threads);
     ocp->add_flag("--trajectory", ocp_options.trajectory,
                   "Add every element boundary, the states there, the step sizes and active sets");
     ocp->add_option("--plot", ocp_options.plot,

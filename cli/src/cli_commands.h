@@ -161,6 +161,20 @@ struct DemoOptions {
     when a self-check fails, a file cannot be written, or gnuplot fails. Never throws. */
 int run_demo(const DemoOptions& options, std::ostream& out, std::ostream& err);
 
+/** The solver options `bflow fesd` and `bflow ocp` share (their help's "Solver" group), as
+    given; the same fields of bflow::FesdOptions and bflow::OcpOptions. A linear solver that is
+    unknown or whose library cannot be loaded, or blas_threads < 0: exit code 2 before computing. */
+struct SolverCommandOptions {
+  /** --linear-solver: IPOPT's, one of bflow::kLinearSolvers (mumps, spral, HSL's ma27 ... ma97
+      from Coin-HSL, pardiso, pardisomkl). */
+  std::string linear_solver = "mumps";
+  /** --linear-solver-library: the HSL or PARDISO library file ("": libcoinhsl.so, then
+      libhsl.so; libpardiso.so). */
+  std::string linear_solver_library;
+  /** --blas-threads: OpenBLAS's threads during the NLPs, >= 0 (0: OpenBLAS's own count). */
+  int blas_threads = 1;
+};
+
 /** `bflow fesd`: the options as given on the command line. run_fesd() checks every range and
     names the option in its message. */
 struct FesdCommandOptions {
@@ -183,13 +197,7 @@ struct FesdCommandOptions {
   bool sizes = false;          ///< print [F] Table 4 and the NLP size for the example instead
   /** Lifting depth n_d: 0 (none) or 2..max(2, n_c), also for --sizes. */
   int lifting = 0;
-  /** --linear-solver: IPOPT's, one of bflow::kLinearSolvers (mumps, spral, HSL's ma27 ...
-      ma97 from Coin-HSL, pardiso, pardisomkl); unknown or without its library: exit code 2 before
-     computing. */
-  std::string linear_solver = "mumps";
-  /** --linear-solver-library: the HSL or PARDISO library file ("": libcoinhsl.so, then
-      libhsl.so; libpardiso.so). */
-  std::string linear_solver_library;
+  SolverCommandOptions solver;
   bool compact = false;
 };
 
@@ -234,13 +242,7 @@ struct OcpCommandOptions {
   /** --lifting: the step formulation's lifting depth (OcpOptions::lifting_depth); not given:
       the example's (2 for the monoped's nosnoc setup, else 0). */
   std::optional<int> lifting;
-  /** --linear-solver: IPOPT's, one of bflow::kLinearSolvers (mumps, spral, HSL's ma27 ...
-      ma97 from Coin-HSL, pardiso, pardisomkl); unknown or without its library: exit code 2 before
-     the solve. */
-  std::string linear_solver = "mumps";
-  /** --linear-solver-library: the HSL or PARDISO library file ("": libcoinhsl.so, then
-      libhsl.so; libpardiso.so). */
-  std::string linear_solver_library;
+  SolverCommandOptions solver;
   bool trajectory = false;  ///< add every element boundary, the states there, h, active sets
   /** Directory (created if missing) for ocp_states.png, ocp_controls.png, ocp_switching.png
       and their data and gnuplot scripts; not given: no plots. */

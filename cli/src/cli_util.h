@@ -11,6 +11,7 @@
 #include <string>
 
 #include "bflow/core/text.h"
+#include "bflow/fesd/linear_solver.h"
 #include "cli_commands.h"
 
 namespace bflow::cli {
@@ -150,6 +151,26 @@ inline int finish_output(std::ostream& out, std::ostream& err, int code) {
   if (error_number != 0) message += std::string(" (") + std::strerror(error_number) + ")";
   report_error(err, message);
   return kExitFailure;
+}
+
+/** The shared solver flags into bflow::FesdOptions or bflow::OcpOptions (linear_solver,
+    linear_solver_library, blas_threads), each checked before anything runs. "" when they are
+    usable, else the message, which names the flag. */
+template <typename Options>
+std::string apply_solver_options(const SolverCommandOptions& s, Options& o) {
+  if (s.blas_threads < 0) {
+    return "--blas-threads: " + std::to_string(s.blas_threads) +
+           " must be >= 0 (0: OpenBLAS's own count)";
+  }
+  try {
+    check_linear_solver(s.linear_solver, s.linear_solver_library, "--linear-solver");
+  } catch (const InvalidArgument& e) {
+    return e.what();  // unknown, or its library missing
+  }
+  o.linear_solver = s.linear_solver;
+  o.linear_solver_library = s.linear_solver_library;
+  o.blas_threads = s.blas_threads;
+  return "";
 }
 
 }  // namespace bflow::cli

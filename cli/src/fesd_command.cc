@@ -158,13 +158,8 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
     o.formulation = formulation;
     o.lifting_depth = options.lifting;
     o.exact_hessian = options.exact_hessian;
-    try {
-      check_linear_solver(options.linear_solver, options.linear_solver_library, "--linear-solver");
-    } catch (const InvalidArgument& e) {
-      throw OptionError(e.what());  // unknown, or its library missing: before anything runs
-    }
-    o.linear_solver = options.linear_solver;
-    o.linear_solver_library = options.linear_solver_library;
+    const std::string solver_problem = apply_solver_options(options.solver, o);
+    if (!solver_problem.empty()) throw OptionError(solver_problem);  // before anything runs
     // The library refuses the same sizes (naming N_FE and N_sim); here with the options' names.
     const FesdProblemSize size =
         with_example(options.example, [&](const StepModel& model, const Eigen::VectorXd&) {
@@ -216,6 +211,7 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
       j["formulation"] = to_string(formulation);
       j["ipopt"] = r.ipopt;
       j["linear_solver"] = r.linear_solver;
+      j["blas"] = r.blas;
       j["nlp_iterations"] = r.nlp_iterations;
       j["newton_steps"] = r.newton_steps;
       // Steps IPOPT accepted only at its acceptable level with complementarity above

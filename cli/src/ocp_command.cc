@@ -603,13 +603,8 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
       }
     }
     check_ranges(options, o);
-    try {
-      check_linear_solver(options.linear_solver, options.linear_solver_library, "--linear-solver");
-    } catch (const InvalidArgument& e) {
-      throw OptionError(e.what());  // unknown, or its library missing: before anything runs
-    }
-    o.linear_solver = options.linear_solver;
-    o.linear_solver_library = options.linear_solver_library;
+    const std::string solver_problem = apply_solver_options(options.solver, o);
+    if (!solver_problem.empty()) throw OptionError(solver_problem);  // before anything runs
     o.stages = stages_of(options);
     o.elements = options.nfe;
     o.collocation_stages = options.stages;
@@ -697,6 +692,7 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
           j["cross_complementarity"] = o.standard ? "standard" : to_string(o.cross_complementarity);
           j["ipopt"] = r.ipopt;
           j["linear_solver"] = r.linear_solver;
+          j["blas"] = r.blas;
           j["ipopt_status"] = r.ipopt_status;
           j["kkt_error"] = std::isfinite(r.kkt_error) ? OrderedJson(r.kkt_error) : nullptr;
           j["notes"] = notes;

@@ -391,6 +391,7 @@ void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorX
         format_number(o.sigma_initial) + ", sigma_final = " + format_number(o.sigma_final) +
         ", sigma_factor = " + format_number(o.sigma_factor));
   }
+  check_blas_threads(o.blas_threads, "fesd");
   if (!(o.nlp_tolerance > 0.0) || !std::isfinite(o.nlp_tolerance) || o.max_nlp_iterations < 1) {
     throw InvalidArgument(
         "fesd: need a finite nlp_tolerance > 0 and max_nlp_iterations >= 1, got "
@@ -582,6 +583,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   result.ipopt = ipopt_description();
   result.linear_solver =
       linear_solver_description(solver.linear_solver(), solver.linear_solver_library());
+  result.blas = blas_description(options.blas_threads);
   Eigen::VectorXd x = x0;
   result.grid.push_back(0.0);
   std::vector<Eigen::VectorXd> states{x};

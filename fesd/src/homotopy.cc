@@ -38,6 +38,7 @@ struct HomotopySolver::Impl {
     const double start = process_cpu_seconds();
     nlp.set_cancel(settings.cancelled ? &settings.cancelled : nullptr);
     const ScopedMumpsAmalgamation fronts(settings.mumps_amalgamation && linear_solver == "mumps");
+    const ScopedBlasThreads blas(settings.blas_threads);
     nlp.keep_start();
     nlp.clear_missed();
     IpoptSession::Outcome run = session.optimize(nlp);
@@ -97,6 +98,7 @@ HomotopySolver::HomotopySolver(const IpoptSettings& settings) : impl_(new Impl) 
   for (const auto& [name, value] : settings.ipopt_string_options) {
     if (name == "linear_solver") impl_->linear_solver = value;
   }
+  check_blas_threads(settings.blas_threads, settings.who);
   impl_->library =
       check_linear_solver(impl_->linear_solver, settings.linear_solver_library, settings.who);
   impl_->session.set_defaults(settings.print_level, settings.exact_hessian, settings.max_iterations,

@@ -9,6 +9,8 @@
 #include <IpSolveStatistics.hpp>
 #include <IpTNLP.hpp>
 
+#include <dlfcn.h>
+
 #include <limits>
 #include <mutex>
 #include <string>
@@ -294,6 +296,13 @@ bool ipopt_takes_linear_solver(const std::string& name) {
 
 const char* ipopt_version() { return IPOPT_VERSION; }
 const char* mumps_version() { return BFLOW_MUMPS_VERSION; }
+const char* ipopt_library_file() {
+  Dl_info where{};
+  const auto factory = &IpoptApplicationFactory;
+  if (dladdr(reinterpret_cast<void*>(factory), &where) == 0 || where.dli_fname == nullptr)
+    return "";
+  return where.dli_fname;
+}
 bool ipopt_has_spral() { return BFLOW_IPOPT_HAS_SPRAL != 0; }
 bool ipopt_names_solver_libraries() {
   return IPOPT_VERSION_MAJOR > 3 || (IPOPT_VERSION_MAJOR == 3 && IPOPT_VERSION_MINOR >= 14);

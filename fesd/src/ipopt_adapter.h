@@ -123,6 +123,8 @@ bool ipopt_takes_linear_solver(const std::string& name);
 const char* ipopt_version();
 /** The MUMPS IPOPT links ("5.8.2"), from its dmumps_c.h; "" when the build did not find it. */
 const char* mumps_version();
+/** The file of the IPOPT library this process runs (dladdr), "" when not found. */
+const char* ipopt_library_file();
 /** Whether this IPOPT was built with SPRAL (linear_solver "spral"). */
 bool ipopt_has_spral();
 /** Whether IPOPT takes the option hsllib and pardisolib (3.14): the library of HSL's solvers

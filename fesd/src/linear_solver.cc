@@ -170,6 +170,117 @@ std::string linear_solver_description(const std::string& name, const std::string
   return name + " (" + ipopt_description() + "'s)";
 }
 
+// --- The BLAS under MUMPS (linear_solver.h) ---
+
+namespace {
+
+struct OpenBlas {
+  void (*set)(int) = nullptr;
+  int (*get)() = nullptr;
+};
+
+std::string base_name(const std::string& path) {
+  const std::size_t slash = path.rfind('/');
+  return slash == std::string::npos ? path : path.substr(slash + 1);
+}
+
+// The library that defines `symbol` at `address` and the same symbol `name` in it, or null.
+void* symbol_in_same_library(void* address, const char* name) {
+  Dl_info where{};
+  if (address == nullptr || dladdr(address, &where) == 0 || where.dli_fname == nullptr)
+    return nullptr;
+  // RTLD_NOLOAD: a handle to the library already loaded (never a new load); kept open, so the
+  // pointers stay valid.
+  void* handle = dlopen(where.dli_fname, RTLD_LAZY | RTLD_NOLOAD);
+  if (handle == nullptr) return nullptr;
+  void* found = dlsym(handle, name);
+  Dl_info other{};
+  // dlsym on a handle also searches the library's dependencies: only the library's own.
+  if (found == nullptr || dladdr(found, &other) == 0 || other.dli_fbase != where.dli_fbase) {
+    return nullptr;
+  }
+  return found;
+}
+
+struct BlasState {
+  BlasInfo info;
+  OpenBlas openblas;
+};
+
+BlasState find_blas() {
+  BlasState state;
+  void* dgemm = dlsym(RTLD_DEFAULT, "dgemm_");
+  if (dgemm == nullptr) {
+    // A library loaded with RTLD_LOCAL (a Python extension): IPOPT's own dependencies.
+    void* ipopt = dlopen(fesd::ipopt_library_file(), RTLD_LAZY | RTLD_NOLOAD);
+    if (ipopt != nullptr) dgemm = dlsym(ipopt, "dgemm_");
+  }
+  Dl_info where{};
+  if (dgemm == nullptr || dladdr(dgemm, &where) == 0 || where.dli_fname == nullptr) return state;
+  state.info.file = base_name(where.dli_fname);
+  state.openblas.set =
+      reinterpret_cast<void (*)(int)>(symbol_in_same_library(dgemm, "openblas_set_num_threads"));
+  state.openblas.get =
+      reinterpret_cast<int (*)()>(symbol_in_same_library(dgemm, "openblas_get_num_threads"));
+  const auto config =
+      reinterpret_cast<char* (*)()>(symbol_in_same_library(dgemm, "openblas_get_config"));
+  if (state.openblas.set == nullptr || state.openblas.get == nullptr) {
+    state.openblas = OpenBlas{};
+    return state;
+  }
+  state.info.threads_settable = true;
+  state.info.version = "OpenBLAS";
+  if (config != nullptr) {
+    // "OpenBLAS 0.3.28 DYNAMIC_ARCH NO_AFFINITY Haswell MAX_THREADS=64": its first two words.
+    std::istringstream words(config());
+    std::string name, version;
+    if (words >> name >> version) state.info.version = name + " " + version;
+  }
+  return state;
+}
+
+const BlasState& blas_state() {
+  static const BlasState state = find_blas();
+  return state;
+}
+
+}  // namespace
+
+const BlasInfo& blas_info() { return blas_state().info; }
+
+void check_blas_threads(int threads, const std::string& who) {
+  if (threads < 0) {
+    throw InvalidArgument(who + ": blas_threads = " + std::to_string(threads) +
+                          " must be >= 0 (0: OpenBLAS's own count)");
+  }
+}
+
+int blas_threads() {
+  const OpenBlas& b = blas_state().openblas;
+  return b.get != nullptr ? b.get() : 0;
+}
+
+ScopedBlasThreads::ScopedBlasThreads(int threads) {
+  const OpenBlas& b = blas_state().openblas;
+  if (threads <= 0 || b.set == nullptr) return;
+  previous_ = b.get();
+  if (previous_ != threads) b.set(threads);
+}
+
+ScopedBlasThreads::~ScopedBlasThreads() {
+  const OpenBlas& b = blas_state().openblas;
+  if (previous_ > 0 && b.get() != previous_) b.set(previous_);
+}
+
+std::string blas_description(int threads) {
+  const BlasInfo& info = blas_info();
+  if (info.file.empty()) return "";
+  if (!info.threads_settable) return info.file;
+  const int count = threads > 0 ? threads : blas_threads();
+  return info.version + ", " + std::to_string(count) + (count == 1 ? " thread" : " threads") +
+         (threads > 0 ? "" : " (its own count)") + " (" + info.file + ")";
+}
+
 // --- MUMPS's small fronts (linear_solver.h; the interposer is mumps_fronts.cc) ---
 
 namespace {

@@ -317,6 +317,7 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
   }
   // Before the simulated guess: HomotopySolver checks it again, for every solver it builds.
   check_linear_solver(o.linear_solver, o.linear_solver_library, "ocp");
+  check_blas_threads(o.blas_threads, "ocp");
 }
 
 // Lower or upper bound k of an optional bound vector.
@@ -722,6 +723,9 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     sim.steps = 1;
     sim.newton = true;
     sim.linear_solver = options.linear_solver;
+    sim.linear_solver_library = options.linear_solver_library;
+    sim.mumps_amalgamation = options.mumps_amalgamation;
+    sim.blas_threads = options.blas_threads;
     sim.cancelled = options.cancelled;
     if (problem.guess_policy) {
       int clamped = 0;
@@ -788,6 +792,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   result.ipopt = ipopt_description();
   result.linear_solver =
       linear_solver_description(solver.linear_solver(), solver.linear_solver_library());
+  result.blas = blas_description(options.blas_threads);
   fesd::HomotopyRules rules = fesd::homotopy_schedule(options);
   rules.warm_start = options.warm_start;
   rules.warm_start_multipliers = options.warm_start_multipliers;

@@ -501,7 +501,7 @@ _FESD_DEFAULTS = {"irma": (100.0, 20), "crossing": (1.0, 4), "sliding-enter": (1
 _FESD_OPTIONS = ("scheme", "stages", "elements", "standard", "formulation", "lifting_depth",
                  "sigma_initial", "sigma_final", "sigma_factor", "nlp_tolerance",
                  "exact_hessian", "max_nlp_iterations", "newton", "sensitivities",
-                 "linear_solver", "linear_solver_library")
+                 "linear_solver", "linear_solver_library", "blas_threads")
 
 
 def _interrupted(result):
@@ -530,13 +530,14 @@ def fesd_simulate(model, T: Optional[float] = None, x0=None, *,
     "stewart"), lifting_depth, standard, sigma_initial, sigma_final, sigma_factor,
     nlp_tolerance, exact_hessian, max_nlp_iterations, newton, sensitivities (dx(T)/dx0, on),
     linear_solver ("mumps", "spral", HSL's "ma27" ... "ma97", "pardiso"),
-    linear_solver_library (the HSL or PARDISO library file). ``progress=True`` prints one line
-    per integration step on stderr.
+    linear_solver_library (the HSL or PARDISO library file), blas_threads (OpenBLAS's threads
+    while IPOPT solves, 1; 0: OpenBLAS's own count). ``progress=True`` prints one line per
+    integration step on stderr.
 
     Returns a FesdResult: ok (the run reached T), status ("converged", "step failed", "invalid
     model"), message (why not ok, and notes), x_end, grid, states, step_sizes, switch_times,
-    active_sets, sensitivity, the solver stack (ipopt, e.g. "IPOPT 3.14.19", and linear_solver,
-    e.g. "mumps 5.8.2") and the counters of what the solver did (halved_steps, newton_steps,
+    active_sets, sensitivity, the solver stack (ipopt, e.g. "IPOPT 3.14.19", linear_solver,
+    e.g. "mumps 5.8.2", and blas, e.g. "OpenBLAS 0.3.28, 1 thread (libcasadi-tp-openblas.so.0)") and the counters of what the solver did (halved_steps, newton_steps,
     acceptable_only_steps). A horizon whose steps T / steps cannot be integrated
     (above 1e18, or elements below the smallest normal double) is a ValueError naming T and
     steps. The GIL is released while it runs; calls from several threads are safe, their IPOPT
@@ -585,7 +586,7 @@ _OCP_OPTIONS = ("elements", "collocation_stages", "scheme", "formulation", "stan
                 "relaxation", "sigma_initial", "sigma_final", "sigma_factor", "nlp_tolerance",
                 "complementarity_tolerance", "polish", "early_polish_sigma",
                 "max_total_iterations", "exact_hessian", "lifting_depth", "linear_solver",
-                "linear_solver_library", "cross_complementarity")
+                "linear_solver_library", "blas_threads", "cross_complementarity")
 
 
 _OCP_PROBLEM = ("x0", "T", "time_optimal", "T_min", "T_max", "x_lower", "x_upper", "u_lower",
@@ -617,7 +618,8 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
     collocation_stages (2), scheme, formulation, standard, relaxation ("scholtes", "l1",
     "elastic"), sigma_initial (100), sigma_final (1e-10), sigma_factor, nlp_tolerance,
     complementarity_tolerance, polish, early_polish_sigma, max_total_iterations, exact_hessian,
-    lifting_depth, linear_solver, linear_solver_library, cross_complementarity ("element-sums",
+    lifting_depth, linear_solver, linear_solver_library, blas_threads (OpenBLAS's threads while
+    IPOPT solves, 1; 0: its own count), cross_complementarity ("element-sums",
     "point-pairs",
     "point-sums"; FESD only: with standard=True it is refused, and a contact example's own
     choice is left out). ``progress=True`` prints one line per NLP on stderr. The GIL is

@@ -94,6 +94,7 @@ void bind_fesd(nb::module_& m) {
       .def_rw("sensitivities", &FesdOptions::sensitivities)
       .def_rw("linear_solver", &FesdOptions::linear_solver)
       .def_rw("linear_solver_library", &FesdOptions::linear_solver_library)
+      .def_rw("blas_threads", &FesdOptions::blas_threads)
       .def_rw("progress", &FesdOptions::progress);
 
   nb::class_<FesdStepReport>(m, "FesdStepReport", "One integration step taken by fesd_simulate.")
@@ -129,6 +130,9 @@ void bind_fesd(nb::module_& m) {
       .def_ro("ipopt", &FesdResult::ipopt, "the IPOPT the NLPs ran on, e.g. 'IPOPT 3.14.19'")
       .def_ro("linear_solver", &FesdResult::linear_solver,
               "IPOPT's linear solver with its version or library, e.g. 'mumps 5.8.2'")
+      .def_ro("blas", &FesdResult::blas,
+              "the BLAS under the linear solver and its threads during the NLPs, e.g. "
+              "'OpenBLAS 0.3.28, 1 thread (libcasadi-tp-openblas.so.0)'")
       .def_ro("halved_steps", &FesdResult::halved_steps)
       .def_ro("newton_steps", &FesdResult::newton_steps)
       .def_ro("acceptable_only_steps", &FesdResult::acceptable_only_steps)

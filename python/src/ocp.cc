@@ -69,6 +69,7 @@ void bind_ocp(nb::module_& m) {
       .def_rw("lifting_depth", &OcpOptions::lifting_depth)
       .def_rw("linear_solver", &OcpOptions::linear_solver)
       .def_rw("linear_solver_library", &OcpOptions::linear_solver_library)
+      .def_rw("blas_threads", &OcpOptions::blas_threads)
       .def_prop_rw(
           "cross_complementarity",
           [](const OcpOptions& o) { return std::string(to_string(o.cross_complementarity)); },
@@ -113,6 +114,9 @@ void bind_ocp(nb::module_& m) {
       .def_ro("ipopt", &OcpResult::ipopt, "the IPOPT the NLPs ran on, e.g. 'IPOPT 3.14.19'")
       .def_ro("linear_solver", &OcpResult::linear_solver,
               "IPOPT's linear solver with its version or library, e.g. 'mumps 5.8.2'")
+      .def_ro("blas", &OcpResult::blas,
+              "the BLAS under the linear solver and its threads during the NLPs, e.g. "
+              "'OpenBLAS 0.3.28, 1 thread (libcasadi-tp-openblas.so.0)'")
       .def_ro("kkt_error", &OcpResult::kkt_error)
       .def_ro("polished", &OcpResult::polished)
       .def_ro("homotopy", &OcpResult::homotopy)

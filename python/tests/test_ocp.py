@@ -254,8 +254,8 @@ def test_ctrl_c_stops_a_long_solve_with_the_partial_result():
 
 
 def test_the_results_name_the_solver_stack_the_command_uses(cli):
-    """OcpResult and FesdResult name IPOPT and the linear solver with their versions, as the
-    command's JSON does; the extension's IPOPT is the one in the installed casadi package."""
+    """OcpResult and FesdResult name IPOPT, the linear solver with their versions and the BLAS
+    with its threads, as the command's JSON does; the extension's IPOPT is the one in the installed casadi package."""
     r = bflow.ocp_solve("braking-block", N=2, elements=1)
     f = bflow.fesd_simulate("crossing")
     assert re.fullmatch(r"IPOPT 3\.\d+\.\d+", r.ipopt)
@@ -265,6 +265,11 @@ def test_the_results_name_the_solver_stack_the_command_uses(cli):
         [cli, "ocp", "--example", "braking-block", "--N", "2", "--nfe", "1", "--quiet",
          "--compact"], capture_output=True, text=True, check=True).stdout)
     assert (command["ipopt"], command["linear_solver"]) == (r.ipopt, r.linear_solver)
+    # The BLAS under MUMPS, casadi's OpenBLAS, on the one thread asked by default.
+    assert re.fullmatch(r"OpenBLAS \d+\.\d+\.\d+, 1 thread \(libcasadi-tp-openblas\.so\.0\)",
+                        r.blas), r.blas
+    assert f.blas == r.blas == command["blas"]
+    assert "2 threads" in bflow.ocp_solve("braking-block", N=2, elements=1, blas_threads=2).blas
     import casadi  # noqa: F401  (the package whose libipopt.so.3 the extension's run path names)
     casadi_dir = os.path.dirname(casadi.__file__)
     with open("/proc/self/maps") as maps:

@@ -776,7 +776,7 @@ TEST(OcpCommandTest, TheLinearSolverIsCheckedFirstAndRecorded) {
   o.nfe = 1;
   o.quiet = true;
   const Outcome by_default = solve(o);
-  o.linear_solver = "mumps";
+  o.solver.linear_solver = "mumps";
   const Outcome mumps = solve(o);
   ASSERT_EQ(by_default.code, kExitOk) << by_default.err;
   ASSERT_EQ(mumps.code, kExitOk) << mumps.err;
@@ -790,7 +790,7 @@ TEST(OcpCommandTest, TheLinearSolverIsCheckedFirstAndRecorded) {
   EXPECT_EQ(mumps.json["ipopt_iterations"], by_default.json["ipopt_iterations"]);
 
   o.quiet = false;
-  o.linear_solver = "ma99";
+  o.solver.linear_solver = "ma99";
   Outcome r = solve(o);
   EXPECT_EQ(r.code, kExitBadInput);
   EXPECT_TRUE(r.json.is_null());
@@ -805,11 +805,20 @@ TEST(OcpCommandTest, TheLinearSolverIsCheckedFirstAndRecorded) {
             "error: --linear-solver: unknown linear solver \"MUMPS\"; use mumps, spral, ma27, "
             "ma57, ma77, ma86, ma97, pardiso or pardisomkl\n");
 
+  // The BLAS under the linear solver, on the one thread asked by default; a negative count is
+  // refused before anything runs.
+  EXPECT_EQ(by_default.json["blas"], blas_description(1));
+  const bflow::testing::Outcome threads =
+      bflow::testing::command_line({"ocp", "--example", "braking-block", "--blas-threads", "-1"});
+  EXPECT_EQ(threads.code, kExitBadInput);
+  EXPECT_EQ(threads.out, "");
+  EXPECT_EQ(threads.err, "error: --blas-threads: -1 must be >= 0 (0: OpenBLAS's own count)\n");
+
   const std::string files = linear_solver_library("ma27", "ocp");
   const std::string first = files.substr(0, files.find(' '));
   const std::string reason = linear_solver_load_error("ma27", first);
   if (reason.empty()) GTEST_SKIP() << first << " is installed here";
-  o.linear_solver = "ma27";
+  o.solver.linear_solver = "ma27";
   r = solve(o);
   EXPECT_EQ(r.code, kExitBadInput);
   EXPECT_TRUE(r.json.is_null());

@@ -4,6 +4,8 @@
 // engine.
 #include "bflow/ocp/ocp.h"
 
+#include <dlfcn.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -663,6 +665,56 @@ TEST(OcpLinearAlgebra, SmallFrontAmalgamationFollowsTheOption) {
   EXPECT_EQ(without, 0);
   EXPECT_NEAR(on.T, TurboCar::kOptimalTime, 1e-8);
   EXPECT_NEAR(off.T, TurboCar::kOptimalTime, 1e-8);
+}
+
+// OpenBLAS, where it is the BLAS under MUMPS, runs on blas_threads threads inside every NLP (1 by
+// default; read after each IPOPT iteration through the library's own openblas_get_num_threads,
+// looked up here in the file blas_info() names) and on its own count again afterwards; the result
+// names the BLAS and the count. Both solves reach T* = 40/3, and -1 is refused before anything
+// runs.
+TEST(OcpLinearAlgebra, OpenBlasRunsOnTheThreadsAskedInsideEachNlp) {
+  const BlasInfo& blas = blas_info();
+  if (!blas.threads_settable) GTEST_SKIP() << "the BLAS under MUMPS is not OpenBLAS: " << blas.file;
+  void* handle = dlopen(blas.file.c_str(), RTLD_LAZY | RTLD_NOLOAD);
+  ASSERT_NE(handle, nullptr) << blas.file << " is not loaded";
+  const auto get = reinterpret_cast<int (*)()>(dlsym(handle, "openblas_get_num_threads"));
+  const auto set = reinterpret_cast<void (*)(int)>(dlsym(handle, "openblas_set_num_threads"));
+  ASSERT_NE(get, nullptr);
+  ASSERT_NE(set, nullptr);
+  const int own = get();
+  set(3);  // a count of the caller's, whatever the machine's cores
+  std::vector<int> inside;
+  OcpOptions o;
+  o.cancelled = [&inside, get]() {
+    inside.push_back(get());
+    return false;
+  };
+  const OcpResult by_default = solve_car(5, o);
+  ASSERT_TRUE(by_default.ok()) << by_default.message;
+  ASSERT_FALSE(inside.empty());
+  EXPECT_EQ(*std::min_element(inside.begin(), inside.end()), 1);
+  EXPECT_EQ(*std::max_element(inside.begin(), inside.end()), 1);
+  EXPECT_EQ(get(), 3);
+  EXPECT_EQ(by_default.blas, blas.version + ", 1 thread (" + blas.file + ")");
+  EXPECT_NEAR(by_default.T, TurboCar::kOptimalTime, 1e-8);
+
+  inside.clear();
+  o.blas_threads = 0;
+  const OcpResult left_alone = solve_car(5, o);
+  ASSERT_TRUE(left_alone.ok()) << left_alone.message;
+  ASSERT_FALSE(inside.empty());
+  EXPECT_EQ(*std::min_element(inside.begin(), inside.end()), 3);
+  EXPECT_EQ(*std::max_element(inside.begin(), inside.end()), 3);
+  EXPECT_EQ(left_alone.blas, blas.version + ", 3 threads (its own count) (" + blas.file + ")");
+  EXPECT_NEAR(left_alone.T, TurboCar::kOptimalTime, 1e-8);
+  set(own);
+
+  o.blas_threads = -1;
+  inside.clear();
+  EXPECT_THAT([&] { solve_car(5, o); },
+              ::testing::ThrowsMessage<InvalidArgument>(::testing::Eq(
+                  std::string("ocp: blas_threads = -1 must be >= 0 (0: OpenBLAS's own count)"))));
+  EXPECT_TRUE(inside.empty());
 }
 
 // The early polish (early_polish_sigma): on the turbo car at N = 5 a polish of an NLP at

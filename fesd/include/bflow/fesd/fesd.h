@@ -154,6 +154,13 @@ struct FesdOptions {
       round-off, the same solutions. MUMPS 5.8 (the default build) amalgamates by itself, and
       this has no effect there. */
   bool mumps_amalgamation = true;
+  /** OpenBLAS's threads while IPOPT solves (bflow::ScopedBlasThreads, linear_solver.h), >= 0:
+      FESD's KKT matrices are too small for BLAS threads (one NLP of the braking block took 1.9
+      instead of 2.8 ms per iteration on 1 thread than on the 2 the default build's OpenBLAS
+      starts on a 2-core machine). 0 leaves OpenBLAS's own count (OPENBLAS_NUM_THREADS, else one
+      per core); no effect on a BLAS other than OpenBLAS. The result's linear_solver names the
+      BLAS and the count. */
+  int blas_threads = 1;
   /** Further IPOPT options, set after bflow's, both once at the start and before every NLP of
       the homotopy (which resets tol, mu_init, warm_start_*, acceptable_* each time), so these
       win (e.g. {"output_file", "ipopt.log"}, {"derivative_test", "second-order"},
@@ -202,6 +209,9 @@ struct FesdResult {
       linear_solver.h). */
   std::string ipopt;
   std::string linear_solver;
+  /** The BLAS under the linear solver and its threads during the NLPs: "OpenBLAS 0.3.28, 1
+      thread (libcasadi-tp-openblas.so.0)" (blas_description, linear_solver.h; blas_threads). */
+  std::string blas;
   /** Integration steps whose homotopy failed and that were replaced by their two halves (at
       most four times in a row); the grid then has more elements than N_sim N_FE. */
   int halved_steps = 0;

@@ -112,6 +112,48 @@ class ScopedMumpsAmalgamation {
   bool previous_;
 };
 
+/** The BLAS that MUMPS's dense kernels call, found once: the library that defines the dgemm_
+    the dynamic linker gives this process (else IPOPT's dependencies), and OpenBLAS's thread
+    control in that same library (openblas_set_num_threads), where it is OpenBLAS. */
+struct BlasInfo {
+  std::string file;               ///< the library defining dgemm_ ("" when none is found)
+  std::string version;            ///< "OpenBLAS 0.3.28" (openblas_get_config), "" for another BLAS
+  bool threads_settable = false;  ///< it is OpenBLAS: ScopedBlasThreads can set its threads
+};
+const BlasInfo& blas_info();
+
+/** OpenBLAS's threads while the object lives (`threads` >= 1), the previous count afterwards;
+    `threads` 0, or a BLAS that is not OpenBLAS, leaves it alone.
+
+    FESD's KKT matrices have fronts of some tens of rows, too small for threads: with the default
+    build's OpenBLAS (the casadi wheel's, which starts one thread per core) on 2 threads MUMPS took
+    0.92 ms per factorisation of the braking block's KKT matrix (step, N = 10, nosnoc's settings),
+    on 1 thread 0.65 ms, and the whole iteration 2.8 against 1.9 ms (docs/ocp.md, "The cost of an
+    iteration"). HomotopySolver opens one around every NLP (IpoptSettings::blas_threads, default
+    1), under ipopt_mutex(): OpenBLAS's count is the process's, so another thread's BLAS calls
+    on the same library during an NLP run on that many threads too. */
+class ScopedBlasThreads {
+ public:
+  explicit ScopedBlasThreads(int threads);
+  ~ScopedBlasThreads();
+  ScopedBlasThreads(const ScopedBlasThreads&) = delete;
+  ScopedBlasThreads& operator=(const ScopedBlasThreads&) = delete;
+
+ private:
+  int previous_ = 0;  // 0: nothing to restore
+};
+
+/** @throws InvalidArgument "<who>: blas_threads = -1 must be >= 0 (0: OpenBLAS's own count)". */
+void check_blas_threads(int threads, const std::string& who);
+
+/** OpenBLAS's thread count now (openblas_get_num_threads), 0 for another BLAS. */
+int blas_threads();
+
+/** The BLAS as a result records it beside the linear solver: "OpenBLAS 0.3.28, 1 thread
+    (libcasadi-tp-openblas.so.0)" for `threads` >= 1, "OpenBLAS 0.3.28, 2 threads (its own
+    count) (...)" for 0, "libblas.so.3" for another BLAS, "" when none is found. */
+std::string blas_description(int threads);
+
 /** The MUMPS analyses of this process that ran with KEEP(197) = 1 set by bflow (always 0 in a
     build without the interposer, mumps_interposed()). */
 long mumps_amalgamated_analyses();

@@ -243,6 +243,8 @@ struct IpoptSettings {
   std::string linear_solver_library;
   /** With MUMPS: its amalgamation of small fronts (ScopedMumpsAmalgamation, linear_solver.h). */
   bool mumps_amalgamation = true;
+  /** OpenBLAS's threads during each NLP (ScopedBlasThreads, linear_solver.h); 0: its own. */
+  int blas_threads = 1;
   std::vector<std::pair<std::string, std::string>> ipopt_string_options;
   std::vector<std::pair<std::string, double>> ipopt_numeric_options;
   std::vector<std::pair<std::string, int>> ipopt_integer_options;
@@ -253,7 +255,8 @@ struct IpoptSettings {
 };
 
 /** IpoptSettings from FesdOptions or OcpOptions (their print_level, exact_hessian,
-    max_nlp_iterations, linear_solver, mumps_amalgamation, ipopt_*_options and cancelled). */
+    max_nlp_iterations, linear_solver, mumps_amalgamation, blas_threads, ipopt_*_options and
+    cancelled). */
 template <typename Options>
 IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
   IpoptSettings s;
@@ -264,6 +267,7 @@ IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
   s.linear_solver = options.linear_solver;
   s.linear_solver_library = options.linear_solver_library;
   s.mumps_amalgamation = options.mumps_amalgamation;
+  s.blas_threads = options.blas_threads;
   s.ipopt_string_options = options.ipopt_string_options;
   s.ipopt_numeric_options = options.ipopt_numeric_options;
   s.ipopt_integer_options = options.ipopt_integer_options;

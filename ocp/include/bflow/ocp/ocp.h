@@ -486,6 +486,7 @@ struct OcpOptions {
       round-off, the same solutions. MUMPS 5.8 (the default build) amalgamates by itself, and
       this has no effect there. */
   bool mumps_amalgamation = true;
+  int blas_threads = 1;  ///< as FesdOptions::blas_threads (OpenBLAS's threads during the NLPs)
   /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
   std::function<void(const OcpHomotopyStep&)> progress;
   /** Polled after every IPOPT iteration (and by the simulated guess before each of its steps);
@@ -559,6 +560,9 @@ struct OcpResult {
       (linear_solver_description, bflow/fesd/linear_solver.h). */
   std::string ipopt;
   std::string linear_solver;
+  /** The BLAS under the linear solver and its threads during the NLPs: "OpenBLAS 0.3.28, 1
+      thread (libcasadi-tp-openblas.so.0)" (blas_description, linear_solver.h; blas_threads). */
+  std::string blas;
   /** The result is the polished solution (active set fixed, every product zero). */
   bool polished = false;
   std::vector<OcpHomotopyStep> homotopy;
