@@ -172,6 +172,52 @@ void element_residual(const ButcherTableau& tab, const ElementShape& l, bool sta
   complementarity_rows(l, standard, v0, z, eq + l.equalities);
 }
 
+// The second derivatives of complementarity_rows: every row is a sum of products of an affine
+// member u (z_u, or 1 - z_u for a flipped pair) and a v (at the start, v0, or at a point), so its
+// Hessian is the constant +1 or -1 (the sign of z_u in u) at each pair of a u and a v it
+// multiplies, and no AD is needed. For the complementarity piece's locals [v0 (npairs), z_1 ..
+// z_P (P nz)] (element_hessian_pieces) it lists every such pair with the row and the sign; a pair
+// of locals appears once per row that multiplies it.
+struct ComplementarityHessian {
+  std::vector<std::pair<int, int>> pairs;  // (u, v) local indices in the piece
+  std::vector<int> rows;                   // the row of complementarity_rows
+  std::vector<double> signs;
+};
+
+inline void complementarity_hessian(const ElementShape& l, bool standard,
+                                    ComplementarityHessian& out) {
+  out.pairs.clear();
+  out.rows.clear();
+  out.signs.clear();
+  const PointDcs& dcs = *l.dcs;
+  const int nz = l.nz, P = l.points, z0 = l.npairs;
+  const auto add = [&](int u, int v, int row, const Pair& pair) {
+    out.pairs.emplace_back(u, v);
+    out.rows.push_back(row);
+    out.signs.push_back((pair.flipped ? -1.0 : 1.0) * (u == v ? 2.0 : 1.0));  // z^2: 2
+  };
+  for (int k = 0; k < l.npairs; ++k) {
+    const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+    const auto u_at = [&](int r) { return z0 + r * nz + pair.u; };
+    const auto v_at = [&](int m) { return m == 0 ? k : z0 + (m - 1) * nz + pair.v; };  // m = 0: v0
+    if (!standard && l.cross == CrossComplementarity::kPointPairs) {
+      for (int m = 0; m <= P; ++m) {
+        for (int r = 0; r < P; ++r) add(u_at(r), v_at(m), k * P * (P + 1) + m * P + r, pair);
+      }
+    } else if (!standard && l.cross == CrossComplementarity::kPointSums) {
+      for (int r = 0; r < P; ++r) {
+        for (int m = 0; m <= P; ++m) add(u_at(r), v_at(m), k * P + r, pair);
+      }
+    } else if (standard) {
+      for (int m = 0; m < P; ++m) add(u_at(m), v_at(m + 1), k, pair);
+    } else {
+      for (int r = 0; r < P; ++r) {
+        for (int m = 0; m <= P; ++m) add(u_at(r), v_at(m), k, pair);
+      }
+    }
+  }
+}
+
 // The local inputs each row of element_residual reads, by construction (whatever the model):
 //   collocation and end rows: x_n, the parameters (u, T), h, the stage values X, x_{n+1} and
 //     the entries of z the field reads at the stage points;
@@ -340,11 +386,17 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
         piece_globals, piece_base, l.neq, alg + m * l.neq,
         [&](const auto* in, auto* out) { dcs.algebraic(in, in + d + nu, out); }, values);
   }
+  // The complementarity rows' second derivatives are constants (complementarity_hessian).
   gather(pieces.back());
-  hessian.add(
-      piece_globals, piece_base, l.comp_rows(), lambda + l.equalities,
-      [&](const auto* in, auto* out) { complementarity_rows(l, standard, in, in + l.npairs, out); },
-      values);
+  thread_local ComplementarityHessian comp;
+  thread_local std::vector<double> terms;
+  complementarity_hessian(l, standard, comp);
+  terms.resize(comp.rows.size());
+  const double* comp_lambda = lambda + l.equalities;
+  for (std::size_t t = 0; t < terms.size(); ++t) {
+    terms[t] = comp.signs[t] * comp_lambda[comp.rows[t]];
+  }
+  hessian.add_constant(piece_globals, comp.pairs, terms, values);
 }
 
 // Step equilibration between elements n - 1 and n ((39) with the indicator of Section 4.4):

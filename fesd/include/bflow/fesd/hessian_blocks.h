@@ -119,6 +119,46 @@ class HessianBlocks {
     }
   }
 
+  // Adds constant second derivatives: terms[t] at the pair of locals pairs[t] = (a, b) of
+  // `globals` (the Hessian's entry itself: the mixed derivative for a != b, the diagonal one for
+  // a == b; a pair with a constant, -1, is left out). For functions whose second derivatives are
+  // known without AD, such as products of two affine members (the complementarity rows), which
+  // HessianJet would take in passes over every pair of their unknowns. Plans as add: the same
+  // call of the next evaluation reuses the positions.
+  void add_constant(const std::vector<int>& globals, const std::vector<std::pair<int, int>>& pairs,
+                    const std::vector<double>& terms, double* values) {
+    if (!index_ready_) build_index();
+    Plan* plan = nullptr;
+    bool fresh = true;
+    if (planning_) {
+      if (call_ >= plans_.size()) plans_.resize(call_ + 1);
+      plan = &plans_[call_++];
+      fresh = plan->globals != globals || plan->positions.size() != pairs.size();
+      if (fresh) {
+        plan->globals = globals;
+        plan->deps.clear();
+        plan->positions.clear();
+      }
+    }
+    for (std::size_t t = 0; t < pairs.size(); ++t) {
+      const int ga = globals[static_cast<std::size_t>(pairs[t].first)];
+      const int gb = globals[static_cast<std::size_t>(pairs[t].second)];
+      long at = -1;
+      if (plan != nullptr && !fresh) {
+        at = plan->positions[t];
+      } else if (ga >= 0 && gb >= 0) {
+        at = find(std::max(ga, gb), std::min(ga, gb));
+      }
+      if (plan != nullptr && fresh) plan->positions.push_back(at);
+      if (terms[t] == 0.0 || ga < 0 || gb < 0) continue;
+      if (at < 0) {
+        ++missed_;
+      } else {
+        values[at] += terms[t];
+      }
+    }
+  }
+
  private:
   // A call's plan: its globals, lane order and, pass after pass, the position of every pair of
   // lanes it adds (-1: not registered).
