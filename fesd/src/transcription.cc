@@ -845,7 +845,8 @@ class Transcription::Nlp final : public HomotopyNlp {
 
   // The Jacobian's and the Hessian's structure: each element row's inputs and each Hessian
   // piece's pairs as probed (sparsity.h), or with `full` every candidate (what each row reads,
-  // every pair of a piece's unknowns); objective terms likewise; path and terminal constraints
+  // every pair of a field or algebraic piece's unknowns, the complementarity products' pairs);
+  // objective terms likewise; path and terminal constraints
   // keep every pair of their inputs.
   void build_structure(bool full) {
     structure_ready_ = true;
@@ -854,7 +855,7 @@ class Transcription::Nlp final : public HomotopyNlp {
     const auto residual = [&](const JetChunk* in, JetChunk* out) {
       element_residual(tab_, l_, p_.standard, in, out);
     };
-    const std::vector<std::vector<int>> candidates = element_jacobian_pattern(l_);
+    const std::vector<std::vector<int>> candidates = element_jacobian_pattern(l_, p_.standard);
     jac_pattern_ = full ? candidates : probe_jacobian_pattern(l_.local, rpe, candidates, residual);
     jac_left_out_.assign(static_cast<std::size_t>(rpe), {});
     std::vector<char> kept(static_cast<std::size_t>(l_.local));
@@ -931,13 +932,25 @@ class Transcription::Nlp final : public HomotopyNlp {
       }
       hessian_.add_pairs(global_pairs);
     };
+    // Every pair of a field or algebraic piece's unknowns, and of the complementarity piece the
+    // pairs its products multiply (complementarity_hessian: by construction, whatever the
+    // model).
+    ComplementarityHessian comp;
+    complementarity_hessian(l_, p_.standard, comp);
     for (const std::vector<int>& g : element_globals_) {
       if (full) {
-        for (const std::vector<int>& piece : pieces_) {
+        for (std::size_t p = 0; p + 1 < pieces_.size(); ++p) {
           std::vector<int> globals;
-          for (int k : piece) globals.push_back(g[static_cast<std::size_t>(k)]);
+          for (int k : pieces_[p]) globals.push_back(g[static_cast<std::size_t>(k)]);
           hessian_.add_block(globals);
         }
+        global_pairs.clear();
+        for (const auto& [a, b] : comp.pairs) {
+          global_pairs.emplace_back(
+              g[static_cast<std::size_t>(pieces_.back()[static_cast<std::size_t>(a)])],
+              g[static_cast<std::size_t>(pieces_.back()[static_cast<std::size_t>(b)])]);
+        }
+        hessian_.add_pairs(global_pairs);
       } else {
         register_pairs(element_pairs, g);
       }

@@ -182,7 +182,7 @@ TEST(PointPairComplementarity, RowsSumToTheAggregatedProductsAndThePatternHoldsT
                          [&](const JetChunk* in, JetChunk* out) {
                            fesd::element_residual(tab, pairs, false, in, out);
                          });
-    const std::vector<std::vector<int>> pattern = fesd::element_jacobian_pattern(pairs);
+    const std::vector<std::vector<int>> pattern = fesd::element_jacobian_pattern(pairs, false);
     int listed = 0;
     for (int r = pairs.equalities; r < pairs.rows_per_element(); ++r) {
       const std::vector<int>& row = pattern[static_cast<std::size_t>(r)];
@@ -245,7 +245,7 @@ TEST(PointSumComplementarity, RowsSumToTheAggregatedProductsAndThePatternHoldsTh
                          [&](const JetChunk* in, JetChunk* out) {
                            fesd::element_residual(tab, points, false, in, out);
                          });
-    const std::vector<std::vector<int>> pattern = fesd::element_jacobian_pattern(points);
+    const std::vector<std::vector<int>> pattern = fesd::element_jacobian_pattern(points, false);
     for (int r = points.equalities; r < points.rows_per_element(); ++r) {
       const std::vector<int>& row = pattern[static_cast<std::size_t>(r)];
       EXPECT_EQ(row.size(), static_cast<std::size_t>(P + 2));

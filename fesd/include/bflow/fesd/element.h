@@ -222,9 +222,10 @@ inline void complementarity_hessian(const ElementShape& l, bool standard,
 //   collocation and end rows: x_n, the parameters (u, T), h, the stage values X, x_{n+1} and
 //     the entries of z the field reads at the stage points;
 //   algebraic rows of point m: X_m (x_{n+1} at Gauss-Legendre's end point), u and z_m;
-//   complementarity rows: the v of every pair at the start, and z of every point.
+//   complementarity rows: their pairs' members (u and v at the points, v at the start).
 // Everything else in a row's Jacobian is exactly zero, so a sparse Jacobian lists only these.
-inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape& l) {
+inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape& l,
+                                                              bool standard) {
   const int d = l.d, own = l.own(), u0 = d + l.npairs;
   const auto range = [](std::vector<int>& v, int first, int count) {
     for (int k = 0; k < count; ++k) v.push_back(first + k);
@@ -247,7 +248,7 @@ inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape
       rows[static_cast<std::size_t>(l.s * d + d + m * l.neq + r)] = alg;
     }
   }
-  if (l.cross == CrossComplementarity::kPointPairs) {
+  if (!standard && l.cross == CrossComplementarity::kPointPairs) {
     // Each row reads one v (at the start or a point) and one u.
     const int P = l.points, z0 = own + l.off_z;
     for (int k = 0; k < l.npairs; ++k) {
@@ -262,7 +263,7 @@ inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape
     }
     return rows;
   }
-  if (l.cross == CrossComplementarity::kPointSums) {
+  if (!standard && l.cross == CrossComplementarity::kPointSums) {
     // Row k P + r reads every v of pair k (the start and the points) and u at point r.
     const int P = l.points, z0 = own + l.off_z;
     for (int k = 0; k < l.npairs; ++k) {
@@ -277,11 +278,19 @@ inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape
     }
     return rows;
   }
-  std::vector<int> comp;
-  range(comp, d, l.npairs);
-  range(comp, own + l.off_z, l.points * l.nz);
-  for (int r = l.equalities; r < l.rows_per_element(); ++r)
-    rows[static_cast<std::size_t>(r)] = comp;
+  // One row per pair: pair k's u and v at every point, and its v at the start (not read by the
+  // standard rows, whose products are each point's own).
+  const int z0 = own + l.off_z;
+  for (int k = 0; k < l.npairs; ++k) {
+    const Pair& pair = l.dcs->pairs()[static_cast<std::size_t>(k)];
+    std::vector<int> row;
+    if (!standard) row.push_back(d + k);
+    for (int m = 0; m < l.points; ++m) {
+      row.push_back(z0 + m * l.nz + std::min(pair.u, pair.v));
+      row.push_back(z0 + m * l.nz + std::max(pair.u, pair.v));
+    }
+    rows[static_cast<std::size_t>(l.equalities + k)] = std::move(row);
+  }
   return rows;
 }
 

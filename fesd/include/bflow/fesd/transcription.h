@@ -154,9 +154,10 @@ struct TranscriptionSetup {
   /** The Jacobian and Hessian structure IPOPT is given: true, the entries found nonzero at
       random points (sparsity.h), checked at every evaluation, with every candidate declared and
       the NLP solved again on a miss (HomotopyStep::structure_widened); false, every candidate
-      (what each row reads, every pair of a Hessian piece's unknowns). False by default: with
-      Debian's MUMPS an iteration costs the same or more with the smaller structure (docs/ocp.md,
-      the KKT experiments). */
+      (what each row reads, every pair of a field or algebraic piece's unknowns, the pairs the
+      complementarity products multiply). False by default: cheaper iterations, but other pivots
+      and with them other homotopy paths, some much longer (docs/ocp.md, "The cost of an
+      iteration on IPOPT 3.14.19 with MUMPS 5.8.2"). */
   bool probe_sparsity = false;
   /** Tests only: the Hessian handed to IPOPT is multiplied by this. */
   double exact_hessian_scale = 1.0;
