@@ -1,7 +1,8 @@
 // The exact Hessian of one FESD element's Lagrangian sum_r lambda_r residual_r, assembled by
 // pieces (element.h, hessian_blocks.h, HessianJet), against central differences of its exact
 // gradient (Jet chunks: lambda^T of the residual's Jacobian), for every formulation, both
-// collocation schemes, cross and standard complementarity, with a control and time scaling.
+// collocation schemes, cross and standard complementarity, with a control and time scaling; on
+// the structure the transcription declares, which also holds the Jacobian's nonzeros.
 #include <algorithm>
 #include <cmath>
 #include <random>
@@ -91,12 +92,23 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
 
   std::vector<int> globals(static_cast<std::size_t>(n));
   for (int k = 0; k < n; ++k) globals[static_cast<std::size_t>(k)] = k;
+  // The structure the transcription declares (by construction): every pair of the field and
+  // algebraic pieces, and of the complementarity piece the pairs its products multiply.
   const std::vector<std::vector<int>> pieces = fesd::element_hessian_pieces(l);
   fesd::HessianBlocks blocks;
-  for (const std::vector<int>& piece : pieces) blocks.add_block(piece);
+  for (std::size_t p = 0; p + 1 < pieces.size(); ++p) blocks.add_block(pieces[p]);
+  fesd::ComplementarityHessian comp;
+  fesd::complementarity_hessian(l, c.standard, comp);
+  std::vector<std::pair<int, int>> comp_pairs;
+  for (const auto& [a, b] : comp.pairs) {
+    comp_pairs.emplace_back(pieces.back()[static_cast<std::size_t>(a)],
+                            pieces.back()[static_cast<std::size_t>(b)]);
+  }
+  blocks.add_pairs(comp_pairs);
   std::vector<double> values(blocks.size(), 0.0);
   fesd::add_element_hessian(tab, l, c.standard, pieces, globals, local, lambda.data(), blocks,
                             values.data());
+  EXPECT_EQ(blocks.missed(), 0) << c.name();
   Eigen::MatrixXd exact = Eigen::MatrixXd::Zero(n, n);
   for (std::size_t k = 0; k < blocks.size(); ++k) {
     exact(blocks.rows()[k], blocks.cols()[k]) = values[k];
@@ -110,6 +122,23 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
   EXPECT_LT(worst, 1e-9 * scale) << c.name();
   // Not vacuous: the Hessian has second derivatives in x, in a (or theta) and across.
   EXPECT_GT(exact.cwiseAbs().maxCoeff(), 0.1) << c.name();
+  // The Jacobian pattern (element_jacobian_pattern) holds every nonzero of the dense Jacobian,
+  // and leaves some out of every row kind (not every row against every input).
+  Eigen::MatrixXd jac;
+  fesd::dense_jacobian(local, l.rows_per_element(), jac, [&](const JetChunk* in, JetChunk* out) {
+    fesd::element_residual(tab, l, c.standard, in, out);
+  });
+  const std::vector<std::vector<int>> pattern = fesd::element_jacobian_pattern(l, c.standard);
+  int unlisted_nonzeros = 0;
+  for (int r = 0; r < l.rows_per_element(); ++r) {
+    const std::vector<int>& row = pattern[static_cast<std::size_t>(r)];
+    EXPECT_LT(row.size(), static_cast<std::size_t>(n)) << c.name() << " row " << r;
+    for (int col = 0; col < n; ++col) {
+      if (jac(r, col) != 0.0 && std::find(row.begin(), row.end(), col) == row.end())
+        ++unlisted_nonzeros;
+    }
+  }
+  EXPECT_EQ(unlisted_nonzeros, 0) << c.name();
   std::printf("%s: %d unknowns, %zu Hessian entries, largest difference %.2e (scale %.2f)\n",
               c.name().c_str(), n, blocks.size(), worst, scale);
 }
