@@ -54,9 +54,12 @@ struct IpoptFlags {
   bool empty() const { return strings.empty() && numbers.empty() && integers.empty(); }
 
   void apply_to(bflow::OcpOptions& o) const {
-    o.ipopt_string_options.insert(o.ipopt_string_options.end(), strings.begin(), strings.end());
-    o.ipopt_numeric_options.insert(o.ipopt_numeric_options.end(), numbers.begin(), numbers.end());
-    o.ipopt_integer_options.insert(o.ipopt_integer_options.end(), integers.begin(), integers.end());
+    o.solver.ipopt_string_options.insert(o.solver.ipopt_string_options.end(), strings.begin(),
+                                         strings.end());
+    o.solver.ipopt_numeric_options.insert(o.solver.ipopt_numeric_options.end(), numbers.begin(),
+                                          numbers.end());
+    o.solver.ipopt_integer_options.insert(o.solver.ipopt_integer_options.end(), integers.begin(),
+                                          integers.end());
   }
 
   // "name=value, ..." for a benchmark's context.
@@ -191,9 +194,9 @@ class IpoptLog {
 
   // Put before the command-line flags, so that those still win.
   void apply_to(bflow::OcpOptions& o) const {
-    o.ipopt_string_options.emplace_back("output_file", path_);
-    o.ipopt_integer_options.emplace_back("file_print_level", 6);
-    o.ipopt_string_options.emplace_back("print_timing_statistics", "yes");
+    o.solver.ipopt_string_options.emplace_back("output_file", path_);
+    o.solver.ipopt_integer_options.emplace_back("file_print_level", 6);
+    o.solver.ipopt_string_options.emplace_back("print_timing_statistics", "yes");
   }
 
   IpoptCounts read() const {

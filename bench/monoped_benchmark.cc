@@ -106,7 +106,7 @@ void BM_Monoped(benchmark::State& state, bflow::DcsFormulation formulation) {
   const bflow::OcpProblem problem = task.problem(stages);
   bflow::OcpOptions o = task.options(stages, formulation);
   g_ipopt_flags.apply_to(o);
-  o.mumps_amalgamation = g_amalgamation;
+  o.solver.mumps_amalgamation = g_amalgamation;
   o.max_total_iterations = g_budget;
   OcpResult r;
   for (auto _ : state) {
@@ -154,7 +154,7 @@ bool first_nlp(benchmark::State& state, bflow::DcsFormulation formulation, Confi
   const bflow_bench::IpoptLog log;
   log.apply_to(o);
   g_ipopt_flags.apply_to(o);
-  o.mumps_amalgamation = g_amalgamation;
+  o.solver.mumps_amalgamation = g_amalgamation;
   for (auto _ : state) {
     r = bflow::ocp_solve(model, problem, o);
     if (r.homotopy.empty() || r.homotopy.front().iterations == 0) {

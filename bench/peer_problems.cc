@@ -123,13 +123,13 @@ bflow::OcpOptions ocp_options(const Flags& f) {
   if (f.max_nlp_iterations > 0) o.max_nlp_iterations = f.max_nlp_iterations;
   o.neutral_algebraic_guess = f.neutral_guess;
   o.probe_sparsity = f.probe_sparsity;
-  o.mumps_amalgamation = !f.no_mumps_amalgamation;
+  o.solver.mumps_amalgamation = !f.no_mumps_amalgamation;
   return o;
 }
 
 bflow::FesdOptions fesd_options(const Flags& f, int steps) {
   bflow::FesdOptions o;
-  o.mumps_amalgamation = !f.no_mumps_amalgamation;
+  o.solver.mumps_amalgamation = !f.no_mumps_amalgamation;
   o.stages = f.collocation_stages;
   o.elements = f.elements;
   o.steps = steps;
@@ -150,15 +150,15 @@ bflow::FesdOptions fesd_options(const Flags& f, int steps) {
 template <typename Options>
 void add_ipopt_options(Options& o, const bflow_bench::IpoptLog& log,
                        const bflow_bench::IpoptFlags& flags) {
-  o.ipopt_string_options.emplace_back("output_file", log.path());
-  o.ipopt_integer_options.emplace_back("file_print_level", 6);
-  o.ipopt_string_options.emplace_back("print_timing_statistics", "yes");
-  o.ipopt_string_options.insert(o.ipopt_string_options.end(), flags.strings.begin(),
-                                flags.strings.end());
-  o.ipopt_numeric_options.insert(o.ipopt_numeric_options.end(), flags.numbers.begin(),
-                                 flags.numbers.end());
-  o.ipopt_integer_options.insert(o.ipopt_integer_options.end(), flags.integers.begin(),
-                                 flags.integers.end());
+  o.solver.ipopt_string_options.emplace_back("output_file", log.path());
+  o.solver.ipopt_integer_options.emplace_back("file_print_level", 6);
+  o.solver.ipopt_string_options.emplace_back("print_timing_statistics", "yes");
+  o.solver.ipopt_string_options.insert(o.solver.ipopt_string_options.end(), flags.strings.begin(),
+                                       flags.strings.end());
+  o.solver.ipopt_numeric_options.insert(o.solver.ipopt_numeric_options.end(), flags.numbers.begin(),
+                                        flags.numbers.end());
+  o.solver.ipopt_integer_options.insert(o.solver.ipopt_integer_options.end(),
+                                        flags.integers.begin(), flags.integers.end());
 }
 
 // Sums of IPOPT's logs over the solves of a run (a simulation's steps each have their own log);

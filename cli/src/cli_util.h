@@ -167,9 +167,9 @@ std::string apply_solver_options(const SolverCommandOptions& s, Options& o) {
   } catch (const InvalidArgument& e) {
     return e.what();  // unknown, or its library missing
   }
-  o.linear_solver = s.linear_solver;
-  o.linear_solver_library = s.linear_solver_library;
-  o.blas_threads = s.blas_threads;
+  o.solver.linear_solver = s.linear_solver;
+  o.solver.linear_solver_library = s.linear_solver_library;
+  o.solver.blas_threads = s.blas_threads;
   return "";
 }
 

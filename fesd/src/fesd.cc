@@ -391,7 +391,6 @@ void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorX
         format_number(o.sigma_initial) + ", sigma_final = " + format_number(o.sigma_final) +
         ", sigma_factor = " + format_number(o.sigma_factor));
   }
-  check_blas_threads(o.blas_threads, "fesd");
   if (!(o.nlp_tolerance > 0.0) || !std::isfinite(o.nlp_tolerance) || o.max_nlp_iterations < 1) {
     throw InvalidArgument(
         "fesd: need a finite nlp_tolerance > 0 and max_nlp_iterations >= 1, got "
@@ -399,16 +398,7 @@ void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorX
         format_number(o.nlp_tolerance) +
         ", max_nlp_iterations = " + std::to_string(o.max_nlp_iterations));
   }
-  if (o.print_level < 0 || o.print_level > 12) {
-    throw InvalidArgument("fesd: print_level = " + std::to_string(o.print_level) +
-                          " is not one of IPOPT's levels 0..12");
-  }
-  if (!std::isfinite(o.exact_hessian_scale) || (o.exact_hessian_scale != 1.0 && !o.exact_hessian)) {
-    throw InvalidArgument("fesd: exact_hessian_scale = " + format_number(o.exact_hessian_scale) +
-                          (std::isfinite(o.exact_hessian_scale)
-                               ? " scales the exact Hessian, but exact_hessian is off"
-                               : " must be finite"));
-  }
+  check_solver_options(o.solver, o.exact_hessian, "fesd");
 }
 
 // The options that decide the problem's shape.
@@ -583,7 +573,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   result.ipopt = ipopt_description();
   result.linear_solver =
       linear_solver_description(solver.linear_solver(), solver.linear_solver_library());
-  result.blas = blas_description(options.blas_threads);
+  result.blas = blas_description(options.solver.blas_threads);
   Eigen::VectorXd x = x0;
   result.grid.push_back(0.0);
   std::vector<Eigen::VectorXd> states{x};
@@ -622,7 +612,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
     setup.equilibration_weight = 1.0;
     setup.equilibration_fades = false;
     setup.exact_hessian = options.exact_hessian;
-    setup.exact_hessian_scale = options.exact_hessian_scale;
+    setup.exact_hessian_scale = options.solver.exact_hessian_scale;
     Transcription nlp(tab, l, setup, nullptr);
     BFLOW_ASSERT(nlp.constraints() <= size.constraints);
     // Predicted sides: from c(x) where it is clearly nonzero, else the last element's.

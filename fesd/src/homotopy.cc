@@ -27,8 +27,8 @@ struct HomotopySolver::Impl {
   IpoptSession session;
 
   void apply_caller_options() {
-    session.apply(settings.ipopt_string_options, settings.ipopt_numeric_options,
-                  settings.ipopt_integer_options, settings.who);
+    session.apply(settings.solver.ipopt_string_options, settings.solver.ipopt_numeric_options,
+                  settings.solver.ipopt_integer_options, settings.who);
   }
 
   // One NLP at the options set on the session. IPOPT and MUMPS run under the process's lock,
@@ -37,8 +37,9 @@ struct HomotopySolver::Impl {
     apply_caller_options();
     const double start = process_cpu_seconds();
     nlp.set_cancel(settings.cancelled ? &settings.cancelled : nullptr);
-    const ScopedMumpsAmalgamation fronts(settings.mumps_amalgamation && linear_solver == "mumps");
-    const ScopedBlasThreads blas(settings.blas_threads);
+    const ScopedMumpsAmalgamation fronts(settings.solver.mumps_amalgamation &&
+                                         linear_solver == "mumps");
+    const ScopedBlasThreads blas(settings.solver.blas_threads);
     nlp.keep_start();
     nlp.clear_missed();
     IpoptSession::Outcome run = session.optimize(nlp);
@@ -94,15 +95,15 @@ HomotopySolver::HomotopySolver(const IpoptSettings& settings) : impl_(new Impl) 
   impl_->settings = settings;
   // Before IPOPT sees it: a solver missing from its library makes IPOPT return Invalid_Option
   // at the first NLP, or end the process (HSL_MA97).
-  impl_->linear_solver = settings.linear_solver;
-  for (const auto& [name, value] : settings.ipopt_string_options) {
+  impl_->linear_solver = settings.solver.linear_solver;
+  for (const auto& [name, value] : settings.solver.ipopt_string_options) {
     if (name == "linear_solver") impl_->linear_solver = value;
   }
-  check_blas_threads(settings.blas_threads, settings.who);
-  impl_->library =
-      check_linear_solver(impl_->linear_solver, settings.linear_solver_library, settings.who);
-  impl_->session.set_defaults(settings.print_level, settings.exact_hessian, settings.max_iterations,
-                              impl_->linear_solver, impl_->library);
+  check_blas_threads(settings.solver.blas_threads, settings.who);
+  impl_->library = check_linear_solver(impl_->linear_solver, settings.solver.linear_solver_library,
+                                       settings.who);
+  impl_->session.set_defaults(settings.solver.print_level, settings.exact_hessian,
+                              settings.max_iterations, impl_->linear_solver, impl_->library);
   impl_->apply_caller_options();
   impl_->session.initialize(settings.who);
 }

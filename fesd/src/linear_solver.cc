@@ -3,6 +3,7 @@
 #include <dlfcn.h>
 
 #include <atomic>
+#include <cmath>
 #include <mutex>
 #include <sstream>
 #include <string>
@@ -253,6 +254,21 @@ void check_blas_threads(int threads, const std::string& who) {
     throw InvalidArgument(who + ": blas_threads = " + std::to_string(threads) +
                           " must be >= 0 (0: OpenBLAS's own count)");
   }
+}
+
+void check_solver_options(const SolverOptions& s, bool exact_hessian, const std::string& who) {
+  if (s.print_level < 0 || s.print_level > 12) {
+    throw InvalidArgument(who + ": print_level = " + std::to_string(s.print_level) +
+                          " is not one of IPOPT's levels 0..12");
+  }
+  if (!std::isfinite(s.exact_hessian_scale) || (s.exact_hessian_scale != 1.0 && !exact_hessian)) {
+    throw InvalidArgument(who + ": exact_hessian_scale = " + format_number(s.exact_hessian_scale) +
+                          (std::isfinite(s.exact_hessian_scale)
+                               ? " scales the exact Hessian, but exact_hessian is off"
+                               : " must be finite"));
+  }
+  check_blas_threads(s.blas_threads, who);
+  check_linear_solver(s.linear_solver, s.linear_solver_library, who);
 }
 
 int blas_threads() {

@@ -285,12 +285,6 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
         "ocp: tracking at the stage ends weighs by the fixed stage length T / N (time_optimal "
         "is set)");
   }
-  if (!std::isfinite(o.exact_hessian_scale) || (o.exact_hessian_scale != 1.0 && !o.exact_hessian)) {
-    throw InvalidArgument("ocp: exact_hessian_scale = " + number(o.exact_hessian_scale) +
-                          (std::isfinite(o.exact_hessian_scale)
-                               ? " scales the exact Hessian, but exact_hessian is off"
-                               : " must be finite"));
-  }
   if (!std::isfinite(o.sigma_final) || !std::isfinite(o.complementarity_tolerance) ||
       !std::isfinite(o.nlp_tolerance) || !std::isfinite(o.equilibration_weight)) {
     throw InvalidArgument("ocp: sigma_final = " + number(o.sigma_final) +
@@ -298,10 +292,6 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
                           ", nlp_tolerance = " + number(o.nlp_tolerance) +
                           ", equilibration_weight = " + number(o.equilibration_weight) +
                           ": each must be finite");
-  }
-  if (o.print_level < 0 || o.print_level > 12) {
-    throw InvalidArgument("ocp: print_level = " + std::to_string(o.print_level) +
-                          " is not one of IPOPT's levels 0..12");
   }
   // Options that only act on FESD's free element lengths and cross complementarity.
   if (o.standard && o.cross_complementarity != CrossComplementarity::kElementSums) {
@@ -316,8 +306,7 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
                           " weigh the element lengths, which standard time-stepping fixes");
   }
   // Before the simulated guess: HomotopySolver checks it again, for every solver it builds.
-  check_linear_solver(o.linear_solver, o.linear_solver_library, "ocp");
-  check_blas_threads(o.blas_threads, "ocp");
+  check_solver_options(o.solver, o.exact_hessian, "ocp");
 }
 
 // Lower or upper bound k of an optional bound vector.
@@ -699,7 +688,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   setup.step_deviation_weight = options.step_deviation_weight;
   setup.neutral_algebraic_guess = options.neutral_algebraic_guess;
   setup.exact_hessian = options.exact_hessian;
-  setup.exact_hessian_scale = options.exact_hessian_scale;
+  setup.exact_hessian_scale = options.solver.exact_hessian_scale;
   setup.probe_sparsity = options.probe_sparsity;
   const OcpTerms terms(model, problem, options.stages, options.tracking);
 
@@ -722,10 +711,12 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     FesdOptions sim = shape;
     sim.steps = 1;
     sim.newton = true;
-    sim.linear_solver = options.linear_solver;
-    sim.linear_solver_library = options.linear_solver_library;
-    sim.mumps_amalgamation = options.mumps_amalgamation;
-    sim.blas_threads = options.blas_threads;
+    sim.solver = options.solver;
+    sim.solver.print_level = 0;
+    sim.solver.ipopt_string_options.clear();
+    sim.solver.ipopt_numeric_options.clear();
+    sim.solver.ipopt_integer_options.clear();
+    sim.solver.exact_hessian_scale = 1.0;
     sim.cancelled = options.cancelled;
     if (problem.guess_policy) {
       int clamped = 0;
@@ -792,7 +783,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   result.ipopt = ipopt_description();
   result.linear_solver =
       linear_solver_description(solver.linear_solver(), solver.linear_solver_library());
-  result.blas = blas_description(options.blas_threads);
+  result.blas = blas_description(options.solver.blas_threads);
   fesd::HomotopyRules rules = fesd::homotopy_schedule(options);
   rules.warm_start = options.warm_start;
   rules.warm_start_multipliers = options.warm_start_multipliers;

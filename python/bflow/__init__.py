@@ -94,6 +94,20 @@ def _set_option(obj, key: str, value, where: str) -> None:
                          f"({e})".replace("\n", " ")) from None
 
 
+# The options of IPOPT and its linear solver that fesd_simulate and ocp_solve share, kept in
+# their options' `solver` (bflow::SolverOptions).
+_SOLVER_OPTIONS = ("linear_solver", "linear_solver_library", "blas_threads")
+
+
+def _set_any_option(obj, key, value, where):
+    if key in _SOLVER_OPTIONS:
+        solver = obj.solver
+        _set_option(solver, key, value, where)
+        obj.solver = solver
+    else:
+        _set_option(obj, key, value, where)
+
+
 def _count(value, name: str, where: str, lo: int = 1, hi: int = 2 ** 31 - 1) -> int:
     """An integer count (N, steps, threads, ...) in [lo, hi], else a ValueError naming it."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
@@ -554,7 +568,7 @@ def fesd_simulate(model, T: Optional[float] = None, x0=None, *,
     for key, value in options.items():
         if key not in _FESD_OPTIONS:
             raise ValueError(f"unknown option {key!r}; the options are {', '.join(_FESD_OPTIONS)}")
-        _set_option(o, key, value, "fesd_simulate")
+        _set_any_option(o, key, value, "fesd_simulate")
     if progress:
         def report(step):
             print(f"step {step.index + 1}/{step.planned}: t {step.t:.10g} + {step.length:.6g}"
@@ -653,7 +667,7 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
             raise ValueError(f"unknown option {key!r}; the options are {', '.join(_OCP_OPTIONS)}"
                              + (f"; the problem's data: {', '.join(_OCP_PROBLEM)}"
                                 if ocp_model is not None else ""))
-        _set_option(o, key, value, "ocp_solve")
+        _set_any_option(o, key, value, "ocp_solve")
     if contact and o.standard and "cross_complementarity" not in options:
         # The example's settings for FESD's free element lengths and cross complementarity, of
         # no use to standard time-stepping (fixed lengths, products point by point): the same

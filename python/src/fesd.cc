@@ -71,6 +71,15 @@ void bind_fesd(nb::module_& m) {
       },
       "model"_a, "t_end"_a, "x0"_a, "options"_a, nb::call_guard<nb::gil_scoped_release>());
 
+  // The solver options FesdOptions and OcpOptions share (bflow/fesd/solver_options.h).
+  nb::class_<SolverOptions>(m, "SolverOptions")
+      .def(nb::init<>())
+      .def_rw("print_level", &SolverOptions::print_level)
+      .def_rw("linear_solver", &SolverOptions::linear_solver)
+      .def_rw("linear_solver_library", &SolverOptions::linear_solver_library)
+      .def_rw("mumps_amalgamation", &SolverOptions::mumps_amalgamation)
+      .def_rw("blas_threads", &SolverOptions::blas_threads);
+
   nb::class_<FesdOptions>(m, "FesdOptions")
       .def(nb::init<>())
       .def_prop_rw(
@@ -92,9 +101,7 @@ void bind_fesd(nb::module_& m) {
       .def_rw("max_nlp_iterations", &FesdOptions::max_nlp_iterations)
       .def_rw("newton", &FesdOptions::newton)
       .def_rw("sensitivities", &FesdOptions::sensitivities)
-      .def_rw("linear_solver", &FesdOptions::linear_solver)
-      .def_rw("linear_solver_library", &FesdOptions::linear_solver_library)
-      .def_rw("blas_threads", &FesdOptions::blas_threads)
+      .def_rw("solver", &FesdOptions::solver)
       .def_rw("progress", &FesdOptions::progress);
 
   nb::class_<FesdStepReport>(m, "FesdStepReport", "One integration step taken by fesd_simulate.")

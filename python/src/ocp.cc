@@ -67,9 +67,7 @@ void bind_ocp(nb::module_& m) {
       .def_rw("max_total_iterations", &OcpOptions::max_total_iterations)
       .def_rw("exact_hessian", &OcpOptions::exact_hessian)
       .def_rw("lifting_depth", &OcpOptions::lifting_depth)
-      .def_rw("linear_solver", &OcpOptions::linear_solver)
-      .def_rw("linear_solver_library", &OcpOptions::linear_solver_library)
-      .def_rw("blas_threads", &OcpOptions::blas_threads)
+      .def_rw("solver", &OcpOptions::solver)
       .def_prop_rw(
           "cross_complementarity",
           [](const OcpOptions& o) { return std::string(to_string(o.cross_complementarity)); },

@@ -125,7 +125,7 @@ TEST(FesdFormulationTest, ExactHessiansPassIpoptsCheckerAndReachTheSolution) {
   const auto check = [](const StepModel& model, const Eigen::VectorXd& start,
                         DcsFormulation formulation, int depth, double hessian_scale = 1.0) {
     FesdOptions o;
-    o.exact_hessian_scale = hessian_scale;
+    o.solver.exact_hessian_scale = hessian_scale;
     o.formulation = formulation;
     o.lifting_depth = depth;
     o.exact_hessian = true;
@@ -133,8 +133,8 @@ TEST(FesdFormulationTest, ExactHessiansPassIpoptsCheckerAndReachTheSolution) {
     o.steps = 1;
     o.sensitivities = false;
     o.sigma_initial = o.sigma_final = 0.1;  // one NLP, checked at its starting point
-    o.print_level = 5;                      // the checker reports on IPOPT's console output
-    o.ipopt_string_options = {{"derivative_test", "second-order"}};
+    o.solver.print_level = 5;               // the checker reports on IPOPT's console output
+    o.solver.ipopt_string_options = {{"derivative_test", "second-order"}};
     ::testing::internal::CaptureStdout();
     fesd_simulate(model, start, 0.25, o);
     const std::string text = ::testing::internal::GetCapturedStdout();

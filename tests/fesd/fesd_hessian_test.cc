@@ -90,13 +90,13 @@ Checked check(const StepModel& model, const Eigen::VectorXd& x0, double t_end, i
   o.formulation = formulation;
   o.lifting_depth = depth;
   o.exact_hessian = true;
-  o.exact_hessian_scale = scale;
+  o.solver.exact_hessian_scale = scale;
   o.newton = false;
   o.steps = 1;
   o.sensitivities = false;
   o.sigma_initial = o.sigma_final = 0.1;  // one NLP, checked at its starting point
-  o.print_level = 5;                      // the checker reports on IPOPT's console output
-  o.ipopt_string_options = {{"derivative_test", "second-order"}};
+  o.solver.print_level = 5;               // the checker reports on IPOPT's console output
+  o.solver.ipopt_string_options = {{"derivative_test", "second-order"}};
   ::testing::internal::CaptureStdout();
   Checked c;
   c.result = fesd_simulate(model, x0, t_end, o);

@@ -88,12 +88,12 @@ TEST(FesdInput, NonFiniteOrContradictoryOptionsAreRefused) {
   EXPECT_THAT(testing::message_of([&] { fesd_simulate(model, x0, 1.0, o); }),
               HasSubstr("nlp_tolerance = nan"));
   o = {};
-  o.exact_hessian_scale = 2.0;  // scales a Hessian that is not computed
+  o.solver.exact_hessian_scale = 2.0;  // scales a Hessian that is not computed
   EXPECT_THAT(
       testing::message_of([&] { fesd_simulate(model, x0, 1.0, o); }),
       HasSubstr("exact_hessian_scale = 2 scales the exact Hessian, but exact_hessian is off"));
   o = {};
-  o.print_level = 13;
+  o.solver.print_level = 13;
   EXPECT_THAT(testing::message_of([&] { fesd_simulate(model, x0, 1.0, o); }),
               HasSubstr("print_level = 13"));
 }

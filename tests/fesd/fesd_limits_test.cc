@@ -177,7 +177,7 @@ TEST(FesdLimitsTest, OptionsWithoutASizeAreNamed) {
 TEST(FesdLimitsTest, AFailedStepEndsWithOneMessageAndIpoptIsSilent) {
   FesdOptions o;
   o.newton = false;
-  o.ipopt_integer_options = {{"max_iter", 1}};
+  o.solver.ipopt_integer_options = {{"max_iter", 1}};
   const auto exact = examples::exact_switching_case("crossing");
   ::testing::internal::CaptureStdout();
   ::testing::internal::CaptureStderr();

@@ -143,11 +143,11 @@ TEST(FesdTest, AcceptableLevelSolvesAreFlagged) {
   EXPECT_EQ(normal.acceptable_only_steps, 0);
   EXPECT_LE(normal.max_complementarity, o.sigma_final);  // the relaxation; measured 7.2e-13
 
-  o.ipopt_numeric_options = {{"acceptable_tol", 1e10},
-                             {"acceptable_constr_viol_tol", 1e10},
-                             {"acceptable_dual_inf_tol", 1e10},
-                             {"acceptable_compl_inf_tol", 1e10}};
-  o.ipopt_integer_options = {{"acceptable_iter", 1}};
+  o.solver.ipopt_numeric_options = {{"acceptable_tol", 1e10},
+                                    {"acceptable_constr_viol_tol", 1e10},
+                                    {"acceptable_dual_inf_tol", 1e10},
+                                    {"acceptable_compl_inf_tol", 1e10}};
+  o.solver.ipopt_integer_options = {{"acceptable_iter", 1}};
   const FesdResult loose = fesd_simulate(model, x0, 1.0, o);
   EXPECT_TRUE(loose.acceptable_only);
   EXPECT_EQ(loose.acceptable_only_steps, 2);
@@ -162,7 +162,7 @@ TEST(FesdTest, AcceptableLevelSolvesAreFlagged) {
   EXPECT_FALSE(newton.acceptable_only);
 
   using bflow::testing::message_of;
-  o.ipopt_numeric_options = {{"no_such_option", 1.0}};
+  o.solver.ipopt_numeric_options = {{"no_such_option", 1.0}};
   EXPECT_THAT(message_of([&] { fesd_simulate(model, x0, 1.0, o); }),
               ::testing::HasSubstr("IPOPT does not take the numeric option no_such_option"));
 }

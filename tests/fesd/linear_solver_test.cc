@@ -69,7 +69,7 @@ TEST(LinearSolverTest, UnknownNamesAreRefusedWithTheKnownOnes) {
     EXPECT_FALSE(unavailable) << name << ": an unknown name is not a missing library";
   }
   FesdOptions o;
-  o.linear_solver = "ma28";
+  o.solver.linear_solver = "ma28";
   EXPECT_EQ(testing::message_of([&] { simulate_crossing(o); }),
             "fesd: unknown linear solver \"ma28\"; use mumps, spral, ma27, ma57, ma77, ma86, ma97, "
             "pardiso or pardisomkl");
@@ -118,7 +118,7 @@ TEST(LinearSolverTest, SpralSolvesWhereIpoptHasItAndIsRefusedElsewhere) {
   const auto exact = examples::exact_switching_case("crossing");
   FesdOptions o;
   o.newton = false;
-  o.linear_solver = "spral";
+  o.solver.linear_solver = "spral";
   if (!BFLOW_TEST_HAS_SPRAL) {
     bool unavailable = false;
     const std::string message = testing::message_of([&] {
@@ -221,7 +221,7 @@ TEST(LinearSolverTest, AMissingHslLibraryIsReportedBeforeIpoptRuns) {
     EXPECT_THROW(check_linear_solver(name, "fesd"), LinearSolverUnavailable) << name;
   }
   FesdOptions o;
-  o.linear_solver = "ma97";
+  o.solver.linear_solver = "ma97";
   o.newton = false;
   std::string message;
   try {
@@ -232,8 +232,8 @@ TEST(LinearSolverTest, AMissingHslLibraryIsReportedBeforeIpoptRuns) {
   }
   expect_missing_hsl(message, "fesd", "ma97");
   // The caller's string option wins over linear_solver, and is checked the same way.
-  o.linear_solver = "mumps";
-  o.ipopt_string_options = {{"linear_solver", "ma27"}};
+  o.solver.linear_solver = "mumps";
+  o.solver.ipopt_string_options = {{"linear_solver", "ma27"}};
   EXPECT_THROW(simulate_crossing(o), LinearSolverUnavailable);
 }
 
@@ -256,7 +256,7 @@ TEST(LinearSolverTest, MumpsExplicitlyIsTheDefault) {
   FesdOptions o;
   o.newton = false;
   const FesdResult by_default = simulate_crossing(o);
-  o.linear_solver = "mumps";
+  o.solver.linear_solver = "mumps";
   const FesdResult explicit_mumps = simulate_crossing(o);
   ASSERT_TRUE(by_default.ok()) << by_default.message;
   ASSERT_TRUE(explicit_mumps.ok()) << explicit_mumps.message;
@@ -275,7 +275,7 @@ TEST(LinearSolverTest, InvalidOptionAtTheSolveIsRefusedNotAFailedStep) {
     GTEST_SKIP() << "IPOPT 3.14 loads HSL with RTLD_DEEPBIND, which AddressSanitizer refuses";
   FesdOptions o;
   o.newton = false;
-  o.ipopt_string_options = {{"linear_system_scaling", "mc19"}};
+  o.solver.ipopt_string_options = {{"linear_system_scaling", "mc19"}};
   const std::string message = testing::message_of([&] { simulate_crossing(o); });
   EXPECT_EQ(message,
             "fesd: IPOPT refused its options (Invalid_Option) with linear solver \"mumps\"; "

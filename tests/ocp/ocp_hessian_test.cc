@@ -142,14 +142,14 @@ struct Checked {
 Checked check(const OcpModel& model, const OcpProblem& problem, OcpOptions o, double scale = 1.0,
               double sigma = 0.1, Probe probe = {}) {
   o.exact_hessian = true;
-  o.exact_hessian_scale = scale;
+  o.solver.exact_hessian_scale = scale;
   o.sigma_initial = o.sigma_final = sigma;
   o.polish = false;
-  o.print_level = 5;  // the checker reports on IPOPT's console output
-  o.ipopt_string_options.push_back({"derivative_test", "second-order"});
-  o.ipopt_integer_options.push_back({"max_iter", 0});
-  o.ipopt_numeric_options.push_back({"point_perturbation_radius", probe.radius});
-  o.ipopt_numeric_options.push_back({"derivative_test_perturbation", probe.perturbation});
+  o.solver.print_level = 5;  // the checker reports on IPOPT's console output
+  o.solver.ipopt_string_options.push_back({"derivative_test", "second-order"});
+  o.solver.ipopt_integer_options.push_back({"max_iter", 0});
+  o.solver.ipopt_numeric_options.push_back({"point_perturbation_radius", probe.radius});
+  o.solver.ipopt_numeric_options.push_back({"derivative_test_perturbation", probe.perturbation});
   ::testing::internal::CaptureStdout();
   Checked c;
   c.result = ocp_solve(model, problem, o);

@@ -168,7 +168,7 @@ TEST(OcpInput, ContradictoryOptionsAreRefused) {
   o = {};
   o.stages = 5;
   o.exact_hessian = false;
-  o.exact_hessian_scale = 2.0;
+  o.solver.exact_hessian_scale = 2.0;
   EXPECT_THAT(
       message_of([&] { ocp_solve(model, problem, o); }),
       HasSubstr("exact_hessian_scale = 2 scales the exact Hessian, but exact_hessian is off"));

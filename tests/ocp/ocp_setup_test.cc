@@ -118,7 +118,7 @@ TEST(OcpSetup, AnAcceptableStopIsSolvedOnlyWhenItsKktErrorMeetsTheTolerance) {
   o.acceptable_tolerance = 1e-5;
   o.acceptable_iterations = 3;
   o.polish = false;
-  o.ipopt_numeric_options = {{"dual_inf_tol", 1e-12}};
+  o.solver.ipopt_numeric_options = {{"dual_inf_tol", 1e-12}};
   const OcpResult r = ocp_solve(adapt_ocp(TurboCar{}), TurboCar::problem(), o);
   ASSERT_EQ(r.status, OcpStatus::kSolved) << r.message;
   EXPECT_EQ(r.ipopt_status, "Solved_To_Acceptable_Level");

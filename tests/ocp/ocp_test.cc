@@ -547,9 +547,9 @@ TEST(OcpHessian, IpoptsCheckerFindsNoError) {
   o.stages = 2;
   o.sigma_initial = o.sigma_final = 0.1;
   o.polish = false;
-  o.print_level = 5;  // the checker reports on IPOPT's console output
-  o.ipopt_string_options = {{"derivative_test", "second-order"}};
-  o.ipopt_integer_options = {{"max_iter", 0}};
+  o.solver.print_level = 5;  // the checker reports on IPOPT's console output
+  o.solver.ipopt_string_options = {{"derivative_test", "second-order"}};
+  o.solver.ipopt_integer_options = {{"max_iter", 0}};
   // With the probed structure (probe_sparsity) the declared entries' values are checked; an
   // entry left out that is not zero is the transcription's own check (OcpSparsity below).
   for (const bool probe : {false, true}) {
@@ -655,7 +655,7 @@ TEST(OcpLinearAlgebra, SmallFrontAmalgamationFollowsTheOption) {
   const long before = mumps_amalgamated_analyses();
   const OcpResult on = solve_car(5, o);
   const long with = mumps_amalgamated_analyses() - before;
-  o.mumps_amalgamation = false;
+  o.solver.mumps_amalgamation = false;
   const OcpResult off = solve_car(5, o);
   const long without = mumps_amalgamated_analyses() - before - with;
   ASSERT_TRUE(on.ok()) << on.message;
@@ -699,7 +699,7 @@ TEST(OcpLinearAlgebra, OpenBlasRunsOnTheThreadsAskedInsideEachNlp) {
   EXPECT_NEAR(by_default.T, TurboCar::kOptimalTime, 1e-8);
 
   inside.clear();
-  o.blas_threads = 0;
+  o.solver.blas_threads = 0;
   const OcpResult left_alone = solve_car(5, o);
   ASSERT_TRUE(left_alone.ok()) << left_alone.message;
   ASSERT_FALSE(inside.empty());
@@ -709,7 +709,7 @@ TEST(OcpLinearAlgebra, OpenBlasRunsOnTheThreadsAskedInsideEachNlp) {
   EXPECT_NEAR(left_alone.T, TurboCar::kOptimalTime, 1e-8);
   set(own);
 
-  o.blas_threads = -1;
+  o.solver.blas_threads = -1;
   inside.clear();
   EXPECT_THAT([&] { solve_car(5, o); },
               ::testing::ThrowsMessage<InvalidArgument>(::testing::Eq(
@@ -1169,7 +1169,7 @@ TEST(OcpLinearSolver, MumpsExplicitlyIsTheDefaultAndOthersAreChecked) {
   OcpOptions o;
   o.stages = 4;
   const OcpResult by_default = ocp_solve(adapt_ocp(BrakingBlock{}), p, o);
-  o.linear_solver = "mumps";
+  o.solver.linear_solver = "mumps";
   const OcpResult mumps = ocp_solve(adapt_ocp(BrakingBlock{}), p, o);
   ASSERT_TRUE(by_default.ok()) << by_default.message;
   ASSERT_TRUE(mumps.ok()) << mumps.message;
@@ -1180,7 +1180,7 @@ TEST(OcpLinearSolver, MumpsExplicitlyIsTheDefaultAndOthersAreChecked) {
 
   std::vector<std::string> steps;
   o.progress = [&steps](const OcpHomotopyStep& s) { steps.push_back(s.ipopt_status); };
-  o.linear_solver = "ma-27";
+  o.solver.linear_solver = "ma-27";
   try {
     ocp_solve(adapt_ocp(BrakingBlock{}), p, o);
     ADD_FAILURE() << "ma-27 was taken";
@@ -1194,7 +1194,7 @@ TEST(OcpLinearSolver, MumpsExplicitlyIsTheDefaultAndOthersAreChecked) {
   const std::string files = linear_solver_library("ma27", "ocp");
   const std::string first = files.substr(0, files.find(' '));
   if (!linear_solver_load_error("ma27", first).empty()) {
-    o.linear_solver = "ma27";
+    o.solver.linear_solver = "ma27";
     try {
       ocp_solve(adapt_ocp(BrakingBlock{}), p, o);
       ADD_FAILURE() << "ma27 was taken without " << first;

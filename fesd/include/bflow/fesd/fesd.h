@@ -61,6 +61,7 @@
 #include "bflow/core/filippov.h"
 #include "bflow/fesd/butcher.h"
 #include "bflow/fesd/linear_solver.h"
+#include "bflow/fesd/solver_options.h"
 #include "bflow/fesd/step_model.h"
 
 namespace bflow {
@@ -135,44 +136,8 @@ struct FesdOptions {
       switch inside); the IPOPT homotopy runs only when that prediction fails. */
   bool newton = true;
   bool sensitivities = true;
-  int print_level = 0;  ///< IPOPT's print_level (0 silent)
-  /** IPOPT's linear solver, one of kLinearSolvers (linear_solver.h): "mumps" (linked into
-      IPOPT, MUMPS 5.8.2 with METIS in the default build), "spral" (linked into IPOPT 3.14),
-      HSL's "ma27", "ma57", "ma77", "ma86", "ma97" (from Coin-HSL's library), "pardiso" or
-      "pardisomkl" (where IPOPT has MKL).
-      @throws InvalidArgument (from fesd_simulate) for another name, LinearSolverUnavailable
-      when its library cannot be loaded (docs/ocp.md, "Linear solvers"). */
-  std::string linear_solver = "mumps";
-  /** The library file of an HSL solver or of PARDISO, by name (found as the dynamic loader
-      finds libraries) or path: "" tries libcoinhsl.so, then libhsl.so (libpardiso.so for
-      pardiso). IPOPT 3.14 only (its hsllib and pardisolib); a build on IPOPT 3.11 loads the
-      fixed names and refuses another. */
-  std::string linear_solver_library;
-  /** With a MUMPS before 5.8 (the IPOPT 3.11 fallback build), its amalgamation of small fronts
-      (KEEP(197) = 1, which IPOPT 3.11 cannot set; bflow::ScopedMumpsAmalgamation): about half
-      the cost of an IPOPT iteration on FESD's KKT matrices with Debian's MUMPS 5.5.1; other
-      round-off, the same solutions. MUMPS 5.8 (the default build) amalgamates by itself, and
-      this has no effect there. */
-  bool mumps_amalgamation = true;
-  /** OpenBLAS's threads while IPOPT solves (bflow::ScopedBlasThreads, linear_solver.h), >= 0:
-      FESD's KKT matrices are too small for BLAS threads (one NLP of the braking block took 1.9
-      instead of 2.8 ms per iteration on 1 thread than on the 2 the default build's OpenBLAS
-      starts on a 2-core machine). 0 leaves OpenBLAS's own count (OPENBLAS_NUM_THREADS, else one
-      per core); no effect on a BLAS other than OpenBLAS. The result's linear_solver names the
-      BLAS and the count. */
-  int blas_threads = 1;
-  /** Further IPOPT options, set after bflow's, both once at the start and before every NLP of
-      the homotopy (which resets tol, mu_init, warm_start_*, acceptable_* each time), so these
-      win (e.g. {"output_file", "ipopt.log"}, {"derivative_test", "second-order"},
-      {"acceptable_tol", 1e-2}, {"acceptable_iter", 1}).
-      @throws InvalidArgument (from fesd_simulate) naming an option IPOPT does not take. */
-  std::vector<std::pair<std::string, std::string>> ipopt_string_options;
-  std::vector<std::pair<std::string, double>> ipopt_numeric_options;
-  std::vector<std::pair<std::string, int>> ipopt_integer_options;
-  /** For testing derivative checks only: with exact_hessian, the Hessian handed to IPOPT is
-      multiplied by this (1 in any real use), so a test can show that IPOPT's second-order
-      derivative checker reports a wrong Hessian. */
-  double exact_hessian_scale = 1.0;
+  /** IPOPT and its linear solver, shared with OcpOptions (solver_options.h). */
+  SolverOptions solver;
   /** Polled before every integration step and after every IPOPT iteration; true ends the run
       with FesdStatus::kCancelled and the steps done so far (e.g. a Ctrl-C check). Called on
       the thread that runs fesd_simulate, inside IPOPT's callback under ipopt_mutex()

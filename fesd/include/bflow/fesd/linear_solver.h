@@ -23,6 +23,7 @@
 #include <string>
 
 #include "bflow/core/errors.h"
+#include "bflow/fesd/solver_options.h"
 
 namespace bflow {
 
@@ -145,6 +146,14 @@ class ScopedBlasThreads {
 
 /** @throws InvalidArgument "<who>: blas_threads = -1 must be >= 0 (0: OpenBLAS's own count)". */
 void check_blas_threads(int threads, const std::string& who);
+
+/** Every field of `solver` (solver_options.h), as fesd_simulate and ocp_solve check them before
+    anything runs: the print level (IPOPT's 0..12), exact_hessian_scale (finite, and 1 unless
+    `exact_hessian`), blas_threads (check_blas_threads) and the linear solver with its library
+    (check_linear_solver).
+    @throws InvalidArgument (LinearSolverUnavailable for a solver that cannot be loaded), each
+    message starting "<who>: " and naming the field and the value. */
+void check_solver_options(const SolverOptions& solver, bool exact_hessian, const std::string& who);
 
 /** OpenBLAS's thread count now (openblas_get_num_threads), 0 for another BLAS. */
 int blas_threads();

@@ -38,6 +38,7 @@
 #include "bflow/fesd/butcher.h"
 #include "bflow/fesd/dcs.h"
 #include "bflow/fesd/element.h"
+#include "bflow/fesd/solver_options.h"
 #include "bflow/fesd/step_model.h"
 
 namespace bflow {
@@ -236,42 +237,24 @@ double process_cpu_seconds();
     set after them and before every NLP, so that they win. */
 struct IpoptSettings {
   std::string who = "fesd";  ///< the prefix of error messages
-  int print_level = 0;
+  SolverOptions solver;
   bool exact_hessian = true;
   int max_iterations = 3000;
-  std::string linear_solver = "mumps";  ///< one of kLinearSolvers (linear_solver.h)
-  /** The file of an HSL or PARDISO solver ("": the default names, check_linear_solver). */
-  std::string linear_solver_library;
-  /** With MUMPS: its amalgamation of small fronts (ScopedMumpsAmalgamation, linear_solver.h). */
-  bool mumps_amalgamation = true;
-  /** OpenBLAS's threads during each NLP (ScopedBlasThreads, linear_solver.h); 0: its own. */
-  int blas_threads = 1;
-  std::vector<std::pair<std::string, std::string>> ipopt_string_options;
-  std::vector<std::pair<std::string, double>> ipopt_numeric_options;
-  std::vector<std::pair<std::string, int>> ipopt_integer_options;
   /** Polled after every IPOPT iteration (IPOPT's intermediate callback, under ipopt_mutex):
       true stops the NLP (User_Requested_Stop) and with it the homotopy
       (HomotopyOutcome::cancelled). It must not wait for another thread's IPOPT solve. */
   std::function<bool()> cancelled;
 };
 
-/** IpoptSettings from FesdOptions or OcpOptions (their print_level, exact_hessian,
-    max_nlp_iterations, linear_solver, mumps_amalgamation, blas_threads, ipopt_*_options and
-    cancelled). */
+/** IpoptSettings from FesdOptions or OcpOptions (their solver options, exact_hessian,
+    max_nlp_iterations and cancelled). */
 template <typename Options>
 IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
   IpoptSettings s;
   s.who = who;
-  s.print_level = options.print_level;
+  s.solver = options.solver;
   s.exact_hessian = options.exact_hessian;
   s.max_iterations = options.max_nlp_iterations;
-  s.linear_solver = options.linear_solver;
-  s.linear_solver_library = options.linear_solver_library;
-  s.mumps_amalgamation = options.mumps_amalgamation;
-  s.blas_threads = options.blas_threads;
-  s.ipopt_string_options = options.ipopt_string_options;
-  s.ipopt_numeric_options = options.ipopt_numeric_options;
-  s.ipopt_integer_options = options.ipopt_integer_options;
   s.cancelled = options.cancelled;
   return s;
 }

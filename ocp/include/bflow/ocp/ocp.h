@@ -465,28 +465,9 @@ struct OcpOptions {
       smaller sigma (nosnoc's rule; notes name each), instead of being retried from the last
       solved NLP at sqrt(sigma sigma_last) (bflow's rule, up to 6 times). */
   bool continue_after_failure = false;
-  int print_level = 0;  ///< IPOPT's print_level
-  /** IPOPT's linear solver for every NLP (and for the simulated guess): "mumps" (linked into
-      IPOPT, MUMPS 5.8.2 with METIS in the default build), "spral" (linked into IPOPT 3.14),
-      HSL's "ma27", "ma57", "ma77", "ma86", "ma97" (from Coin-HSL's library), "pardiso"
-      (pardiso-project.org's) or "pardisomkl" (where IPOPT has MKL); kLinearSolvers in
-      bflow/fesd/linear_solver.h. nosnoc's
-      benchmarks use MA27. Checked before anything is computed.
-      @throws InvalidArgument (from ocp_solve) for another name, LinearSolverUnavailable when its
-      library cannot be loaded (docs/ocp.md, "Linear solvers"). */
-  std::string linear_solver = "mumps";
-  /** The library file of an HSL solver or of PARDISO, by name (found as the dynamic loader
-      finds libraries) or path: "" tries libcoinhsl.so, then libhsl.so (libpardiso.so for
-      pardiso). IPOPT 3.14 only (its hsllib and pardisolib); a build on IPOPT 3.11 loads the
-      fixed names and refuses another. */
-  std::string linear_solver_library;
-  /** With a MUMPS before 5.8 (the IPOPT 3.11 fallback build), its amalgamation of small fronts
-      (KEEP(197) = 1, which IPOPT 3.11 cannot set; bflow::ScopedMumpsAmalgamation): about half
-      the cost of an IPOPT iteration on FESD's KKT matrices with Debian's MUMPS 5.5.1; other
-      round-off, the same solutions. MUMPS 5.8 (the default build) amalgamates by itself, and
-      this has no effect there. */
-  bool mumps_amalgamation = true;
-  int blas_threads = 1;  ///< as FesdOptions::blas_threads (OpenBLAS's threads during the NLPs)
+  /** IPOPT and its linear solver for every NLP (and for the simulated guess), shared with
+      FesdOptions (solver_options.h). */
+  SolverOptions solver;
   /** Called after every NLP of the homotopy (e.g. a progress line on stderr). */
   std::function<void(const OcpHomotopyStep&)> progress;
   /** Polled after every IPOPT iteration (and by the simulated guess before each of its steps);
@@ -494,26 +475,15 @@ struct OcpOptions {
       (e.g. a Ctrl-C check). Called on the thread that runs ocp_solve, inside IPOPT's callback
       under ipopt_mutex() (linear_solver.h): it must not wait for another thread's solve. */
   std::function<bool()> cancelled;
-  /** IPOPT options set after bflow's own (mu_strategy adaptive, bound_relax_factor 0 and those
-      of the homotopy; fesd::set_ipopt_defaults), so they win. On large problems MUMPS factorizes
-      20-36 % faster with {"mumps_pivot_order", 0} (AMD) and {"mumps_mem_percent", 200}
-      (docs/ocp.md, the KKT factorisation), at the price of other round-off and with it other
-      homotopy paths (the turbo car at N = 20: 2332 IPOPT iterations against 699). */
-  std::vector<std::pair<std::string, std::string>> ipopt_string_options;
-  std::vector<std::pair<std::string, double>> ipopt_numeric_options;
-  std::vector<std::pair<std::string, int>> ipopt_integer_options;
   /** The Jacobian and Hessian structure handed to IPOPT. false (default): every entry an
       element's rows and Hessian pieces can read, as the transcription lists them; true: only the
       entries found nonzero at random points (fesd/sparsity.h), checked at every evaluation (a
       miss declares every candidate, solves that NLP again, and `notes` says so). The probed
       structure is about nosnoc's size (the braking block at N = 10: 1910 / 606 Jacobian / Hessian
-      nonzeros against 3254 / 2188) but Debian's MUMPS factorises it no faster (docs/ocp.md, the
-      KKT experiments). */
+      nonzeros against 3254 / 1806) and MUMPS 5.8.2 factorises it faster, but the other pivots
+      send some homotopies along much longer paths (docs/ocp.md, "The cost of an iteration on
+      IPOPT 3.14.19 with MUMPS 5.8.2"). */
   bool probe_sparsity = false;
-  /** For testing derivative checks only: with exact_hessian, the Hessian handed to IPOPT is
-      multiplied by this (1 in any real use), so a test can show that IPOPT's second-order
-      derivative checker reports a wrong Hessian. */
-  double exact_hessian_scale = 1.0;
 };
 
 enum class OcpStatus {
