@@ -76,8 +76,16 @@ int run_with_threads(int threads, std::uint64_t samples) {
   return count == samples && sum == samples * (samples - 1) / 2 ? 0 : 1;
 }
 
+// The child of a "threadsafe" death test runs this program again from its start. OpenBLAS (in
+// the process through IPOPT) starts a worker thread per core when it loads, and a worker
+// allocates its buffers when it first runs, which on a loaded machine can come after the child
+// has limited its address space: ASan then aborts the child in that allocation. With one BLAS
+// thread OpenBLAS starts no worker.
+void one_blas_thread_in_children() { setenv("OPENBLAS_NUM_THREADS", "1", 1); }
+
 TEST(SweepPoolDeathTest, AThreadThatCannotStartIsAnErrorNotAnAbort) {
   GTEST_FLAG_SET(death_test_style, "threadsafe");
+  one_blas_thread_in_children();
   EXPECT_EXIT(
       {
         limit_address_space();
@@ -88,6 +96,7 @@ TEST(SweepPoolDeathTest, AThreadThatCannotStartIsAnErrorNotAnAbort) {
 
 TEST(SweepPoolDeathTest, NoMoreWorkersThanSamples) {
   GTEST_FLAG_SET(death_test_style, "threadsafe");
+  one_blas_thread_in_children();
   // Three samples need three workers, which fit; the 597 others are not started.
   EXPECT_EXIT(
       {
