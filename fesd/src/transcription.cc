@@ -804,9 +804,8 @@ class Transcription::Nlp final : public HomotopyNlp {
         for (int r = l_.equalities; r < l_.rows_per_element(); ++r)
           weights[static_cast<std::size_t>(r)] += obj_factor / sigma_;
       }
-      add_element_hessian(tab_, l_, p_.standard, pieces_,
-                          element_globals_[static_cast<std::size_t>(e)], base, weights.data(),
-                          hessian_, values);
+      add_element_hessian(tab_, l_, pieces_, comp_, element_globals_[static_cast<std::size_t>(e)],
+                          base, weights.data(), hessian_, values);
     }
     for (const Term& t : objective_terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
@@ -911,17 +910,17 @@ class Transcription::Nlp final : public HomotopyNlp {
     hessian_.clear();
     if (!p_.exact_hessian) return;
     pieces_ = element_hessian_pieces(l_);
+    complementarity_hessian(l_, p_.standard, comp_);
     std::vector<int> identity(static_cast<std::size_t>(l_.local));
     for (int k = 0; k < l_.local; ++k) identity[static_cast<std::size_t>(k)] = k;
     std::vector<std::pair<int, int>> element_pairs;
     if (!full) {
-      element_pairs =
-          probe_hessian_pattern(l_.local, rpe, pieces_,
-                                [&](HessianBlocks& probe, const std::vector<double>& base,
-                                    const double* weights, double* values) {
-                                  add_element_hessian(tab_, l_, p_.standard, pieces_, identity,
-                                                      base, weights, probe, values);
-                                });
+      element_pairs = probe_hessian_pattern(
+          l_.local, rpe, pieces_,
+          [&](HessianBlocks& probe, const std::vector<double>& base, const double* weights,
+              double* values) {
+            add_element_hessian(tab_, l_, pieces_, comp_, identity, base, weights, probe, values);
+          });
     }
     std::vector<std::pair<int, int>> global_pairs;
     const auto register_pairs = [&](const std::vector<std::pair<int, int>>& pairs,
@@ -935,8 +934,6 @@ class Transcription::Nlp final : public HomotopyNlp {
     // Every pair of a field or algebraic piece's unknowns, and of the complementarity piece the
     // pairs its products multiply (complementarity_hessian: by construction, whatever the
     // model).
-    ComplementarityHessian comp;
-    complementarity_hessian(l_, p_.standard, comp);
     for (const std::vector<int>& g : element_globals_) {
       if (full) {
         for (std::size_t p = 0; p + 1 < pieces_.size(); ++p) {
@@ -945,7 +942,7 @@ class Transcription::Nlp final : public HomotopyNlp {
           hessian_.add_block(globals);
         }
         global_pairs.clear();
-        for (const auto& [a, b] : comp.pairs) {
+        for (const auto& [a, b] : comp_.pairs) {
           global_pairs.emplace_back(
               g[static_cast<std::size_t>(pieces_.back()[static_cast<std::size_t>(a)])],
               g[static_cast<std::size_t>(pieces_.back()[static_cast<std::size_t>(b)])]);
@@ -1065,6 +1062,7 @@ class Transcription::Nlp final : public HomotopyNlp {
   std::vector<int> jac_rows_, jac_cols_;
   HessianBlocks hessian_;
   std::vector<std::vector<int>> pieces_;        // an element's Hessian pieces (local indices)
+  ComplementarityHessian comp_;                 // its complementarity piece's constant pairs
   std::vector<std::vector<int>> jac_pattern_;   // per element row: the local inputs it reads
   std::vector<std::vector<int>> jac_left_out_;  // per element row: candidates not declared
   bool structure_ready_ = false, full_structure_ = false, jac_missed_ = false;

@@ -106,7 +106,7 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
   }
   blocks.add_pairs(comp_pairs);
   std::vector<double> values(blocks.size(), 0.0);
-  fesd::add_element_hessian(tab, l, c.standard, pieces, globals, local, lambda.data(), blocks,
+  fesd::add_element_hessian(tab, l, pieces, comp, globals, local, lambda.data(), blocks,
                             values.data());
   EXPECT_EQ(blocks.missed(), 0) << c.name();
   Eigen::MatrixXd exact = Eigen::MatrixXd::Zero(n, n);

@@ -336,12 +336,14 @@ inline std::vector<std::vector<int>> element_hessian_pieces(const ElementShape& 
 }
 
 // Adds the Hessian of the element's Lagrangian sum_r lambda[r] residual_r at its local values
-// `local` (globals: the unknown of each local entry, -1 for a constant) to `values`.
+// `local` (globals: the unknown of each local entry, -1 for a constant) to `values`. `pieces` and
+// `comp` are the element's element_hessian_pieces and complementarity_hessian, found once.
 template <typename Blocks>
-void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool standard,
+void add_element_hessian(const ButcherTableau& tab, const ElementShape& l,
                          const std::vector<std::vector<int>>& pieces,
-                         const std::vector<int>& globals, const std::vector<double>& local,
-                         const double* lambda, Blocks& hessian, double* values) {
+                         const ComplementarityHessian& comp, const std::vector<int>& globals,
+                         const std::vector<double>& local, const double* lambda, Blocks& hessian,
+                         double* values) {
   const PointDcs& dcs = *l.dcs;
   const int d = l.d, nu = l.nu;
   // Scratch kept per thread: this runs for every element of every Hessian evaluation.
@@ -397,9 +399,7 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l, bool 
   }
   // The complementarity rows' second derivatives are constants (complementarity_hessian).
   gather(pieces.back());
-  thread_local ComplementarityHessian comp;
   thread_local std::vector<double> terms;
-  complementarity_hessian(l, standard, comp);
   terms.resize(comp.rows.size());
   const double* comp_lambda = lambda + l.equalities;
   for (std::size_t t = 0; t < terms.size(); ++t) {

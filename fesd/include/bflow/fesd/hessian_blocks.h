@@ -83,17 +83,12 @@ class HessianBlocks {
   void add(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
            const double* weights, Eval eval, double* values) {
     if (!index_ready_) build_index();
-    Plan* plan = nullptr;
-    bool fresh = true;
-    if (planning_) {
-      if (call_ >= plans_.size()) plans_.resize(call_ + 1);
-      plan = &plans_[call_++];
-      fresh = plan->globals != globals;
-      if (fresh) {
-        plan->globals = globals;
-        plan->deps = lane_order(globals, base, outputs, weights, eval);
-        plan->positions.clear();
-      }
+    Plan* plan = next_plan();
+    const bool fresh = plan == nullptr || plan->globals != globals;
+    if (plan != nullptr && fresh) {
+      plan->globals = globals;
+      plan->deps = lane_order(globals, base, outputs, weights, eval);
+      plan->positions.clear();
     }
     const std::vector<int>& deps =
         plan != nullptr ? plan->deps : lane_order(globals, base, outputs, weights, eval);
@@ -128,17 +123,13 @@ class HessianBlocks {
   void add_constant(const std::vector<int>& globals, const std::vector<std::pair<int, int>>& pairs,
                     const std::vector<double>& terms, double* values) {
     if (!index_ready_) build_index();
-    Plan* plan = nullptr;
-    bool fresh = true;
-    if (planning_) {
-      if (call_ >= plans_.size()) plans_.resize(call_ + 1);
-      plan = &plans_[call_++];
-      fresh = plan->globals != globals || plan->positions.size() != pairs.size();
-      if (fresh) {
-        plan->globals = globals;
-        plan->deps.clear();
-        plan->positions.clear();
-      }
+    Plan* plan = next_plan();
+    const bool fresh =
+        plan == nullptr || plan->globals != globals || plan->positions.size() != pairs.size();
+    if (plan != nullptr && fresh) {
+      plan->globals = globals;
+      plan->deps.clear();
+      plan->positions.clear();
     }
     for (std::size_t t = 0; t < pairs.size(); ++t) {
       const int ga = globals[static_cast<std::size_t>(pairs[t].first)];
@@ -167,6 +158,13 @@ class HessianBlocks {
     std::vector<int> deps;
     std::vector<long> positions;
   };
+  // The plan of the next call in this evaluation's sequence; null outside begin_evaluation()
+  // and end_evaluation().
+  Plan* next_plan() {
+    if (!planning_) return nullptr;
+    if (call_ >= plans_.size()) plans_.resize(call_ + 1);
+    return &plans_[call_++];
+  }
   // Where a call's passes read (fresh: write) their positions.
   struct Positions {
     std::vector<long>* list;  // null: no plan, every position searched
