@@ -30,9 +30,9 @@
 // IPOPT options for every row: --ipopt-int=name=value, --ipopt-num=..., --ipopt-str=...
 // (repeatable; bench/ipopt_flags.h); the context records them and the BLAS and LAPACK loaded.
 // --budget=K bounds each BM_Monoped row's homotopy to K IPOPT iterations in all
-// (OcpOptions::max_total_iterations; counter "budget"). --no-mumps-amalgamation solves every row
-// with MUMPS as it comes (OcpOptions::mumps_amalgamation false; the context says which). A row's
-// label is its status (and message) and, after " | ", its homotopy: "sigma objective
+// (OcpHomotopyOptions::max_total_iterations; counter "budget"). --no-mumps-amalgamation solves
+// every row with MUMPS as it comes (OcpOptions::mumps_amalgamation false; the context says which).
+// A row's label is its status (and message) and, after " | ", its homotopy: "sigma objective
 // complementarity iterations status" per NLP, "; " between them.
 //
 //   build-bench/bench/monoped_benchmark   (scripts/bench --monoped stores the JSON and draws
@@ -52,7 +52,7 @@
 namespace {
 
 bflow_bench::IpoptFlags g_ipopt_flags;  // from the command line, for every row
-int g_budget = 0;            // --budget=K: OcpOptions::max_total_iterations of every BM_Monoped row
+int g_budget = 0;  // --budget=K: OcpHomotopyOptions::max_total_iterations of every BM_Monoped row
 bool g_amalgamation = true;  // false with --no-mumps-amalgamation
 
 // Takes --budget=K out of argv (before benchmark::Initialize).
@@ -107,7 +107,7 @@ void BM_Monoped(benchmark::State& state, bflow::DcsFormulation formulation) {
   bflow::OcpOptions o = task.options(stages, formulation);
   g_ipopt_flags.apply_to(o);
   o.solver.mumps_amalgamation = g_amalgamation;
-  o.max_total_iterations = g_budget;
+  o.homotopy.max_total_iterations = g_budget;
   OcpResult r;
   for (auto _ : state) {
     r = bflow::ocp_solve(model, problem, o);
@@ -148,8 +148,8 @@ bool first_nlp(benchmark::State& state, bflow::DcsFormulation formulation, Confi
   const int stages = static_cast<int>(state.range(0));
   const bflow::OcpProblem problem = task.problem(stages);
   bflow::OcpOptions o = task.options(stages, formulation);
-  o.sigma_final = o.sigma_initial;  // one NLP
-  o.polish = false;
+  o.homotopy.sigma_final = o.homotopy.sigma_initial;  // one NLP
+  o.homotopy.polish = false;
   configure(o);
   const bflow_bench::IpoptLog log;
   log.apply_to(o);
@@ -177,8 +177,8 @@ template <bflow::TimeFreezingRegions kRegions>
 void BM_MonopedIteration(benchmark::State& state, bflow::DcsFormulation formulation) {
   OcpResult r;
   if (!first_nlp<kRegions>(
-          state, formulation, [](bflow::OcpOptions& o) { o.max_nlp_iterations = kIterations; },
-          r)) {
+          state, formulation,
+          [](bflow::OcpOptions& o) { o.homotopy.max_nlp_iterations = kIterations; }, r)) {
     return;
   }
   state.counters["constraints"] = r.constraints;
@@ -193,7 +193,8 @@ void BM_MonopedFirstNlp(benchmark::State& state, bflow::DcsFormulation formulati
   OcpResult r;
   if (!first_nlp<kRegions>(
           state, formulation,
-          [](bflow::OcpOptions& o) { o.nlp_tolerance = 1e-2 * o.sigma_initial; }, r)) {
+          [](bflow::OcpOptions& o) { o.homotopy.nlp_tolerance = 1e-2 * o.homotopy.sigma_initial; },
+          r)) {
     return;
   }
   const bflow::OcpHomotopyStep& nlp = r.homotopy.front();

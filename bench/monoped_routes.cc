@@ -10,7 +10,7 @@
 //   monoped_routes --simulate FILE.json [--hop-gain 1] [--lbfgs] [--formulation stewart]
 //
 // --polish-from X turns the polish on (the setup has it off) from the first NLP at sigma <= X
-// (OcpOptions::early_polish_sigma); its iterations count against the budget too.
+// (OcpHomotopyOptions::early_polish_sigma); its iterations count against the budget too.
 // --guess gait starts from a kinematic two-hop gait (GaitGuess below) in place of x0 everywhere;
 // --sides-guess sets the algebraic variables at the sides of the guessed states instead of the
 // setup's neutral ones.
@@ -228,14 +228,14 @@ int main(int argc, char** argv) {
   const bflow::DcsFormulation form = bflow::parse_dcs_formulation(formulation);
   bflow::OcpOptions o = task.options(stages, form);
   bflow::OcpProblem p = task.problem(stages);
-  o.max_total_iterations = budget;
-  o.relaxation = relaxation == "elastic" ? bflow::OcpRelaxation::kElastic
-                 : relaxation == "l1"    ? bflow::OcpRelaxation::kL1Penalty
-                                         : bflow::OcpRelaxation::kScholtes;
-  if (sigma0 > 0.0) o.sigma_initial = sigma0;
+  o.homotopy.max_total_iterations = budget;
+  o.homotopy.relaxation = relaxation == "elastic" ? bflow::OcpRelaxation::kElastic
+                          : relaxation == "l1"    ? bflow::OcpRelaxation::kL1Penalty
+                                                  : bflow::OcpRelaxation::kScholtes;
+  if (sigma0 > 0.0) o.homotopy.sigma_initial = sigma0;
   if (polish_from >= 0.0) {
-    o.polish = true;
-    o.early_polish_sigma = polish_from;
+    o.homotopy.polish = true;
+    o.homotopy.early_polish_sigma = polish_from;
   }
   if (guess == "gait") {
     p.guess = bflow::OcpGuess::kReference;
@@ -282,8 +282,8 @@ int main(int argc, char** argv) {
     sim.steps = 1;
     sim.lifting_depth = o.lifting_depth;
     sim.exact_hessian = !lbfgs;
-    sim.max_nlp_iterations = 3000;
-    sim.nlp_tolerance = 1e-10;
+    sim.homotopy.max_nlp_iterations = 3000;
+    sim.homotopy.nlp_tolerance = 1e-10;
     Eigen::MatrixXd controls;
     const bflow::FesdResult r = bflow::examples::with_monoped(
         task, form, stages, [&](const auto& model, const bflow::OcpProblem&) {
@@ -322,7 +322,7 @@ int main(int argc, char** argv) {
   j["formulation"] = formulation;
   j["relaxation"] = relaxation;
   j["guess"] = guess + (sides ? " (sides)" : " (neutral)");
-  j["sigma0"] = o.sigma_initial;
+  j["sigma0"] = o.homotopy.sigma_initial;
   j["polish_from"] = polish_from;
   j["budget"] = budget;
   j["status"] = bflow::to_string(r.status);

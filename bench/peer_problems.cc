@@ -99,28 +99,29 @@ bflow::OcpOptions ocp_options(const Flags& f) {
   o.formulation = bflow::parse_dcs_formulation(f.formulation);
   o.cross_complementarity = f.cross == "point-pairs" ? bflow::CrossComplementarity::kPointPairs
                                                      : bflow::CrossComplementarity::kElementSums;
-  if (f.sigma_initial > 0.0) o.sigma_initial = f.sigma_initial;
-  if (f.sigma_final > 0.0) o.sigma_final = f.sigma_final;
-  if (f.early_polish_sigma >= 0.0) o.early_polish_sigma = f.early_polish_sigma;
-  if (f.sigma_factor > 0.0) o.sigma_factor = f.sigma_factor;
-  o.superlinear = f.superlinear;
-  if (f.complementarity_tolerance > 0.0) o.complementarity_tolerance = f.complementarity_tolerance;
-  if (f.nlp_tolerance > 0.0) o.nlp_tolerance = f.nlp_tolerance;
+  if (f.sigma_initial > 0.0) o.homotopy.sigma_initial = f.sigma_initial;
+  if (f.sigma_final > 0.0) o.homotopy.sigma_final = f.sigma_final;
+  if (f.early_polish_sigma >= 0.0) o.homotopy.early_polish_sigma = f.early_polish_sigma;
+  if (f.sigma_factor > 0.0) o.homotopy.sigma_factor = f.sigma_factor;
+  o.homotopy.superlinear = f.superlinear;
+  if (f.complementarity_tolerance > 0.0)
+    o.homotopy.complementarity_tolerance = f.complementarity_tolerance;
+  if (f.nlp_tolerance > 0.0) o.homotopy.nlp_tolerance = f.nlp_tolerance;
   if (f.intermediate_tolerance_factor >= 0.0) {
-    o.intermediate_tolerance_factor = f.intermediate_tolerance_factor;
+    o.homotopy.intermediate_tolerance_factor = f.intermediate_tolerance_factor;
   }
   o.step_deviation_weight = f.step_deviation_weight;
   o.equilibration_weight = f.equilibration_weight;
-  o.polish = !f.no_polish;
-  o.stop_at_complementarity = f.stop_at_complementarity;
-  o.continue_after_failure = f.continue_after_failure;
-  o.warm_start = f.warm_start != "cold";
-  o.warm_start_multipliers = f.warm_start == "primal-dual";
-  o.first_from_zero_multipliers = f.first_from_zero_multipliers;
-  o.later_mu_init = f.later_mu_init;
-  o.acceptable_tolerance = f.acceptable_tolerance;
-  o.acceptable_iterations = f.acceptable_iterations;
-  if (f.max_nlp_iterations > 0) o.max_nlp_iterations = f.max_nlp_iterations;
+  o.homotopy.polish = !f.no_polish;
+  o.homotopy.stop_at_complementarity = f.stop_at_complementarity;
+  o.homotopy.continue_after_failure = f.continue_after_failure;
+  o.homotopy.warm_start = f.warm_start != "cold";
+  o.homotopy.warm_start_multipliers = f.warm_start == "primal-dual";
+  o.homotopy.first_from_zero_multipliers = f.first_from_zero_multipliers;
+  o.homotopy.later_mu_init = f.later_mu_init;
+  o.homotopy.acceptable_tolerance = f.acceptable_tolerance;
+  o.homotopy.acceptable_iterations = f.acceptable_iterations;
+  if (f.max_nlp_iterations > 0) o.homotopy.max_nlp_iterations = f.max_nlp_iterations;
   o.neutral_algebraic_guess = f.neutral_guess;
   o.probe_sparsity = f.probe_sparsity;
   o.solver.mumps_amalgamation = !f.no_mumps_amalgamation;
@@ -134,12 +135,12 @@ bflow::FesdOptions fesd_options(const Flags& f, int steps) {
   o.elements = f.elements;
   o.steps = steps;
   o.formulation = bflow::parse_dcs_formulation(f.formulation);
-  if (f.sigma_initial > 0.0) o.sigma_initial = f.sigma_initial;
-  if (f.sigma_final > 0.0) o.sigma_final = f.sigma_final;
-  if (f.sigma_factor > 0.0) o.sigma_factor = f.sigma_factor;
-  if (f.linear) o.superlinear = false;
-  if (f.nlp_tolerance > 0.0) o.nlp_tolerance = f.nlp_tolerance;
-  if (f.max_nlp_iterations > 0) o.max_nlp_iterations = f.max_nlp_iterations;
+  if (f.sigma_initial > 0.0) o.homotopy.sigma_initial = f.sigma_initial;
+  if (f.sigma_final > 0.0) o.homotopy.sigma_final = f.sigma_final;
+  if (f.sigma_factor > 0.0) o.homotopy.sigma_factor = f.sigma_factor;
+  if (f.linear) o.homotopy.superlinear = false;
+  if (f.nlp_tolerance > 0.0) o.homotopy.nlp_tolerance = f.nlp_tolerance;
+  if (f.max_nlp_iterations > 0) o.homotopy.max_nlp_iterations = f.max_nlp_iterations;
   o.newton = !f.no_newton;
   o.sensitivities = false;
   return o;
@@ -403,7 +404,7 @@ int main(int argc, char** argv) {
   app.add_option("--sigma-initial", f.sigma_initial);
   app.add_option("--sigma-final", f.sigma_final);
   app.add_option("--early-polish-sigma", f.early_polish_sigma,
-                 "OcpOptions::early_polish_sigma (0: only the final polish)");
+                 "OcpHomotopyOptions::early_polish_sigma (0: only the final polish)");
   app.add_option("--sigma-factor", f.sigma_factor);
   app.add_flag("--superlinear", f.superlinear, "sigma <- min(factor sigma, sigma^1.5) (ocp)");
   app.add_flag("--linear", f.linear, "sigma <- factor sigma (fesd; its default is superlinear)");

@@ -279,11 +279,20 @@ struct NumericTexts {
   std::optional<std::string> fesd_blas_threads, ocp_blas_threads;
 };
 
+// The help groups of fesd and ocp, as their options are grouped (fesd/homotopy_options.h): the
+// problem, its discretisation, the relaxation homotopy, IPOPT with its linear solver, and what is
+// printed.
+constexpr const char* kProblemGroup = "Problem";
+constexpr const char* kDiscretisationGroup = "Discretisation (FESD)";
+constexpr const char* kHomotopyGroup = "Homotopy (the relaxation's sigma and the NLPs' tolerances)";
+constexpr const char* kSolverGroup = "Solver (IPOPT and its linear solver)";
+constexpr const char* kOutputGroup = "Output";
+
 // The "Solver" group of fesd and ocp: the options both pass to IPOPT (SolverCommandOptions);
 // --blas-threads as typed, read by read_numbers.
 void add_solver_options(CLI::App* command, SolverCommandOptions& s,
                         std::optional<std::string>& blas_threads) {
-  const char* group = "Solver (IPOPT and its linear solver; the same for fesd and ocp)";
+  const char* group = kSolverGroup;
   command
       ->add_option("--linear-solver", s.linear_solver,
                    "IPOPT's linear solver: mumps (MUMPS with METIS), spral, HSL's ma27, ma57, "
@@ -467,43 +476,56 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         "(IPOPT) and print x(T), switch times and dx(T)/dx0 (JSON)");
     fesd->add_option("--example", fesd_options.example,
                      "irma, crossing, sliding-enter, sliding-leave or spontaneous (required)")
-        ->type_name("NAME");
+        ->type_name("NAME")
+        ->group(kProblemGroup);
     fesd->add_option("--formulation", fesd_options.formulation, "step or stewart")
         ->type_name("NAME")
-        ->capture_default_str();
+        ->capture_default_str()
+        ->group(kDiscretisationGroup);
     fesd->add_option("--scheme", fesd_options.scheme, "radau (Radau IIA) or gauss (Gauss-Legendre)")
         ->type_name("NAME")
-        ->capture_default_str();
+        ->capture_default_str()
+        ->group(kDiscretisationGroup);
     fesd->add_option("--stages", numbers.fesd_stages, "Runge-Kutta stages n_s, 1..9")
         ->type_name("S")
-        ->default_str(std::to_string(fesd_options.stages));
+        ->default_str(std::to_string(fesd_options.stages))
+        ->group(kDiscretisationGroup);
     fesd->add_option("--nfe", numbers.fesd_nfe,
                      "Finite elements per integration step, >= 1 (at most what the size limits "
                      "of docs/fesd.md allow)")
         ->type_name("N")
-        ->default_str(std::to_string(fesd_options.nfe));
+        ->default_str(std::to_string(fesd_options.nfe))
+        ->group(kDiscretisationGroup);
     fesd->add_option("--nsim", numbers.fesd_nsim,
                      "Integration steps over [0, T], >= 1 (default: irma 20, the others 4)")
-        ->type_name("M");
+        ->type_name("M")
+        ->group(kProblemGroup);
     fesd->add_option("--T", numbers.fesd_t,
                      "Horizon, finite and > 0 (default: irma 100, sliding-leave 2, the others 1)")
-        ->type_name("T");
+        ->type_name("T")
+        ->group(kProblemGroup);
     fesd->add_flag(
-        "--exact-hessian", fesd_options.exact_hessian,
-        "IPOPT with the exact Hessian (second-order AD by pieces) instead of limited-memory");
+            "--exact-hessian", fesd_options.exact_hessian,
+            "IPOPT with the exact Hessian (second-order AD by pieces) instead of limited-memory")
+        ->group(kSolverGroup);
     add_solver_options(fesd, fesd_options.solver, numbers.fesd_blas_threads);
     fesd->add_flag("--standard", fesd_options.standard,
-                   "Standard time-stepping: fixed steps, no switch detection");
+                   "Standard time-stepping: fixed steps, no switch detection")
+        ->group(kDiscretisationGroup);
     fesd->add_flag("--trajectory", fesd_options.trajectory,
-                   "Add the grid, the states, the step sizes and the active sets");
+                   "Add the grid, the states, the step sizes and the active sets")
+        ->group(kOutputGroup);
     fesd->add_flag("--sizes", fesd_options.sizes,
                    "Print the problem sizes of Stewart's and the step reformulation ([F] Table 4) "
-                   "and of one integration step's NLP");
+                   "and of one integration step's NLP")
+        ->group(kOutputGroup);
     fesd->add_option("--lifting", numbers.fesd_lifting,
                      "Step formulation: lifting depth n_d of Algorithm 1, 2..max(2, n_c) (theta "
                      "and beta as unknowns; 0: none)")
-        ->type_name("ND");
-    fesd->add_flag("--compact", fesd_options.compact, "Print the result on one line");
+        ->type_name("ND")
+        ->group(kDiscretisationGroup);
+    fesd->add_flag("--compact", fesd_options.compact, "Print the result on one line")
+        ->group(kOutputGroup);
 
     OcpCommandOptions ocp_options;
     CLI::App* ocp = app.add_subcommand(
@@ -512,73 +534,92 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         "print the optimum, the switch times and the errors against the exact optimum (JSON)");
     ocp->add_option("--example", ocp_options.example,
                     "turbo-car, braking-block, monoped or hopper (required)")
-        ->type_name("NAME");
+        ->type_name("NAME")
+        ->group(kProblemGroup);
     ocp->add_option("--N", numbers.ocp_n,
                     "Control stages N, >= 1 (default 10; 30 for the monoped, 50 for the hopper)")
-        ->type_name("N");
+        ->type_name("N")
+        ->group(kProblemGroup);
     ocp->add_option("--nfe", numbers.ocp_nfe, "Finite elements per control stage, >= 1")
         ->type_name("N_FE")
-        ->default_str(std::to_string(ocp_options.nfe));
+        ->default_str(std::to_string(ocp_options.nfe))
+        ->group(kDiscretisationGroup);
     ocp->add_option("--stages", numbers.ocp_stages, "Runge-Kutta stages n_s, 1..9")
         ->type_name("S")
-        ->default_str(std::to_string(ocp_options.stages));
+        ->default_str(std::to_string(ocp_options.stages))
+        ->group(kDiscretisationGroup);
     ocp->add_option("--scheme", ocp_options.scheme, "radau (Radau IIA) or gauss (Gauss-Legendre)")
         ->type_name("NAME")
-        ->capture_default_str();
+        ->capture_default_str()
+        ->group(kDiscretisationGroup);
     ocp->add_option("--formulation", ocp_options.formulation,
                     "step or stewart (default step; stewart for the hopper)")
-        ->type_name("NAME");
+        ->type_name("NAME")
+        ->group(kDiscretisationGroup);
     ocp->add_flag("--standard", ocp_options.standard,
-                  "Standard time-stepping: equal fixed elements, no switch detection");
+                  "Standard time-stepping: equal fixed elements, no switch detection")
+        ->group(kDiscretisationGroup);
     ocp->add_option("--setup", ocp_options.setup,
                     "The monoped's setup: nosnoc (its benchmark behind the paper's Figure 10, the "
-                    "default) or strict (tighter tolerances, a foot path constraint)");
+                    "default) or strict (tighter tolerances, a foot path constraint)")
+        ->group(kProblemGroup);
     ocp->add_option("--relaxation", ocp_options.relaxation,
                     "scholtes (products <= sigma), l1 (penalty 1/sigma times the products) or "
                     "elastic (products <= s, s >= 0 one slack with penalty s/sigma)")
         ->type_name("NAME")
-        ->capture_default_str();
+        ->capture_default_str()
+        ->group(kHomotopyGroup);
     ocp->add_option("--cross", ocp_options.cross,
                     "Cross complementarity rows: element-sums (one product of sums per element "
                     "and pair), point-pairs (every product of two points on its own row) or "
                     "point-sums (each point against the sum over the element's points, nosnoc's "
                     "Python default); default point-pairs for the monoped with stewart "
                     "(nosnoc's), else element-sums")
-        ->type_name("NAME");
+        ->type_name("NAME")
+        ->group(kDiscretisationGroup);
     ocp->add_option("--sigma0", numbers.ocp_sigma0,
                     "Initial relaxation sigma, > 0 (default 100; 1 for the monoped)")
-        ->type_name("X");
+        ->type_name("X")
+        ->group(kHomotopyGroup);
     ocp->add_option("--sigma-final", numbers.ocp_sigma_final,
                     "Final relaxation sigma, > 0 and <= --sigma0 (default 1e-10; monoped: 1e-4 for "
                     "--setup nosnoc, 0.4^14 with stewart, 1e-7 for --setup strict)")
-        ->type_name("X");
+        ->type_name("X")
+        ->group(kHomotopyGroup);
     ocp->add_option("--early-polish-sigma", numbers.ocp_early_polish_sigma,
                     "From the first NLP at sigma <= X on, try the polish after every NLP with a "
                     "new active set and end the homotopy at the first one kept, >= 0 (default "
                     "1e-4; 0: only the final polish after --sigma-final; the monoped and the "
                     "hopper do not polish)")
-        ->type_name("X");
+        ->type_name("X")
+        ->group(kHomotopyGroup);
     ocp->add_option("--tol", numbers.ocp_tol,
                     "IPOPT's tolerance for the last NLP, >= 1e-14 (default 1e-10; monoped: 1e-5 "
                     "for --setup nosnoc, 1e-6 for --setup strict)")
-        ->type_name("X");
+        ->type_name("X")
+        ->group(kHomotopyGroup);
     ocp->add_option("--lifting", numbers.ocp_lifting,
                     "Step formulation: lifting depth n_d of Algorithm 1, 0 (none) or 2.."
                     "max(2, n_c) (default 0; 2 for the monoped's nosnoc setup)")
-        ->type_name("ND");
+        ->type_name("ND")
+        ->group(kDiscretisationGroup);
     ocp->add_option("--max-iterations", numbers.ocp_max_iterations,
                     "IPOPT iterations of the whole homotopy, >= 0; when they run out the status "
                     "is budget_exhausted with the last solved NLP's result (default 0: no limit "
                     "but 3000 per NLP, 10000 for the monoped)")
-        ->type_name("K");
+        ->type_name("K")
+        ->group(kHomotopyGroup);
     add_solver_options(ocp, ocp_options.solver, numbers.ocp_blas_threads);
     ocp->add_flag("--trajectory", ocp_options.trajectory,
-                  "Add every element boundary, the states there, the step sizes and active sets");
+                  "Add every element boundary, the states there, the step sizes and active sets")
+        ->group(kOutputGroup);
     ocp->add_option("--plot", ocp_options.plot,
                     "Draw DIR/ocp_states.png, ocp_controls.png and ocp_switching.png (gnuplot)")
-        ->type_name("DIR");
-    ocp->add_flag("--compact", ocp_options.compact, "Print the result on one line");
-    ocp->add_flag("--quiet", ocp_options.quiet, "No progress lines on stderr");
+        ->type_name("DIR")
+        ->group(kOutputGroup);
+    ocp->add_flag("--compact", ocp_options.compact, "Print the result on one line")
+        ->group(kOutputGroup);
+    ocp->add_flag("--quiet", ocp_options.quiet, "No progress lines on stderr")->group(kOutputGroup);
     ocp->footer(kOcpFooter);
 
     OrbitCommandOptions orbit_options;

@@ -233,11 +233,11 @@ struct OcpCommandOptions {
   /** Relaxation parameters and IPOPT's tolerance of the last NLP, finite and > 0 with
       sigma_final <= sigma0; not given: the defaults of bflow::OcpOptions. */
   std::optional<double> sigma0, sigma_final, tol;
-  /** --early-polish-sigma: bflow::OcpOptions::early_polish_sigma, finite and >= 0 (0: only
+  /** --early-polish-sigma: bflow::OcpHomotopyOptions::early_polish_sigma, finite and >= 0 (0: only
       the final polish); not given: the example's. */
   std::optional<double> early_polish_sigma;
   /** --max-iterations: IPOPT iterations of the whole homotopy, >= 0 (0: no limit but IPOPT's
-      per NLP); not given: bflow::OcpOptions::max_total_iterations of the example. */
+      per NLP); not given: bflow::OcpHomotopyOptions::max_total_iterations of the example. */
   std::optional<int> max_iterations;
   /** --lifting: the step formulation's lifting depth (OcpOptions::lifting_depth); not given:
       the example's (2 for the monoped's nosnoc setup, else 0). */

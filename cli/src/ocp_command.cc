@@ -136,8 +136,8 @@ void check_ranges(const OcpCommandOptions& options, const OcpOptions& defaults) 
                       " (below that IPOPT cannot meet it in double precision), got " +
                       format_number(*options.tol));
   }
-  const double sigma0 = options.sigma0.value_or(defaults.sigma_initial);
-  const double sigma_final = options.sigma_final.value_or(defaults.sigma_final);
+  const double sigma0 = options.sigma0.value_or(defaults.homotopy.sigma_initial);
+  const double sigma_final = options.sigma_final.value_or(defaults.homotopy.sigma_final);
   if (sigma_final > sigma0) {
     if (!options.sigma_final) {
       fail("--sigma0", format_number(sigma0) + " is below the final " + format_number(sigma_final) +
@@ -593,7 +593,7 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
                             ": use radau or gauss");
       return kExitBadInput;
     }
-    o.relaxation = parse_relaxation(options.relaxation);
+    o.homotopy.relaxation = parse_relaxation(options.relaxation);
     if (options.cross) {
       try {
         o.cross_complementarity = parse_cross_complementarity(*options.cross);
@@ -618,19 +618,19 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
       o.step_deviation_weight = 0.0;
       o.equilibration_weight = 0.0;
     }
-    if (options.sigma0) o.sigma_initial = *options.sigma0;
-    if (options.sigma_final) o.sigma_final = *options.sigma_final;
-    if (options.tol) o.nlp_tolerance = *options.tol;
+    if (options.sigma0) o.homotopy.sigma_initial = *options.sigma0;
+    if (options.sigma_final) o.homotopy.sigma_final = *options.sigma_final;
+    if (options.tol) o.homotopy.nlp_tolerance = *options.tol;
     if (options.early_polish_sigma) {
-      if (!o.polish && *options.early_polish_sigma > 0.0) {
+      if (!o.homotopy.polish && *options.early_polish_sigma > 0.0) {
         fail("--early-polish-sigma", "the " + options.example +
                                          " does not polish (its homotopy ends at its last NLP), "
                                          "so there is no early polish to try from sigma " +
                                          format_number(*options.early_polish_sigma));
       }
-      o.early_polish_sigma = *options.early_polish_sigma;
+      o.homotopy.early_polish_sigma = *options.early_polish_sigma;
     }
-    if (options.max_iterations) o.max_total_iterations = *options.max_iterations;
+    if (options.max_iterations) o.homotopy.max_total_iterations = *options.max_iterations;
     if (options.lifting) {
       if (*options.lifting != 0 && formulation != DcsFormulation::kStep) {
         fail("--lifting", "a lifting depth (" + std::to_string(*options.lifting) +

@@ -383,20 +383,23 @@ void check_options(const StepModel& model, const Eigen::Ref<const Eigen::VectorX
           " and T / (N_sim N_FE) >= " + format_number(std::numeric_limits<double>::min()));
     }
   }
-  if (!std::isfinite(o.sigma_initial) || !(o.sigma_initial > 0.0) || !(o.sigma_final > 0.0) ||
-      o.sigma_final > o.sigma_initial || !(o.sigma_factor > 0.0 && o.sigma_factor < 1.0)) {
+  if (!std::isfinite(o.homotopy.sigma_initial) || !(o.homotopy.sigma_initial > 0.0) ||
+      !(o.homotopy.sigma_final > 0.0) || o.homotopy.sigma_final > o.homotopy.sigma_initial ||
+      !(o.homotopy.sigma_factor > 0.0 && o.homotopy.sigma_factor < 1.0)) {
     throw InvalidArgument(
         "fesd: need 0 < sigma_final <= sigma_initial and 0 < sigma_factor < 1, "
         "got sigma_initial = " +
-        format_number(o.sigma_initial) + ", sigma_final = " + format_number(o.sigma_final) +
-        ", sigma_factor = " + format_number(o.sigma_factor));
+        format_number(o.homotopy.sigma_initial) +
+        ", sigma_final = " + format_number(o.homotopy.sigma_final) +
+        ", sigma_factor = " + format_number(o.homotopy.sigma_factor));
   }
-  if (!(o.nlp_tolerance > 0.0) || !std::isfinite(o.nlp_tolerance) || o.max_nlp_iterations < 1) {
+  if (!(o.homotopy.nlp_tolerance > 0.0) || !std::isfinite(o.homotopy.nlp_tolerance) ||
+      o.homotopy.max_nlp_iterations < 1) {
     throw InvalidArgument(
         "fesd: need a finite nlp_tolerance > 0 and max_nlp_iterations >= 1, got "
         "nlp_tolerance = " +
-        format_number(o.nlp_tolerance) +
-        ", max_nlp_iterations = " + std::to_string(o.max_nlp_iterations));
+        format_number(o.homotopy.nlp_tolerance) +
+        ", max_nlp_iterations = " + std::to_string(o.homotopy.max_nlp_iterations));
   }
   check_solver_options(o.solver, o.exact_hessian, "fesd");
 }
@@ -560,7 +563,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   const double step = t_end / options.steps;
   // A complementarity variable counts as zero below this: with products <= sigma_final, the zero
   // member of a pair whose other member is O(1e-3) or more is below sqrt(sigma_final).
-  const double active_tol = std::clamp(std::sqrt(options.sigma_final), 1e-9, 1e-4);
+  const double active_tol = std::clamp(std::sqrt(options.homotopy.sigma_final), 1e-9, 1e-4);
 
   fesd::HomotopySolver solver(fesd::ipopt_settings(options, "fesd"));
   // The objective (step equilibration) only selects among the FESD solutions; when IPOPT crawls
@@ -721,15 +724,17 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
     result.max_complementarity = std::max(result.max_complementarity, residual);
     // IPOPT's acceptable level bounds neither the complementarity products nor the objective's
     // optimality by `tol`; only a residual within the final relaxation makes it an FESD solution.
-    if (acceptable_level && !(residual <= options.sigma_final + options.nlp_tolerance)) {
+    if (acceptable_level &&
+        !(residual <= options.homotopy.sigma_final + options.homotopy.nlp_tolerance)) {
       if (!result.acceptable_only) {
-        result.message += std::string(result.message.empty() ? "" : "; ") +
-                          "fesd: the integration step at t = " + format_number(t0) + " of length " +
-                          format_number(length) +
-                          " was solved by IPOPT only to its acceptable level at sigma = " +
-                          format_number(last_sigma) + ": complementarity residual " +
-                          format_number(residual) + " > sigma_final + nlp_tolerance = " +
-                          format_number(options.sigma_final + options.nlp_tolerance);
+        result.message +=
+            std::string(result.message.empty() ? "" : "; ") +
+            "fesd: the integration step at t = " + format_number(t0) + " of length " +
+            format_number(length) +
+            " was solved by IPOPT only to its acceptable level at sigma = " +
+            format_number(last_sigma) + ": complementarity residual " + format_number(residual) +
+            " > sigma_final + nlp_tolerance = " +
+            format_number(options.homotopy.sigma_final + options.homotopy.nlp_tolerance);
       }
       result.acceptable_only = true;
       ++result.acceptable_only_steps;

@@ -245,53 +245,57 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
     throw InvalidArgument("ocp: n_s = " + std::to_string(o.collocation_stages) +
                           " collocation stages, expected 1..9");
   }
-  if (!(o.sigma_final > 0.0) || !(o.sigma_initial >= o.sigma_final) ||
-      !std::isfinite(o.sigma_initial)) {
-    throw InvalidArgument("ocp: sigma_initial = " + number(o.sigma_initial) +
-                          " and sigma_final = " + number(o.sigma_final) +
+  if (!(o.homotopy.sigma_final > 0.0) || !(o.homotopy.sigma_initial >= o.homotopy.sigma_final) ||
+      !std::isfinite(o.homotopy.sigma_initial)) {
+    throw InvalidArgument("ocp: sigma_initial = " + number(o.homotopy.sigma_initial) +
+                          " and sigma_final = " + number(o.homotopy.sigma_final) +
                           " must satisfy 0 < sigma_final <= sigma_initial < inf");
   }
-  if (!(o.early_polish_sigma >= 0.0) || !std::isfinite(o.early_polish_sigma)) {
-    throw InvalidArgument("ocp: early_polish_sigma = " + number(o.early_polish_sigma) +
+  if (!(o.homotopy.early_polish_sigma >= 0.0) || !std::isfinite(o.homotopy.early_polish_sigma)) {
+    throw InvalidArgument("ocp: early_polish_sigma = " + number(o.homotopy.early_polish_sigma) +
                           " must be >= 0 and finite (0: only the final polish)");
   }
-  if (!(o.sigma_factor > 0.0 && o.sigma_factor < 1.0)) {
-    throw InvalidArgument("ocp: sigma_factor = " + number(o.sigma_factor) + " must lie in (0, 1)");
+  if (!(o.homotopy.sigma_factor > 0.0 && o.homotopy.sigma_factor < 1.0)) {
+    throw InvalidArgument("ocp: sigma_factor = " + number(o.homotopy.sigma_factor) +
+                          " must lie in (0, 1)");
   }
-  if (!(o.complementarity_tolerance > 0.0) || !(o.nlp_tolerance > 0.0) ||
-      !(o.equilibration_weight >= 0.0) || o.max_nlp_iterations < 1) {
+  if (!(o.homotopy.complementarity_tolerance > 0.0) || !(o.homotopy.nlp_tolerance > 0.0) ||
+      !(o.equilibration_weight >= 0.0) || o.homotopy.max_nlp_iterations < 1) {
     throw InvalidArgument(
-        "ocp: complementarity_tolerance = " + number(o.complementarity_tolerance) +
-        ", nlp_tolerance = " + number(o.nlp_tolerance) +
+        "ocp: complementarity_tolerance = " + number(o.homotopy.complementarity_tolerance) +
+        ", nlp_tolerance = " + number(o.homotopy.nlp_tolerance) +
         ", equilibration_weight = " + number(o.equilibration_weight) +
-        ", max_nlp_iterations = " + std::to_string(o.max_nlp_iterations) +
+        ", max_nlp_iterations = " + std::to_string(o.homotopy.max_nlp_iterations) +
         ": tolerances must be positive, the weight >= 0, iterations >= 1");
   }
   if (!(o.step_deviation_weight >= 0.0 && std::isfinite(o.step_deviation_weight)) ||
-      !(o.acceptable_tolerance >= 0.0 && std::isfinite(o.acceptable_tolerance)) ||
-      o.acceptable_iterations < 0 || o.max_total_iterations < 0 ||
-      !(o.later_mu_init >= 0.0 && std::isfinite(o.later_mu_init)) ||
-      !(o.intermediate_tolerance_factor >= 0.0 && std::isfinite(o.intermediate_tolerance_factor))) {
+      !(o.homotopy.acceptable_tolerance >= 0.0 && std::isfinite(o.homotopy.acceptable_tolerance)) ||
+      o.homotopy.acceptable_iterations < 0 || o.homotopy.max_total_iterations < 0 ||
+      !(o.homotopy.later_mu_init >= 0.0 && std::isfinite(o.homotopy.later_mu_init)) ||
+      !(o.homotopy.intermediate_tolerance_factor >= 0.0 &&
+        std::isfinite(o.homotopy.intermediate_tolerance_factor))) {
     throw InvalidArgument(
         "ocp: step_deviation_weight = " + number(o.step_deviation_weight) +
-        ", acceptable_tolerance = " + number(o.acceptable_tolerance) +
-        ", acceptable_iterations = " + std::to_string(o.acceptable_iterations) +
-        ", max_total_iterations = " + std::to_string(o.max_total_iterations) +
-        ", later_mu_init = " + number(o.later_mu_init) + ", intermediate_tolerance_factor = " +
-        number(o.intermediate_tolerance_factor) + ": each must be finite and >= 0");
+        ", acceptable_tolerance = " + number(o.homotopy.acceptable_tolerance) +
+        ", acceptable_iterations = " + std::to_string(o.homotopy.acceptable_iterations) +
+        ", max_total_iterations = " + std::to_string(o.homotopy.max_total_iterations) +
+        ", later_mu_init = " + number(o.homotopy.later_mu_init) +
+        ", intermediate_tolerance_factor = " + number(o.homotopy.intermediate_tolerance_factor) +
+        ": each must be finite and >= 0");
   }
   if (o.tracking == OcpTracking::kStageEnds && p.time_optimal && p.track_R.size() > 0) {
     throw InvalidArgument(
         "ocp: tracking at the stage ends weighs by the fixed stage length T / N (time_optimal "
         "is set)");
   }
-  if (!std::isfinite(o.sigma_final) || !std::isfinite(o.complementarity_tolerance) ||
-      !std::isfinite(o.nlp_tolerance) || !std::isfinite(o.equilibration_weight)) {
-    throw InvalidArgument("ocp: sigma_final = " + number(o.sigma_final) +
-                          ", complementarity_tolerance = " + number(o.complementarity_tolerance) +
-                          ", nlp_tolerance = " + number(o.nlp_tolerance) +
-                          ", equilibration_weight = " + number(o.equilibration_weight) +
-                          ": each must be finite");
+  if (!std::isfinite(o.homotopy.sigma_final) ||
+      !std::isfinite(o.homotopy.complementarity_tolerance) ||
+      !std::isfinite(o.homotopy.nlp_tolerance) || !std::isfinite(o.equilibration_weight)) {
+    throw InvalidArgument(
+        "ocp: sigma_final = " + number(o.homotopy.sigma_final) +
+        ", complementarity_tolerance = " + number(o.homotopy.complementarity_tolerance) +
+        ", nlp_tolerance = " + number(o.homotopy.nlp_tolerance) +
+        ", equilibration_weight = " + number(o.equilibration_weight) + ": each must be finite");
   }
   // Options that only act on FESD's free element lengths and cross complementarity.
   if (o.standard && o.cross_complementarity != CrossComplementarity::kElementSums) {
@@ -614,7 +618,7 @@ OcpProblemSize ocp_problem_size(const OcpModel& model, const OcpOptions& options
   const FesdProblemSize elements = fesd_problem_size(held, f);
   // T, and the elastic slack.
   size.unknowns = elements.unknowns + std::int64_t{options.stages} * model.controls() + 1 +
-                  (options.relaxation == OcpRelaxation::kElastic ? 1 : 0);
+                  (options.homotopy.relaxation == OcpRelaxation::kElastic ? 1 : 0);
   size.constraints = elements.constraints;
   size.jacobian_nonzeros = elements.jacobian_nonzeros;
   if (!options.standard && options.cross_complementarity == CrossComplementarity::kPointPairs) {
@@ -680,9 +684,10 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   setup.clock_tolerance = problem.clock_tolerance;
   setup.x_bounds_at_stage_points = problem.x_bounds_at_stage_points;
   setup.standard = options.standard;
-  setup.relaxation = options.relaxation == OcpRelaxation::kL1Penalty ? fesd::Relaxation::kL1Penalty
-                     : options.relaxation == OcpRelaxation::kElastic ? fesd::Relaxation::kElastic
-                                                                     : fesd::Relaxation::kScholtes;
+  setup.relaxation =
+      options.homotopy.relaxation == OcpRelaxation::kL1Penalty ? fesd::Relaxation::kL1Penalty
+      : options.homotopy.relaxation == OcpRelaxation::kElastic ? fesd::Relaxation::kElastic
+                                                               : fesd::Relaxation::kScholtes;
   setup.equilibration_weight = options.equilibration_weight;
   setup.equilibration_fades = true;
   setup.step_deviation_weight = options.step_deviation_weight;
@@ -776,7 +781,8 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
                           ": the model cannot be evaluated there; give a guess where it is finite");
   }
   // The elastic slack is IPOPT's last unknown.
-  result.unknowns = l.variables() + (options.relaxation == OcpRelaxation::kElastic ? 1 : 0);
+  result.unknowns =
+      l.variables() + (options.homotopy.relaxation == OcpRelaxation::kElastic ? 1 : 0);
   result.constraints = nlp.constraints();
 
   fesd::HomotopySolver solver(fesd::ipopt_settings(options, "ocp"));
@@ -785,11 +791,11 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
       linear_solver_description(solver.linear_solver(), solver.linear_solver_library());
   result.blas = blas_description(options.solver.blas_threads);
   fesd::HomotopyRules rules = fesd::homotopy_schedule(options);
-  rules.warm_start = options.warm_start;
-  rules.warm_start_multipliers = options.warm_start_multipliers;
-  rules.first_from_zero_multipliers = options.first_from_zero_multipliers;
-  rules.max_total_iterations = options.max_total_iterations;
-  rules.continue_after_failure = options.continue_after_failure;
+  rules.warm_start = options.homotopy.warm_start;
+  rules.warm_start_multipliers = options.homotopy.warm_start_multipliers;
+  rules.first_from_zero_multipliers = options.homotopy.first_from_zero_multipliers;
+  rules.max_total_iterations = options.homotopy.max_total_iterations;
+  rules.continue_after_failure = options.homotopy.continue_after_failure;
   rules.mu_init_min = 1e-11;
   rules.acceptable_tol_min = 1e-6;
   rules.acceptable_tol_factor = 1e3;
@@ -801,18 +807,18 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   rules.acceptable_violation_sigma = 0.1;
   rules.acceptable_violation_max = 1e-2;
   rules.acceptable_compl_inf_tol = 1e-2;  // IPOPT's default
-  rules.acceptable_iter = options.acceptable_iterations;
-  if (options.acceptable_tolerance > 0.0) {
+  rules.acceptable_iter = options.homotopy.acceptable_iterations;
+  if (options.homotopy.acceptable_tolerance > 0.0) {
     // A fixed acceptable level, with IPOPT's default constraint violation for it.
-    rules.acceptable_tol_min = options.acceptable_tolerance;
+    rules.acceptable_tol_min = options.homotopy.acceptable_tolerance;
     rules.acceptable_tol_factor = 0.0;
     rules.acceptable_violation_min = rules.acceptable_violation_max = 1e-2;
   }
-  rules.later_mu_init = options.later_mu_init;
-  rules.intermediate_tolerance_factor = options.intermediate_tolerance_factor;
-  if (options.stop_at_complementarity)
-    rules.stop_complementarity = options.complementarity_tolerance;
-  if (options.polish) rules.early_polish_sigma = options.early_polish_sigma;
+  rules.later_mu_init = options.homotopy.later_mu_init;
+  rules.intermediate_tolerance_factor = options.homotopy.intermediate_tolerance_factor;
+  if (options.homotopy.stop_at_complementarity)
+    rules.stop_complementarity = options.homotopy.complementarity_tolerance;
+  if (options.homotopy.polish) rules.early_polish_sigma = options.homotopy.early_polish_sigma;
   const auto on_step = [&](const OcpHomotopyStep& step) {
     result.ipopt_iterations += step.iterations;
     result.homotopy.push_back(step);
@@ -829,7 +835,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
         outcome.cancelled ? "cancelled (OcpOptions::cancelled) during the NLP at sigma = " +
                                 number(outcome.failed_sigma)
         : outcome.budget_exhausted
-            ? "the budget of " + std::to_string(options.max_total_iterations) +
+            ? "the budget of " + std::to_string(options.homotopy.max_total_iterations) +
                   " IPOPT iterations (max_total_iterations) ran out " +
                   (outcome.budget_exhausted_before
                        ? "before the NLP at sigma = " + number(outcome.failed_sigma) +
@@ -860,11 +866,11 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   if (outcome.stopped_early) {
     result.notes.push_back("the homotopy stopped at sigma = " + number(outcome.last_sigma) +
                            ": its complementarity residual is within the tolerance " +
-                           number(options.complementarity_tolerance));
+                           number(options.homotopy.complementarity_tolerance));
   }
   // The active set is read at the last sigma (sigma_final unless the homotopy stopped earlier).
-  const double active_tol =
-      std::clamp(std::sqrt(outcome.done ? outcome.last_sigma : options.sigma_final), 1e-9, 1e-4);
+  const double active_tol = std::clamp(
+      std::sqrt(outcome.done ? outcome.last_sigma : options.homotopy.sigma_final), 1e-9, 1e-4);
   bool polished = outcome.polished_early;
   for (const double sigma : outcome.polishes_not_kept) {
     result.notes.push_back("the polish with the active set of sigma = " + number(sigma) +
@@ -874,13 +880,13 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     result.notes.push_back("polished at sigma = " + number(outcome.last_sigma) +
                            ": the active set fixed there gave an exact solution within the "
                            "relaxation's reach, so the homotopy stopped (early_polish_sigma " +
-                           number(options.early_polish_sigma) + ")");
+                           number(options.homotopy.early_polish_sigma) + ")");
   }
-  if (outcome.done && options.polish && !outcome.polished_early) {
+  if (outcome.done && options.homotopy.polish && !outcome.polished_early) {
     // The active set of the last NLP, fixed: an exact FESD solution without relaxation.
-    const fesd::PolishOutcome p =
-        solver.polish(nlp, active_tol, options.nlp_tolerance, options.complementarity_tolerance,
-                      static_cast<int>(result.homotopy.size()), on_step);
+    const fesd::PolishOutcome p = solver.polish(nlp, active_tol, options.homotopy.nlp_tolerance,
+                                                options.homotopy.complementarity_tolerance,
+                                                static_cast<int>(result.homotopy.size()), on_step);
     polished = p.kept;
     if (p.step.structure_widened) {
       result.notes.push_back(
@@ -920,15 +926,17 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   if (outcome.done) {
     // An acceptable stop still solves the NLP when its KKT error is within nlp_tolerance
     // (acceptable_tolerance <= nlp_tolerance, nosnoc's setup).
-    if (!polished && outcome.acceptable_only && !(result.kkt_error <= options.nlp_tolerance)) {
+    if (!polished && outcome.acceptable_only &&
+        !(result.kkt_error <= options.homotopy.nlp_tolerance)) {
       result.status = OcpStatus::kAcceptableOnly;
       result.message = "IPOPT solved the last NLP (sigma = " + number(outcome.last_sigma) +
                        ") only to its acceptable level (KKT error " + number(result.kkt_error) +
-                       " above nlp_tolerance " + number(options.nlp_tolerance) + ")";
-    } else if (!(result.max_complementarity <= options.complementarity_tolerance)) {
+                       " above nlp_tolerance " + number(options.homotopy.nlp_tolerance) + ")";
+    } else if (!(result.max_complementarity <= options.homotopy.complementarity_tolerance)) {
       result.status = OcpStatus::kComplementarityNotReached;
       result.message = "the complementarity residual " + number(result.max_complementarity) +
-                       " is above the tolerance " + number(options.complementarity_tolerance);
+                       " is above the tolerance " +
+                       number(options.homotopy.complementarity_tolerance);
     } else {
       result.status = OcpStatus::kSolved;
     }

@@ -94,18 +94,27 @@ def _set_option(obj, key: str, value, where: str) -> None:
                          f"({e})".replace("\n", " ")) from None
 
 
-# The options of IPOPT and its linear solver that fesd_simulate and ocp_solve share, kept in
-# their options' `solver` (bflow::SolverOptions).
+# The options of a run come in three groups (bflow/fesd/homotopy_options.h): the discretisation
+# and the problem (the options object itself), the relaxation homotopy (its `homotopy`: a
+# bflow::HomotopyOptions, or OcpHomotopyOptions for ocp_solve) and IPOPT with its linear solver
+# (its `solver`, a bflow::SolverOptions, the same for fesd_simulate and ocp_solve). The keywords
+# name them flat; each is set in its group.
 _SOLVER_OPTIONS = ("linear_solver", "linear_solver_library", "blas_threads")
+_HOMOTOPY_OPTIONS = ("sigma_initial", "sigma_final", "sigma_factor", "superlinear",
+                     "nlp_tolerance", "max_nlp_iterations", "relaxation",
+                     "complementarity_tolerance", "intermediate_tolerance_factor", "warm_start",
+                     "polish", "early_polish_sigma", "stop_at_complementarity",
+                     "acceptable_tolerance", "max_total_iterations", "continue_after_failure")
 
 
 def _set_any_option(obj, key, value, where):
-    if key in _SOLVER_OPTIONS:
-        solver = obj.solver
-        _set_option(solver, key, value, where)
-        obj.solver = solver
-    else:
-        _set_option(obj, key, value, where)
+    for group, keys in (("solver", _SOLVER_OPTIONS), ("homotopy", _HOMOTOPY_OPTIONS)):
+        if key in keys:
+            part = getattr(obj, group)
+            _set_option(part, key, value, where)
+            setattr(obj, group, part)
+            return
+    _set_option(obj, key, value, where)
 
 
 def _count(value, name: str, where: str, lo: int = 1, hi: int = 2 ** 31 - 1) -> int:
@@ -513,9 +522,10 @@ FesdResult = _bflow.FesdResult
 _FESD_DEFAULTS = {"irma": (100.0, 20), "crossing": (1.0, 4), "sliding-enter": (1.0, 4),
                   "sliding-leave": (2.0, 4), "spontaneous": (1.0, 4)}
 _FESD_OPTIONS = ("scheme", "stages", "elements", "standard", "formulation", "lifting_depth",
-                 "sigma_initial", "sigma_final", "sigma_factor", "nlp_tolerance",
-                 "exact_hessian", "max_nlp_iterations", "newton", "sensitivities",
-                 "linear_solver", "linear_solver_library", "blas_threads")
+                 "newton", "sensitivities",
+                 "sigma_initial", "sigma_final", "sigma_factor", "superlinear", "nlp_tolerance",
+                 "max_nlp_iterations",
+                 "exact_hessian", "linear_solver", "linear_solver_library", "blas_threads")
 
 
 def _interrupted(result):
@@ -540,9 +550,11 @@ def fesd_simulate(model, T: Optional[float] = None, x0=None, *,
     [F] Example 3, "crossing", "sliding-enter", "sliding-leave" (T = 2), "spontaneous"
     (T = 1, 4 steps), whose exact solutions ``fesd_exact`` gives.
 
-    Options: scheme ("radau", "gauss"), stages (n_s, 2), elements (N_FE, 3), formulation ("step",
-    "stewart"), lifting_depth, standard, sigma_initial, sigma_final, sigma_factor,
-    nlp_tolerance, exact_hessian, max_nlp_iterations, newton, sensitivities (dx(T)/dx0, on),
+    Options, by group (as the C++ FesdOptions, its homotopy and its solver). The
+    discretisation: scheme ("radau", "gauss"), stages (n_s, 2), elements (N_FE, 3),
+    formulation ("step", "stewart"), lifting_depth, standard, newton, sensitivities (dx(T)/dx0,
+    on). The homotopy: sigma_initial (1), sigma_final (1e-12), sigma_factor (0.1), superlinear
+    (on), nlp_tolerance (1e-13), max_nlp_iterations (500). The solver: exact_hessian,
     linear_solver ("mumps", "spral", HSL's "ma27" ... "ma97", "pardiso"),
     linear_solver_library (the HSL or PARDISO library file), blas_threads (OpenBLAS's threads
     while IPOPT solves, 1; 0: OpenBLAS's own count). ``progress=True`` prints one line per
@@ -597,10 +609,9 @@ def fesd_exact(example: str) -> dict:
 
 OcpResult = _bflow.OcpResult
 _OCP_OPTIONS = ("elements", "collocation_stages", "scheme", "formulation", "standard",
-                "relaxation", "sigma_initial", "sigma_final", "sigma_factor", "nlp_tolerance",
-                "complementarity_tolerance", "polish", "early_polish_sigma",
-                "max_total_iterations", "exact_hessian", "lifting_depth", "linear_solver",
-                "linear_solver_library", "blas_threads", "cross_complementarity")
+                "lifting_depth", "cross_complementarity", "step_deviation_weight",
+                "equilibration_weight") + _HOMOTOPY_OPTIONS + (
+                "exact_hessian",) + _SOLVER_OPTIONS
 
 
 _OCP_PROBLEM = ("x0", "T", "time_optimal", "T_min", "T_max", "x_lower", "x_upper", "u_lower",
@@ -628,15 +639,17 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
     starting from the options it comes with (the bflow ocp command's defaults), which keywords
     override; their full runs take minutes to an hour (docs/ocp.md).
 
-    Options: elements (N_FE, 3),
-    collocation_stages (2), scheme, formulation, standard, relaxation ("scholtes", "l1",
-    "elastic"), sigma_initial (100), sigma_final (1e-10), sigma_factor, nlp_tolerance,
-    complementarity_tolerance, polish, early_polish_sigma, max_total_iterations, exact_hessian,
-    lifting_depth, linear_solver, linear_solver_library, blas_threads (OpenBLAS's threads while
-    IPOPT solves, 1; 0: its own count), cross_complementarity ("element-sums",
-    "point-pairs",
-    "point-sums"; FESD only: with standard=True it is refused, and a contact example's own
-    choice is left out). ``progress=True`` prints one line per NLP on stderr. The GIL is
+    Options, by group (as the C++ OcpOptions, its homotopy and its solver). The
+    discretisation: elements (N_FE, 3), collocation_stages (2), scheme, formulation, standard,
+    lifting_depth, cross_complementarity ("element-sums", "point-pairs", "point-sums"; FESD
+    only: with standard=True it is refused, and a contact example's own choice is left out),
+    step_deviation_weight, equilibration_weight. The homotopy: relaxation ("scholtes", "l1",
+    "elastic"), sigma_initial (100), sigma_final (1e-10), sigma_factor (0.1), superlinear,
+    nlp_tolerance (1e-10), max_nlp_iterations (3000), complementarity_tolerance (1e-9),
+    intermediate_tolerance_factor, warm_start, polish, early_polish_sigma,
+    stop_at_complementarity, acceptable_tolerance, max_total_iterations,
+    continue_after_failure. The solver: exact_hessian, linear_solver, linear_solver_library,
+    blas_threads (OpenBLAS's threads while IPOPT solves, 1; 0: its own count). ``progress=True`` prints one line per NLP on stderr. The GIL is
     released while IPOPT runs; calls from several threads are safe, their NLPs taking turns
     (IPOPT solves run one at a time in a process). Ctrl-C stops the solve at the next IPOPT
     iteration and raises KeyboardInterrupt, the result of the last solved NLP (status

@@ -80,6 +80,17 @@ void bind_fesd(nb::module_& m) {
       .def_rw("mumps_amalgamation", &SolverOptions::mumps_amalgamation)
       .def_rw("blas_threads", &SolverOptions::blas_threads);
 
+  // The relaxation homotopy's schedule FesdOptions and OcpOptions share
+  // (bflow/fesd/homotopy_options.h; OcpHomotopyOptions extends it).
+  nb::class_<HomotopyOptions>(m, "HomotopyOptions")
+      .def(nb::init<>())
+      .def_rw("sigma_initial", &HomotopyOptions::sigma_initial)
+      .def_rw("sigma_final", &HomotopyOptions::sigma_final)
+      .def_rw("sigma_factor", &HomotopyOptions::sigma_factor)
+      .def_rw("superlinear", &HomotopyOptions::superlinear)
+      .def_rw("nlp_tolerance", &HomotopyOptions::nlp_tolerance)
+      .def_rw("max_nlp_iterations", &HomotopyOptions::max_nlp_iterations);
+
   nb::class_<FesdOptions>(m, "FesdOptions")
       .def(nb::init<>())
       .def_prop_rw(
@@ -93,14 +104,10 @@ void bind_fesd(nb::module_& m) {
           "formulation", [](const FesdOptions& o) { return std::string(to_string(o.formulation)); },
           [](FesdOptions& o, const std::string& v) { o.formulation = parse_dcs_formulation(v); })
       .def_rw("lifting_depth", &FesdOptions::lifting_depth)
-      .def_rw("sigma_initial", &FesdOptions::sigma_initial)
-      .def_rw("sigma_final", &FesdOptions::sigma_final)
-      .def_rw("sigma_factor", &FesdOptions::sigma_factor)
-      .def_rw("nlp_tolerance", &FesdOptions::nlp_tolerance)
       .def_rw("exact_hessian", &FesdOptions::exact_hessian)
-      .def_rw("max_nlp_iterations", &FesdOptions::max_nlp_iterations)
       .def_rw("newton", &FesdOptions::newton)
       .def_rw("sensitivities", &FesdOptions::sensitivities)
+      .def_rw("homotopy", &FesdOptions::homotopy)
       .def_rw("solver", &FesdOptions::solver)
       .def_rw("progress", &FesdOptions::progress);
 

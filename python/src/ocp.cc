@@ -26,6 +26,38 @@ using namespace nb::literals;
 namespace bflow::python {
 
 void bind_ocp(nb::module_& m) {
+  // The homotopy's options beyond HomotopyOptions (bound in fesd.cc), bflow/ocp/ocp.h.
+  nb::class_<OcpHomotopyOptions, HomotopyOptions>(m, "OcpHomotopyOptions")
+      .def(nb::init<>())
+      .def_prop_rw(
+          "relaxation",
+          [](const OcpHomotopyOptions& o) {
+            return std::string(o.relaxation == OcpRelaxation::kL1Penalty ? "l1"
+                               : o.relaxation == OcpRelaxation::kElastic ? "elastic"
+                                                                         : "scholtes");
+          },
+          [](OcpHomotopyOptions& o, const std::string& v) {
+            if (v == "scholtes") {
+              o.relaxation = OcpRelaxation::kScholtes;
+            } else if (v == "l1") {
+              o.relaxation = OcpRelaxation::kL1Penalty;
+            } else if (v == "elastic") {
+              o.relaxation = OcpRelaxation::kElastic;
+            } else {
+              throw InvalidArgument("relaxation: unknown relaxation \"" + v +
+                                    "\"; use scholtes, l1 or elastic");
+            }
+          })
+      .def_rw("complementarity_tolerance", &OcpHomotopyOptions::complementarity_tolerance)
+      .def_rw("intermediate_tolerance_factor", &OcpHomotopyOptions::intermediate_tolerance_factor)
+      .def_rw("warm_start", &OcpHomotopyOptions::warm_start)
+      .def_rw("polish", &OcpHomotopyOptions::polish)
+      .def_rw("early_polish_sigma", &OcpHomotopyOptions::early_polish_sigma)
+      .def_rw("stop_at_complementarity", &OcpHomotopyOptions::stop_at_complementarity)
+      .def_rw("acceptable_tolerance", &OcpHomotopyOptions::acceptable_tolerance)
+      .def_rw("max_total_iterations", &OcpHomotopyOptions::max_total_iterations)
+      .def_rw("continue_after_failure", &OcpHomotopyOptions::continue_after_failure);
+
   nb::class_<OcpOptions>(m, "OcpOptions")
       .def(nb::init<>())
       .def_rw("stages", &OcpOptions::stages)
@@ -38,35 +70,9 @@ void bind_ocp(nb::module_& m) {
           "formulation", [](const OcpOptions& o) { return std::string(to_string(o.formulation)); },
           [](OcpOptions& o, const std::string& v) { o.formulation = parse_dcs_formulation(v); })
       .def_rw("standard", &OcpOptions::standard)
-      .def_prop_rw(
-          "relaxation",
-          [](const OcpOptions& o) {
-            return std::string(o.relaxation == OcpRelaxation::kL1Penalty ? "l1"
-                               : o.relaxation == OcpRelaxation::kElastic ? "elastic"
-                                                                         : "scholtes");
-          },
-          [](OcpOptions& o, const std::string& v) {
-            if (v == "scholtes") {
-              o.relaxation = OcpRelaxation::kScholtes;
-            } else if (v == "l1") {
-              o.relaxation = OcpRelaxation::kL1Penalty;
-            } else if (v == "elastic") {
-              o.relaxation = OcpRelaxation::kElastic;
-            } else {
-              throw InvalidArgument("relaxation: unknown relaxation \"" + v +
-                                    "\"; use scholtes, l1 or elastic");
-            }
-          })
-      .def_rw("sigma_initial", &OcpOptions::sigma_initial)
-      .def_rw("sigma_final", &OcpOptions::sigma_final)
-      .def_rw("sigma_factor", &OcpOptions::sigma_factor)
-      .def_rw("nlp_tolerance", &OcpOptions::nlp_tolerance)
-      .def_rw("complementarity_tolerance", &OcpOptions::complementarity_tolerance)
-      .def_rw("polish", &OcpOptions::polish)
-      .def_rw("early_polish_sigma", &OcpOptions::early_polish_sigma)
-      .def_rw("max_total_iterations", &OcpOptions::max_total_iterations)
       .def_rw("exact_hessian", &OcpOptions::exact_hessian)
       .def_rw("lifting_depth", &OcpOptions::lifting_depth)
+      .def_rw("homotopy", &OcpOptions::homotopy)
       .def_rw("solver", &OcpOptions::solver)
       .def_prop_rw(
           "cross_complementarity",

@@ -32,6 +32,22 @@ def test_braking_block_as_in_the_cli_and_second_order_in_n(cli):
     assert min(abs(t - exact["stop_time"]) for t in fine.switch_times) < 2e-3
 
 
+def test_homotopy_and_solver_keywords_reach_their_groups():
+    # The keywords are flat; each lands in the options' group (OcpOptions::homotopy, ::solver)
+    # and changes the solve: sigma from 1e-2 to 1e-3 is two NLPs at those sigmas, no polish.
+    r = bflow.ocp_solve("braking-block", N=3, sigma_initial=1e-2, sigma_final=1e-3,
+                        early_polish_sigma=0.0, polish=False, blas_threads=1)
+    assert [step.sigma for step in r.homotopy] == pytest.approx([1e-2, 1e-3], rel=1e-12)
+    assert not any(step.polish for step in r.homotopy)
+    assert ", 1 thread" in r.blas, r.blas
+    # The defaults of each owner's homotopy, as docs/ocp.md and docs/fesd.md state them.
+    ocp, fesd = bflow._bflow.OcpOptions().homotopy, bflow._bflow.FesdOptions().homotopy
+    assert (ocp.sigma_initial, ocp.sigma_final, ocp.nlp_tolerance, ocp.max_nlp_iterations,
+            ocp.superlinear, ocp.polish) == (100.0, 1e-10, 1e-10, 3000, False, True)
+    assert (fesd.sigma_initial, fesd.sigma_final, fesd.nlp_tolerance, fesd.max_nlp_iterations,
+            fesd.superlinear) == (1.0, 1e-12, 1e-13, 500, True)
+
+
 def cli_ocp(cli, *args):
     # The command exits with 1 when the homotopy stops short of the complementarity tolerance,
     # and still prints the result.

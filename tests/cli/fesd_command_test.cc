@@ -1,8 +1,10 @@
 // `bflow fesd` in-process: the JSON of a run against the exact solution, Table 4, bad options.
+#include <algorithm>
 #include <cstdint>
 #include <limits>
 #include <sstream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <gmock/gmock.h>
@@ -22,6 +24,55 @@ using ::testing::EndsWith;
 using ::testing::HasSubstr;
 using ::testing::MatchesRegex;
 using ::testing::StartsWith;
+
+// `bflow fesd --help` and `bflow ocp --help` list their options in the groups of the options
+// structs (fesd/homotopy_options.h): each option below the heading of its own group.
+TEST(FesdCommandTest, HelpGroupsTheOptionsAsTheLibraryDoes) {
+  const std::vector<std::string> headings = {
+      "Problem:", "Discretisation (FESD):",
+      "Homotopy (the relaxation's sigma and the NLPs' tolerances):",
+      "Solver (IPOPT and its linear solver):", "Output:"};
+  const std::vector<std::pair<std::string, std::vector<std::vector<std::string>>>> commands = {
+      {"fesd",
+       {{"--example", "--nsim", "--T"},
+        {"--formulation", "--scheme", "--stages", "--nfe", "--standard", "--lifting"},
+        {},
+        {"--exact-hessian", "--linear-solver", "--linear-solver-library", "--blas-threads"},
+        {"--trajectory", "--sizes", "--compact"}}},
+      {"ocp",
+       {{"--example", "--setup", "--N"},
+        {"--nfe", "--stages", "--scheme", "--formulation", "--standard", "--cross", "--lifting"},
+        {"--relaxation", "--sigma0", "--sigma-final", "--early-polish-sigma", "--tol",
+         "--max-iterations"},
+        {"--linear-solver", "--linear-solver-library", "--blas-threads"},
+        {"--trajectory", "--plot", "--compact", "--quiet"}}}};
+  for (const auto& [command, groups] : commands) {
+    SCOPED_TRACE(command);
+    const Outcome help = command_line({command, "--help"});
+    ASSERT_EQ(help.code, 0);
+    // Each group's heading and where the next one starts (the end for the last).
+    std::vector<std::size_t> at;
+    for (std::size_t g = 0; g < headings.size(); ++g) {
+      at.push_back(groups[g].empty() ? std::string::npos : help.out.find("\n" + headings[g]));
+      if (!groups[g].empty()) {
+        ASSERT_NE(at.back(), std::string::npos) << headings[g] << "\n" << help.out;
+      } else {
+        EXPECT_EQ(help.out.find(headings[g]), std::string::npos) << headings[g];
+      }
+    }
+    for (std::size_t g = 0; g < headings.size(); ++g) {
+      if (groups[g].empty()) continue;
+      std::size_t end = help.out.size();
+      for (std::size_t k = g + 1; k < headings.size(); ++k) {
+        if (at[k] != std::string::npos && at[k] > at[g]) end = std::min(end, at[k]);
+      }
+      const std::string section = help.out.substr(at[g], end - at[g]);
+      for (const std::string& option : groups[g]) {
+        EXPECT_THAT(section, HasSubstr("  " + option + " ")) << headings[g];
+      }
+    }
+  }
+}
 
 TEST(FesdCommandTest, CrossingPrintsTheExactSwitchAndState) {
   FesdCommandOptions o;

@@ -94,8 +94,9 @@ Checked check(const StepModel& model, const Eigen::VectorXd& x0, double t_end, i
   o.newton = false;
   o.steps = 1;
   o.sensitivities = false;
-  o.sigma_initial = o.sigma_final = 0.1;  // one NLP, checked at its starting point
-  o.solver.print_level = 5;               // the checker reports on IPOPT's console output
+  o.homotopy.sigma_initial = o.homotopy.sigma_final =
+      0.1;                   // one NLP, checked at its starting point
+  o.solver.print_level = 5;  // the checker reports on IPOPT's console output
   o.solver.ipopt_string_options = {{"derivative_test", "second-order"}};
   ::testing::internal::CaptureStdout();
   Checked c;

@@ -80,11 +80,11 @@ TEST(FesdInput, NonFiniteOrContradictoryOptionsAreRefused) {
   const auto model = adapt_step(examples::CrossingCase{});
   const Eigen::VectorXd x0 = Eigen::VectorXd::Constant(1, -1.0);
   FesdOptions o;
-  o.sigma_initial = std::numeric_limits<double>::infinity();
+  o.homotopy.sigma_initial = std::numeric_limits<double>::infinity();
   EXPECT_THAT(testing::message_of([&] { fesd_simulate(model, x0, 1.0, o); }),
               HasSubstr("sigma_initial = inf"));
   o = {};
-  o.nlp_tolerance = std::numeric_limits<double>::quiet_NaN();
+  o.homotopy.nlp_tolerance = std::numeric_limits<double>::quiet_NaN();
   EXPECT_THAT(testing::message_of([&] { fesd_simulate(model, x0, 1.0, o); }),
               HasSubstr("nlp_tolerance = nan"));
   o = {};

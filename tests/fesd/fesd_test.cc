@@ -80,7 +80,7 @@ TEST(FesdTest, NewtonOnGuessedActiveSetsAgreesWithTheHomotopy) {
   EXPECT_EQ(fast.newton_switch_steps, 1);  // the step where the sliding arc begins
   EXPECT_EQ(slow.newton_steps, 0);
   // Measured: x 4.5e-15, switch time 3.4e-13, sensitivity 5.4e-16 apart.
-  const double apart = 10.0 * o.sigma_final;
+  const double apart = 10.0 * o.homotopy.sigma_final;
   EXPECT_LE((fast.x_end - slow.x_end).cwiseAbs().maxCoeff(), apart);
   ASSERT_EQ(fast.switch_times.size(), slow.switch_times.size());
   EXPECT_NEAR(fast.switch_times[0], slow.switch_times[0], apart);
@@ -141,7 +141,8 @@ TEST(FesdTest, AcceptableLevelSolvesAreFlagged) {
   ASSERT_TRUE(normal.ok()) << normal.message;
   EXPECT_FALSE(normal.acceptable_only);
   EXPECT_EQ(normal.acceptable_only_steps, 0);
-  EXPECT_LE(normal.max_complementarity, o.sigma_final);  // the relaxation; measured 7.2e-13
+  EXPECT_LE(normal.max_complementarity,
+            o.homotopy.sigma_final);  // the relaxation; measured 7.2e-13
 
   o.solver.ipopt_numeric_options = {{"acceptable_tol", 1e10},
                                     {"acceptable_constr_viol_tol", 1e10},
@@ -151,7 +152,7 @@ TEST(FesdTest, AcceptableLevelSolvesAreFlagged) {
   const FesdResult loose = fesd_simulate(model, x0, 1.0, o);
   EXPECT_TRUE(loose.acceptable_only);
   EXPECT_EQ(loose.acceptable_only_steps, 2);
-  EXPECT_GT(loose.max_complementarity, o.sigma_final);  // measured 0.15
+  EXPECT_GT(loose.max_complementarity, o.homotopy.sigma_final);  // measured 0.15
   EXPECT_THAT(loose.message, ::testing::HasSubstr("solved by IPOPT only to its acceptable level"));
 
   FesdOptions n;

@@ -137,7 +137,7 @@ TEST(OcpProblemOptions, StateBoundsOnTheStagePointsCutTheInteriorOfAnElement) {
   OcpOptions o;
   o.stages = 1;
   o.elements = 1;
-  o.polish = false;
+  o.homotopy.polish = false;
   const OcpResult ends = ocp_solve(adapt_ocp(Cart{}), p, o);
   ASSERT_TRUE(ends.ok()) << ends.message;
   EXPECT_NEAR(ends.u(0, 0), -2.0, 1e-8);
@@ -177,7 +177,7 @@ TEST(OcpProblemOptions, TrackingScaledByAControlIsIntegratedOverItsTime) {
   p.u_ref = Eigen::Vector2d(0.0, 2.0);
   OcpOptions o;
   o.stages = 4;
-  o.polish = false;
+  o.homotopy.polish = false;
   const OcpResult plain = ocp_solve(adapt_ocp(ScaledIntegrator{}), p, o);
   ASSERT_TRUE(plain.ok()) << plain.message;
   p.track_time_scale = 1;
@@ -216,7 +216,7 @@ TEST(OcpProblemOptions, ClockToleranceLetsTheClockLagWithinItsBand) {
   p.guess_u = Eigen::MatrixXd::Constant(1, 1, 1.0);
   OcpOptions o;
   o.stages = 3;
-  o.polish = false;
+  o.homotopy.polish = false;
   const OcpResult r = ocp_solve(adapt_ocp(model), p, o);
   ASSERT_TRUE(r.ok()) << r.message;
   for (int k = 1; k <= 3; ++k) {

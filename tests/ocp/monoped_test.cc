@@ -445,7 +445,7 @@ TEST(MonopedOcp, StandsStillWithoutTorques) {
   OcpProblem p = standing_problem(task, stages);
   const Eigen::VectorXd x0 = p.x0;
   OcpOptions o = task.options(stages);
-  o.sigma_final = 1e-6;
+  o.homotopy.sigma_final = 1e-6;
   const OcpResult r =
       ocp_solve(adapt_ocp(monoped_free_model<TimeFreezingRegions::kUnions>()), p, o);
   ASSERT_EQ(r.status, OcpStatus::kSolved) << r.message;
@@ -482,9 +482,9 @@ TEST(MonopedOcp, StewartPolishKeepsARegionAtEveryPoint) {
   for (const double sigma : {0.1, 0.01}) {
     const OcpProblem p = standing_problem(task, stages);
     OcpOptions o = task.options(stages, DcsFormulation::kStewart);
-    o.sigma_initial = o.sigma_final = sigma;
-    o.stop_at_complementarity = false;
-    o.polish = true;
+    o.homotopy.sigma_initial = o.homotopy.sigma_final = sigma;
+    o.homotopy.stop_at_complementarity = false;
+    o.homotopy.polish = true;
     const OcpResult r =
         with_monoped(task, DcsFormulation::kStewart, stages,
                      [&](const auto& model, const OcpProblem&) { return ocp_solve(model, p, o); });

@@ -143,8 +143,8 @@ Checked check(const OcpModel& model, const OcpProblem& problem, OcpOptions o, do
               double sigma = 0.1, Probe probe = {}) {
   o.exact_hessian = true;
   o.solver.exact_hessian_scale = scale;
-  o.sigma_initial = o.sigma_final = sigma;
-  o.polish = false;
+  o.homotopy.sigma_initial = o.homotopy.sigma_final = sigma;
+  o.homotopy.polish = false;
   o.solver.print_level = 5;  // the checker reports on IPOPT's console output
   o.solver.ipopt_string_options.push_back({"derivative_test", "second-order"});
   o.solver.ipopt_integer_options.push_back({"max_iter", 0});
@@ -292,13 +292,13 @@ TEST(OcpHessian, EveryCostAlone) {
                     "Lagrange, Gauss-Legendre 2");
   const auto curved = adapt_ocp(Curved{});
   OcpOptions penalty = radau2;
-  penalty.relaxation = OcpRelaxation::kL1Penalty;
+  penalty.homotopy.relaxation = OcpRelaxation::kL1Penalty;
   objective_flagged(pass_and_control(curved, Curved::problem(), penalty, "l1 penalty", 1.0),
                     "l1 penalty");
   // The elastic slack: its column of -1 in every relaxed row and its linear cost 1 / sigma pass
   // the first-order test; the slack adds no second derivative.
   OcpOptions elastic = radau2;
-  elastic.relaxation = OcpRelaxation::kElastic;
+  elastic.homotopy.relaxation = OcpRelaxation::kElastic;
   pass_and_control(curved, Curved::problem(), elastic, "elastic", 1.0);
   objective_flagged(pass_and_control(adapt_ocp(CurvedMayer{}), Curved::problem(), radau1, "Mayer"),
                     "Mayer");

@@ -1,7 +1,7 @@
-// The homotopy's stopping rule of ocp_solve (OcpOptions::stop_at_complementarity): the homotopy
-// ends at the first NLP whose complementarity residual is within complementarity_tolerance,
-// solved at nlp_tolerance, and the polish then reaches the turbo car's exact optimal time
-// T* = 40/3 (ocp_examples.h).
+// The homotopy's stopping rule of ocp_solve (OcpHomotopyOptions::stop_at_complementarity): the
+// homotopy ends at the first NLP whose complementarity residual is within
+// complementarity_tolerance, solved at nlp_tolerance, and the polish then reaches the turbo car's
+// exact optimal time T* = 40/3 (ocp_examples.h).
 #include <cmath>
 #include <cstdio>
 #include <string>
@@ -46,11 +46,11 @@ std::vector<OcpHomotopyStep> relaxed_steps(const OcpResult& r) {
 TEST(OcpHomotopy, StopsAtTheFirstNlpWithinTheComplementarityTolerance) {
   OcpOptions options;
   options.stages = 5;
-  options.complementarity_tolerance = 1e-6;
+  options.homotopy.complementarity_tolerance = 1e-6;
   // This rule alone: the early polish would end both homotopies first.
-  options.early_polish_sigma = 0.0;
+  options.homotopy.early_polish_sigma = 0.0;
   const OcpResult full = solve_car(options);
-  options.stop_at_complementarity = true;
+  options.homotopy.stop_at_complementarity = true;
   const OcpResult r = solve_car(options);
   ASSERT_EQ(full.status, OcpStatus::kSolved) << full.message;
   ASSERT_EQ(r.status, OcpStatus::kSolved) << r.message;
@@ -59,7 +59,7 @@ TEST(OcpHomotopy, StopsAtTheFirstNlpWithinTheComplementarityTolerance) {
   ASSERT_GE(steps.size(), 2u);
   const OcpHomotopyStep& last = steps.back();
   EXPECT_LE(last.complementarity, 1e-6);
-  EXPECT_GT(last.sigma, options.sigma_final);
+  EXPECT_GT(last.sigma, options.homotopy.sigma_final);
   std::size_t first_within = steps.size() - 1;
   while (first_within > 0 && steps[first_within - 1].complementarity <= 1e-6) --first_within;
   for (std::size_t k = 0; k < first_within; ++k) EXPECT_GT(steps[k].complementarity, 1e-6) << k;
@@ -86,7 +86,7 @@ TEST(OcpHomotopy, StopsAtTheFirstNlpWithinTheComplementarityTolerance) {
       last.sigma, std::abs(r.T - 40.0 / 3.0), std::abs(full.T - 40.0 / 3.0));
 }
 
-// OcpOptions::max_total_iterations. A budget below what the homotopy needs ends it with
+// OcpHomotopyOptions::max_total_iterations. A budget below what the homotopy needs ends it with
 // kBudgetExhausted: the iterations spent never exceed the budget, the message names it, and the
 // result is the last solved NLP's (its sigma in the message). A budget of exactly what it needs
 // (its NLPs and the early polishes that end it) changes nothing: the same NLPs, iterations and
@@ -100,7 +100,8 @@ TEST(OcpHomotopy, TotalIterationBudget) {
   for (const OcpHomotopyStep& s : relaxed_steps(free)) relaxed_iterations += s.iterations;
 
   ASSERT_TRUE(free.polished);
-  options.max_total_iterations = free.ipopt_iterations;  // exactly enough, the polishes included
+  options.homotopy.max_total_iterations =
+      free.ipopt_iterations;  // exactly enough, the polishes included
   const OcpResult enough = solve_car(options);
   ASSERT_EQ(enough.status, OcpStatus::kSolved) << enough.message;
   EXPECT_EQ(enough.ipopt_iterations, free.ipopt_iterations);
@@ -108,7 +109,7 @@ TEST(OcpHomotopy, TotalIterationBudget) {
   EXPECT_NEAR(enough.T, 40.0 / 3.0, 1e-8);
 
   const int budget = relaxed_iterations / 2;
-  options.max_total_iterations = budget;
+  options.homotopy.max_total_iterations = budget;
   const OcpResult cut = solve_car(options);
   EXPECT_EQ(cut.status, OcpStatus::kBudgetExhausted) << cut.message;
   EXPECT_STREQ(to_string(cut.status), "budget_exhausted");
@@ -126,11 +127,11 @@ TEST(OcpHomotopy, TotalIterationBudget) {
   std::printf("free: %d iterations in %zu NLPs; budget %d: %zu NLPs, %s\n", free.ipopt_iterations,
               b.size(), budget, a.size(), cut.message.c_str());
 
-  options.max_total_iterations = -1;
+  options.homotopy.max_total_iterations = -1;
   EXPECT_THROW(solve_car(options), InvalidArgument);
 }
 
-// OcpOptions::intermediate_tolerance_factor = 0 gives every NLP of the homotopy IPOPT's tol
+// OcpHomotopyOptions::intermediate_tolerance_factor = 0 gives every NLP of the homotopy IPOPT's tol
 // nlp_tolerance (nosnoc's rule), the default 1e-2 the NLPs before the last only
 // max(nlp_tolerance, 1e-2 sigma): the first NLP (sigma = 100, tol 1) then ends "optimal" at a
 // KKT error within 1 and above nlp_tolerance (measured 1.5e-4: IPOPT stops at the first iterate
@@ -140,10 +141,10 @@ TEST(OcpHomotopy, TotalIterationBudget) {
 TEST(OcpHomotopy, IntermediateToleranceFactor) {
   OcpOptions options;
   options.stages = 5;
-  options.polish = false;
-  options.nlp_tolerance = 1e-8;
+  options.homotopy.polish = false;
+  options.homotopy.nlp_tolerance = 1e-8;
   const OcpResult loose = solve_car(options);
-  options.intermediate_tolerance_factor = 0.0;
+  options.homotopy.intermediate_tolerance_factor = 0.0;
   const OcpResult tight = solve_car(options);
   ASSERT_EQ(loose.status, OcpStatus::kSolved) << loose.message;
   // The last NLP may end at IPOPT's acceptable level (IPOPT 3.14.19 here: KKT error 2.6e-6);
@@ -155,13 +156,13 @@ TEST(OcpHomotopy, IntermediateToleranceFactor) {
   int optimal_above = 0;  // where the factor 1e-2 would have given a tol above 1e-8
   for (const OcpHomotopyStep& s : relaxed_steps(tight)) {
     if (s.ipopt_status != "Solve_Succeeded") continue;
-    if (1e-2 * s.sigma > options.nlp_tolerance) ++optimal_above;
+    if (1e-2 * s.sigma > options.homotopy.nlp_tolerance) ++optimal_above;
     EXPECT_LE(s.kkt_error, 1e-8) << s.sigma;
   }
   EXPECT_GE(optimal_above, 1);
   EXPECT_EQ(relaxed_steps(loose).front().ipopt_status, "Solve_Succeeded");
   EXPECT_LE(relaxed_steps(loose).front().kkt_error, 1e-2 * relaxed_steps(loose).front().sigma);
-  EXPECT_GT(relaxed_steps(loose).front().kkt_error, options.nlp_tolerance);
+  EXPECT_GT(relaxed_steps(loose).front().kkt_error, options.homotopy.nlp_tolerance);
   EXPECT_NEAR(loose.T, 40.0 / 3.0, 1e-6);
   EXPECT_NEAR(tight.T, 40.0 / 3.0, 1e-6);
   std::printf("first NLP's KKT error: %.1e (factor 1e-2), %.1e (factor 0); |T - 40/3| %.1e, %.1e\n",
@@ -169,15 +170,15 @@ TEST(OcpHomotopy, IntermediateToleranceFactor) {
               std::abs(loose.T - 40.0 / 3.0), std::abs(tight.T - 40.0 / 3.0));
 }
 
-// OcpOptions::first_from_zero_multipliers: the first NLP starts as IPOPT's warm start with every
-// multiplier 0 instead of IPOPT's own initialisation. Another path (the first NLP ends at another
-// point: its iterations, objective or KKT error differ; equal to the last bit from two starts
-// would mean the option was not applied), the same optimum T* = 40/3.
+// OcpHomotopyOptions::first_from_zero_multipliers: the first NLP starts as IPOPT's warm start with
+// every multiplier 0 instead of IPOPT's own initialisation. Another path (the first NLP ends at
+// another point: its iterations, objective or KKT error differ; equal to the last bit from two
+// starts would mean the option was not applied), the same optimum T* = 40/3.
 TEST(OcpHomotopy, FirstNlpFromZeroMultipliers) {
   OcpOptions options;
   options.stages = 5;
   const OcpResult own = solve_car(options);
-  options.first_from_zero_multipliers = true;
+  options.homotopy.first_from_zero_multipliers = true;
   const OcpResult zero = solve_car(options);
   ASSERT_EQ(own.status, OcpStatus::kSolved) << own.message;
   ASSERT_EQ(zero.status, OcpStatus::kSolved) << zero.message;
@@ -192,24 +193,24 @@ TEST(OcpHomotopy, FirstNlpFromZeroMultipliers) {
               std::abs(zero.T - 40.0 / 3.0));
 }
 
-// OcpOptions::continue_after_failure (nosnoc's rule). With half the IPOPT iterations the turbo
-// car's first NLP (sigma = 100) takes without a cap (measured 53), it stops unsolved: the capped
-// run takes the same iterates and stops at the cap. bflow's rule has
-// no solved NLP to go back to and ends there (nlp_failed, one NLP); nosnoc's hands every failed
-// NLP's last iterate to the next sigma: the schedule 100, 10, ..., 1e-10 (13 NLPs) is walked
-// once, and the notes name each failed sigma but the last's, which is the result's message.
+// OcpHomotopyOptions::continue_after_failure (nosnoc's rule). With half the IPOPT iterations the
+// turbo car's first NLP (sigma = 100) takes without a cap (measured 53), it stops unsolved: the
+// capped run takes the same iterates and stops at the cap. bflow's rule has no solved NLP to go
+// back to and ends there (nlp_failed, one NLP); nosnoc's hands every failed NLP's last iterate to
+// the next sigma: the schedule 100, 10, ..., 1e-10 (13 NLPs) is walked once, and the notes name
+// each failed sigma but the last's, which is the result's message.
 TEST(OcpHomotopy, ContinueAfterFailure) {
   OcpOptions options;
   options.stages = 5;
-  options.polish = false;
+  options.homotopy.polish = false;
   const OcpResult uncapped = solve_car(options);
   ASSERT_FALSE(uncapped.homotopy.empty());
   const OcpHomotopyStep& first = uncapped.homotopy.front();
   ASSERT_EQ(first.ipopt_status, "Solve_Succeeded");
   ASSERT_GE(first.iterations, 2);
-  options.max_nlp_iterations = first.iterations / 2;
+  options.homotopy.max_nlp_iterations = first.iterations / 2;
   const OcpResult retried = solve_car(options);
-  options.continue_after_failure = true;
+  options.homotopy.continue_after_failure = true;
   const OcpResult continued = solve_car(options);
 
   EXPECT_EQ(retried.status, OcpStatus::kNlpFailed);

@@ -200,7 +200,7 @@ TEST(OcpCancel, CancellingKeepsTheLastSolvedNlp) {
   EXPECT_STREQ(to_string(r.status), "cancelled");
   EXPECT_FALSE(r.ok());
   ASSERT_EQ(steps.size(), 2u);
-  EXPECT_EQ(steps[0].sigma, o.sigma_initial);
+  EXPECT_EQ(steps[0].sigma, o.homotopy.sigma_initial);
   EXPECT_EQ(steps[1].ipopt_status, "User_Requested_Stop");
   EXPECT_THAT(r.message,
               HasSubstr("cancelled (OcpOptions::cancelled) during the NLP at sigma = 10; "

@@ -112,12 +112,12 @@ TEST(OcpSetup, AnAcceptableStopIsSolvedOnlyWhenItsKktErrorMeetsTheTolerance) {
   using examples::TurboCar;
   OcpOptions o;
   o.stages = 5;
-  o.nlp_tolerance = 1e-5;
-  o.complementarity_tolerance = 1e-5;
-  o.stop_at_complementarity = true;
-  o.acceptable_tolerance = 1e-5;
-  o.acceptable_iterations = 3;
-  o.polish = false;
+  o.homotopy.nlp_tolerance = 1e-5;
+  o.homotopy.complementarity_tolerance = 1e-5;
+  o.homotopy.stop_at_complementarity = true;
+  o.homotopy.acceptable_tolerance = 1e-5;
+  o.homotopy.acceptable_iterations = 3;
+  o.homotopy.polish = false;
   o.solver.ipopt_numeric_options = {{"dual_inf_tol", 1e-12}};
   const OcpResult r = ocp_solve(adapt_ocp(TurboCar{}), TurboCar::problem(), o);
   ASSERT_EQ(r.status, OcpStatus::kSolved) << r.message;
@@ -133,13 +133,36 @@ TEST(OcpSetup, AnAcceptableStopIsSolvedOnlyWhenItsKktErrorMeetsTheTolerance) {
     EXPECT_GE(s.constraint_violation, 0.0) << s.index;
   }
 
-  o.nlp_tolerance = 1e-13;
+  o.homotopy.nlp_tolerance = 1e-13;
   const OcpResult strict = ocp_solve(adapt_ocp(TurboCar{}), TurboCar::problem(), o);
   std::printf("tol 1e-13: %s, %s, KKT error %.1e\n", to_string(strict.status),
               strict.ipopt_status.c_str(), strict.kkt_error);
   EXPECT_EQ(strict.ipopt_status, "Solved_To_Acceptable_Level");
   EXPECT_GT(strict.kkt_error, 1e-13);
   EXPECT_EQ(strict.status, OcpStatus::kAcceptableOnly) << strict.message;
+}
+
+// The homotopy's options keep the defaults docs/ocp.md and docs/fesd.md state for each owner:
+// OcpHomotopyOptions sets HomotopyOptions' six fields by position, so a field out of place
+// there would give the OCP another schedule without any other test noticing the cause.
+TEST(OcpSetup, EachHomotopyGroupHasItsOwnersDefaults) {
+  const OcpHomotopyOptions ocp = OcpOptions{}.homotopy;
+  EXPECT_EQ(ocp.sigma_initial, 100.0);
+  EXPECT_EQ(ocp.sigma_final, 1e-10);
+  EXPECT_EQ(ocp.sigma_factor, 0.1);
+  EXPECT_FALSE(ocp.superlinear);
+  EXPECT_EQ(ocp.nlp_tolerance, 1e-10);
+  EXPECT_EQ(ocp.max_nlp_iterations, 3000);
+  EXPECT_EQ(ocp.complementarity_tolerance, 1e-9);
+  EXPECT_EQ(ocp.early_polish_sigma, 1e-4);
+  EXPECT_TRUE(ocp.polish);
+  const HomotopyOptions fesd = FesdOptions{}.homotopy;
+  EXPECT_EQ(fesd.sigma_initial, 1.0);
+  EXPECT_EQ(fesd.sigma_final, 1e-12);
+  EXPECT_EQ(fesd.sigma_factor, 0.1);
+  EXPECT_TRUE(fesd.superlinear);
+  EXPECT_EQ(fesd.nlp_tolerance, 1e-13);
+  EXPECT_EQ(fesd.max_nlp_iterations, 500);
 }
 
 TEST(OcpSetup, BadOptionsAreRefusedWithTheValues) {
@@ -154,10 +177,10 @@ TEST(OcpSetup, BadOptionsAreRefusedWithTheValues) {
         << e.what();
   }
   o.step_deviation_weight = 0.0;
-  o.acceptable_tolerance = std::numeric_limits<double>::quiet_NaN();
+  o.homotopy.acceptable_tolerance = std::numeric_limits<double>::quiet_NaN();
   EXPECT_THROW(ocp_solve(adapt_ocp(TurboCar{}), TurboCar::problem(), o), InvalidArgument);
-  o.acceptable_tolerance = 0.0;
-  o.intermediate_tolerance_factor = -0.5;
+  o.homotopy.acceptable_tolerance = 0.0;
+  o.homotopy.intermediate_tolerance_factor = -0.5;
   try {
     ocp_solve(adapt_ocp(TurboCar{}), TurboCar::problem(), o);
     FAIL() << "no exception";

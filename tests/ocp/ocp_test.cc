@@ -282,7 +282,7 @@ TEST(OcpConsistency, EventDrivenEngineReproducesTheTurboCar) {
 // points (docs/ocp.md).
 TEST(OcpRelaxations, PenaltyReachesTheScholtesOptimum) {
   OcpOptions options;
-  options.relaxation = OcpRelaxation::kL1Penalty;
+  options.homotopy.relaxation = OcpRelaxation::kL1Penalty;
   const OcpResult penalty = solve_block(10, options);
   const OcpResult scholtes = solve_block(10);
   ASSERT_EQ(penalty.status, OcpStatus::kSolved) << penalty.message;
@@ -297,7 +297,7 @@ TEST(OcpRelaxations, PenaltyReachesTheScholtesOptimum) {
 // 2.1e-10 at N = 10; bounds as the Scholtes runs'). Its NLPs have one unknown more, the slack.
 TEST(OcpRelaxations, ElasticModeReachesTheExactOptima) {
   OcpOptions options;
-  options.relaxation = OcpRelaxation::kElastic;
+  options.homotopy.relaxation = OcpRelaxation::kElastic;
   const OcpResult elastic = solve_block(10, options);
   const OcpResult scholtes = solve_block(10);
   ASSERT_EQ(elastic.status, OcpStatus::kSolved) << elastic.message;
@@ -334,13 +334,14 @@ TEST(OcpStationarity, ProductMultipliersAreTheCostsSlopeInSigma) {
   for (const double sigma : {1e-1, 1e-3}) {
     SCOPED_TRACE("sigma " + std::to_string(sigma));
     OcpOptions options;
-    options.sigma_initial = sigma / (q * q);
-    options.sigma_factor = q;
-    options.sigma_final = sigma * q * q * (1.0 - 1e-12);
-    options.intermediate_tolerance_factor = 0.0;  // every NLP to nlp_tolerance
-    options.polish = false;
-    options.early_polish_sigma = 0.0;
-    options.acceptable_iterations = 0;  // no stop at IPOPT's acceptable level: its tol or nothing
+    options.homotopy.sigma_initial = sigma / (q * q);
+    options.homotopy.sigma_factor = q;
+    options.homotopy.sigma_final = sigma * q * q * (1.0 - 1e-12);
+    options.homotopy.intermediate_tolerance_factor = 0.0;  // every NLP to nlp_tolerance
+    options.homotopy.polish = false;
+    options.homotopy.early_polish_sigma = 0.0;
+    options.homotopy.acceptable_iterations =
+        0;  // no stop at IPOPT's acceptable level: its tol or nothing
     const OcpResult r = solve_block(10, options);
     ASSERT_GE(r.homotopy.size(), 5u) << r.message;
     const std::vector<OcpHomotopyStep> h(r.homotopy.begin(), r.homotopy.begin() + 5);
@@ -353,7 +354,7 @@ TEST(OcpStationarity, ProductMultipliersAreTheCostsSlopeInSigma) {
     ASSERT_NEAR(at.sigma, sigma, 1e-12 * sigma);
     const auto error = [](const OcpHomotopyStep& step) {
       return 10.0 * (1.0 + std::abs(step.objective)) *
-             std::max(OcpOptions{}.nlp_tolerance, step.kkt_error);
+             std::max(OcpOptions{}.homotopy.nlp_tolerance, step.kkt_error);
     };
     const double slope = (h[1].objective - h[3].objective) / (h[1].sigma - h[3].sigma);
     const double slope2 = (h[0].objective - h[4].objective) / (h[0].sigma - h[4].sigma);
@@ -392,7 +393,7 @@ TEST(OcpPolish, FromAFarRelaxationTheActiveSetIsConsistent) {
         OcpOptions options;
         options.formulation = formulation;
         options.standard = standard;
-        options.sigma_initial = options.sigma_final = sigma;
+        options.homotopy.sigma_initial = options.homotopy.sigma_final = sigma;
         const OcpResult r = solve_block(10, options);
         ASSERT_FALSE(r.homotopy.empty());
         const OcpHomotopyStep& polish = r.homotopy.back();
@@ -417,8 +418,8 @@ TEST(OcpPolish, FromAFarRelaxationTheActiveSetIsConsistent) {
   }
 }
 
-// OcpOptions::max_total_iterations bounds the homotopy's NLPs and its early polishes; only the
-// final polish after sigma_final is outside it (ocp.h), and that polish runs only when the
+// OcpHomotopyOptions::max_total_iterations bounds the homotopy's NLPs and its early polishes; only
+// the final polish after sigma_final is outside it (ocp.h), and that polish runs only when the
 // homotopy ended by itself. HomotopySolver::run gives each NLP and early polish IPOPT's max_iter
 // = what is left of the budget, and IPOPT stops at max_iter iterations at the latest, so the
 // budgeted iterations never exceed the budget; the run ends kBudgetExhausted only when nothing is
@@ -437,7 +438,7 @@ int budgeted_iterations(const OcpResult& r, const OcpOptions& options) {
   const bool polished_early = std::any_of(r.notes.begin(), r.notes.end(), [](const auto& note) {
     return note.rfind("polished at sigma = ", 0) == 0;
   });
-  const bool final_polish = options.polish && ended_by_itself && !polished_early;
+  const bool final_polish = options.homotopy.polish && ended_by_itself && !polished_early;
   int n = r.ipopt_iterations;
   if (final_polish && !r.homotopy.empty() && r.homotopy.back().polish)
     n -= r.homotopy.back().iterations;
@@ -465,7 +466,7 @@ TEST(OcpStatus, TheBudgetBoundsTheEarlyPolish) {
                  std::to_string(free_budgeted));
     ASSERT_LT(budget, free_budgeted);
     OcpOptions options;
-    options.max_total_iterations = budget;
+    options.homotopy.max_total_iterations = budget;
     const OcpResult r = solve_block(10, options);
     std::printf("budget %d (free run %d): %s, %d iterations; %s\n", budget, free_budgeted,
                 to_string(r.status), r.ipopt_iterations, r.message.c_str());
@@ -509,7 +510,7 @@ TEST(OcpStatus, TheBudgetBoundsTheEarlyPolish) {
 // the last bit from other starts would mean the option was not applied).
 TEST(OcpRelaxations, ColdStartsReachTheExactOptimumToo) {
   OcpOptions options;
-  options.warm_start = false;
+  options.homotopy.warm_start = false;
   const OcpResult cold = solve_car(5, options);
   ASSERT_EQ(cold.status, OcpStatus::kSolved) << cold.message;
   EXPECT_NEAR(cold.T, TurboCar::kOptimalTime, 1e-8);
@@ -529,9 +530,9 @@ TEST(OcpRelaxations, ColdStartsReachTheExactOptimumToo) {
 // at most sigma_final, so a tolerance below it is honestly "not reached".
 TEST(OcpStatus, ResidualAboveTheToleranceIsReported) {
   OcpOptions options;
-  options.polish = false;
-  options.sigma_final = 1e-7;
-  options.complementarity_tolerance = 1e-9;
+  options.homotopy.polish = false;
+  options.homotopy.sigma_final = 1e-7;
+  options.homotopy.complementarity_tolerance = 1e-9;
   const OcpResult r = solve_car(5, options);
   EXPECT_EQ(r.status, OcpStatus::kComplementarityNotReached) << r.message;
   EXPECT_GT(r.max_complementarity, 1e-9);
@@ -545,8 +546,8 @@ TEST(OcpStatus, ResidualAboveTheToleranceIsReported) {
 TEST(OcpHessian, IpoptsCheckerFindsNoError) {
   OcpOptions o;
   o.stages = 2;
-  o.sigma_initial = o.sigma_final = 0.1;
-  o.polish = false;
+  o.homotopy.sigma_initial = o.homotopy.sigma_final = 0.1;
+  o.homotopy.polish = false;
   o.solver.print_level = 5;  // the checker reports on IPOPT's console output
   o.solver.ipopt_string_options = {{"derivative_test", "second-order"}};
   o.solver.ipopt_integer_options = {{"max_iter", 0}};
@@ -639,10 +640,10 @@ TEST(OcpSparsity, TheWidenedNlpStaysWithinTheBudget) {
   }
   ASSERT_NE(widened, nullptr);
   ASSERT_GE(widened->iterations, 2);
-  o.max_total_iterations = before + widened->iterations - 1;
+  o.homotopy.max_total_iterations = before + widened->iterations - 1;
   const OcpResult cut = ocp_solve(adapt_ocp(FarBranchCar{}), TurboCar::problem(), o);
   EXPECT_EQ(cut.status, OcpStatus::kBudgetExhausted) << cut.message;
-  EXPECT_LE(cut.ipopt_iterations, o.max_total_iterations);
+  EXPECT_LE(cut.ipopt_iterations, o.homotopy.max_total_iterations);
 }
 
 // MUMPS's small-front amalgamation (bflow::ScopedMumpsAmalgamation) is set on every analysis of
@@ -724,23 +725,23 @@ TEST(OcpLinearAlgebra, OpenBlasRunsOnTheThreadsAskedInsideEachNlp) {
 // the products left are within the tolerance.
 TEST(OcpHomotopy, EarlyPolishEndsTheHomotopyAtTheExactOptimum) {
   OcpOptions o;
-  o.early_polish_sigma = 1e-4;
+  o.homotopy.early_polish_sigma = 1e-4;
   const OcpResult early = solve_car(5, o);
   OcpOptions to_the_end;
-  to_the_end.early_polish_sigma = 0.0;
+  to_the_end.homotopy.early_polish_sigma = 0.0;
   const OcpResult full = solve_car(5, to_the_end);
   ASSERT_EQ(early.status, OcpStatus::kSolved) << early.message;
   ASSERT_TRUE(full.ok()) << full.message;
   EXPECT_TRUE(early.polished);
   EXPECT_NEAR(early.T, TurboCar::kOptimalTime, 1e-8);
-  EXPECT_LE(early.max_complementarity, o.complementarity_tolerance);
+  EXPECT_LE(early.max_complementarity, o.homotopy.complementarity_tolerance);
   EXPECT_TRUE(early.homotopy.back().polish);
   // The polish kept, then the polish once more from its solution: the NLP before them.
   ASSERT_GE(early.homotopy.size(), 3u);
   EXPECT_TRUE(early.homotopy[early.homotopy.size() - 2].polish);
   const double stop = early.homotopy[early.homotopy.size() - 3].sigma;
   EXPECT_LE(stop, 1e-4 * (1 + 1e-12));
-  EXPECT_GT(stop, o.sigma_final);
+  EXPECT_GT(stop, o.homotopy.sigma_final);
   EXPECT_THAT(early.notes, ::testing::Contains(::testing::HasSubstr("polished at sigma = ")));
   // The first polish is tried right after the first NLP at sigma <= 1e-4, and none before. On
   // the schedule 100 * 0.1^k that NLP is the one at 100 * 0.1^6, which is 1e-4 only to round-off
@@ -754,7 +755,7 @@ TEST(OcpHomotopy, EarlyPolishEndsTheHomotopyAtTheExactOptimum) {
     EXPECT_GT(s->sigma, 1e-4 * (1 + 1e-9)) << "an NLP at sigma <= 1e-4 without a polish";
   }
 
-  EXPECT_EQ(full.homotopy[full.homotopy.size() - 2].sigma, o.sigma_final);
+  EXPECT_EQ(full.homotopy[full.homotopy.size() - 2].sigma, o.homotopy.sigma_final);
   // As exact as the final polish: no product left.
   EXPECT_EQ(early.max_complementarity, 0.0);
 }
@@ -844,7 +845,7 @@ TEST(OcpInput, BadDataIsRefusedWithTheValues) {
   EXPECT_EQ(message(TurboCar::problem(), o),
             "ocp: N = 0 control stages and N_FE = 3 elements per stage; both must be >= 1");
   o = {};
-  o.sigma_factor = 1.5;
+  o.homotopy.sigma_factor = 1.5;
   EXPECT_EQ(message(TurboCar::problem(), o), "ocp: sigma_factor = 1.5 must lie in (0, 1)");
 }
 

@@ -384,8 +384,8 @@ TEST(TimeFreezingOcp, ClockConstraintKeepsTheStagesOnPhysicalTime) {
   p.guess_u = Eigen::MatrixXd::Constant(1, 1, 1.0);
   OcpOptions o;
   o.stages = 5;
-  o.sigma_initial = 10.0;
-  o.sigma_factor = 0.5;
+  o.homotopy.sigma_initial = 10.0;
+  o.homotopy.sigma_factor = 0.5;
   const OcpResult r = ocp_solve(adapt_ocp(model), p, o);
   ASSERT_TRUE(r.ok()) << to_string(r.status) << ": " << r.message;
   const FallingBall::Motion motion = FallingBall{}.motion(0.0, 1.0, 3.0, 0.0, 0.5);

@@ -189,24 +189,25 @@ struct HopperTask {
   /** The package's solver settings (see the top of the file) at N stages. */
   OcpOptions options() const {
     OcpOptions o;
+    OcpHomotopyOptions& h = o.homotopy;
     o.stages = stages;
     o.elements = 3;
     o.collocation_stages = 2;
     o.formulation = DcsFormulation::kStewart;
-    o.sigma_initial = 100.0;
-    o.sigma_factor = 0.1;
-    o.sigma_final = 1e-3;
-    o.stop_at_complementarity = true;
-    o.complementarity_tolerance = 1e-9;
-    o.nlp_tolerance = 1e-8;
-    o.intermediate_tolerance_factor = 0.0;
-    o.acceptable_tolerance = 1e-6;
-    o.max_nlp_iterations = 4000;
-    o.warm_start = false;
-    o.later_mu_init = 0.1;
-    o.continue_after_failure = true;
+    h.sigma_initial = 100.0;
+    h.sigma_factor = 0.1;
+    h.sigma_final = 1e-3;
+    h.stop_at_complementarity = true;
+    h.complementarity_tolerance = 1e-9;
+    h.nlp_tolerance = 1e-8;
+    h.intermediate_tolerance_factor = 0.0;
+    h.acceptable_tolerance = 1e-6;
+    h.max_nlp_iterations = 4000;
+    h.warm_start = false;
+    h.later_mu_init = 0.1;
+    h.continue_after_failure = true;
     o.step_deviation_weight = 1.0;
-    o.polish = false;
+    h.polish = false;
     return o;
   }
 

@@ -177,38 +177,39 @@ struct MonopedTask {
      iterations per NLP. */
   OcpOptions options(int stages, DcsFormulation formulation = DcsFormulation::kStep) const {
     OcpOptions o;
+    OcpHomotopyOptions& h = o.homotopy;
     o.stages = stages;
     o.formulation = formulation;
-    o.sigma_initial = 1.0;
-    o.polish = false;
-    o.max_nlp_iterations = 10000;
+    h.sigma_initial = 1.0;
+    h.polish = false;
+    h.max_nlp_iterations = 10000;
     if (setup == MonopedSetup::kStrict) {
-      o.warm_start = false;
-      o.sigma_factor = 0.1;
-      o.sigma_final = 1e-7;
-      o.nlp_tolerance = 1e-6;
-      o.complementarity_tolerance = 1e-6;
+      h.warm_start = false;
+      h.sigma_factor = 0.1;
+      h.sigma_final = 1e-7;
+      h.nlp_tolerance = 1e-6;
+      h.complementarity_tolerance = 1e-6;
       return o;
     }
     const bool stewart = formulation == DcsFormulation::kStewart;
-    o.sigma_factor = stewart ? 0.4 : 0.1;
-    o.sigma_final = std::pow(o.sigma_factor, stewart ? 14 : 4);
+    h.sigma_factor = stewart ? 0.4 : 0.1;
+    h.sigma_final = std::pow(h.sigma_factor, stewart ? 14 : 4);
     o.lifting_depth = stewart ? 0 : 2;
     // nosnoc's Stewart benchmark: cross complementarity over every pair of points (STAGE_STAGE);
     // its step benchmark: one aggregated product per element and pair (FE_FE).
     o.cross_complementarity =
         stewart ? CrossComplementarity::kPointPairs : CrossComplementarity::kElementSums;
-    o.nlp_tolerance = 1e-5;
-    o.complementarity_tolerance = 1e-5;
-    o.stop_at_complementarity = true;
-    o.acceptable_tolerance = 1e-5;
-    o.acceptable_iterations = 3;
-    o.warm_start = true;
-    o.warm_start_multipliers = false;
-    o.first_from_zero_multipliers = true;
-    o.intermediate_tolerance_factor = 0.0;
-    o.continue_after_failure = true;
-    o.later_mu_init = 0.1;
+    h.nlp_tolerance = 1e-5;
+    h.complementarity_tolerance = 1e-5;
+    h.stop_at_complementarity = true;
+    h.acceptable_tolerance = 1e-5;
+    h.acceptable_iterations = 3;
+    h.warm_start = true;
+    h.warm_start_multipliers = false;
+    h.first_from_zero_multipliers = true;
+    h.intermediate_tolerance_factor = 0.0;
+    h.continue_after_failure = true;
+    h.later_mu_init = 0.1;
     o.step_deviation_weight = 1.0;
     o.tracking = OcpTracking::kStageEnds;
     o.neutral_algebraic_guess = true;

@@ -60,6 +60,7 @@
 #include "bflow/core/errors.h"
 #include "bflow/core/filippov.h"
 #include "bflow/fesd/butcher.h"
+#include "bflow/fesd/homotopy_options.h"
 #include "bflow/fesd/linear_solver.h"
 #include "bflow/fesd/solver_options.h"
 #include "bflow/fesd/step_model.h"
@@ -122,16 +123,14 @@ struct FesdOptions {
       lifting variables beta of Algorithm 1 with depth n_d as unknowns (products of at most n_d
       factors; n_d >= n_c: theta without beta). */
   int lifting_depth = 0;
-  double sigma_initial = 1.0;
-  double sigma_final = 1e-12;
-  double sigma_factor = 0.1;  ///< linear update sigma <- factor sigma
-  bool superlinear = true;    ///< sigma <- min(factor sigma, sigma^1.5)
-  double nlp_tolerance = 1e-13;
+  /** The sigma schedule and IPOPT's tolerance and iteration limit for each step's NLPs
+      (homotopy_options.h; FESD's defaults: sigma from 1 to 1e-12 superlinearly, tol 1e-13, 500
+      iterations per NLP). */
+  HomotopyOptions homotopy;
   /** IPOPT with the exact Hessian of the Lagrangian (HessianJet on the pieces of each element
       and each equilibration term, hessian_blocks.h) instead of its limited-memory
       approximation. */
   bool exact_hessian = false;
-  int max_nlp_iterations = 500;
   /** Try each step first by Newton's method on the active set predicted from its start (no
       switch inside); the IPOPT homotopy runs only when that prediction fails. */
   bool newton = true;

@@ -254,7 +254,7 @@ IpoptSettings ipopt_settings(const Options& options, const std::string& who) {
   s.who = who;
   s.solver = options.solver;
   s.exact_hessian = options.exact_hessian;
-  s.max_iterations = options.max_nlp_iterations;
+  s.max_iterations = options.homotopy.max_nlp_iterations;
   s.cancelled = options.cancelled;
   return s;
 }
@@ -322,11 +322,11 @@ struct HomotopyRules {
 template <typename Options>
 HomotopyRules homotopy_schedule(const Options& options) {
   HomotopyRules r;
-  r.sigma_initial = options.sigma_initial;
-  r.sigma_final = options.sigma_final;
-  r.sigma_factor = options.sigma_factor;
-  r.superlinear = options.superlinear;
-  r.nlp_tolerance = options.nlp_tolerance;
+  r.sigma_initial = options.homotopy.sigma_initial;
+  r.sigma_final = options.homotopy.sigma_final;
+  r.sigma_factor = options.homotopy.sigma_factor;
+  r.superlinear = options.homotopy.superlinear;
+  r.nlp_tolerance = options.homotopy.nlp_tolerance;
   return r;
 }
 

@@ -365,49 +365,22 @@ enum class OcpTracking {
 /** One NLP of the homotopy (fesd/transcription.h). */
 using OcpHomotopyStep = fesd::HomotopyStep;
 
-struct OcpOptions {
-  int stages = 10;   ///< N control stages, >= 1
-  int elements = 3;  ///< N_FE per stage, >= 1
-  CollocationScheme scheme = CollocationScheme::kRadauIIA;
-  int collocation_stages = 2;  ///< n_s, 1..9
-  DcsFormulation formulation = DcsFormulation::kStep;
-  int lifting_depth = 0;  ///< as FesdOptions::lifting_depth
-  /** Standard time-stepping: equal fixed element lengths and complementarity point by point
-      ([F] (34)); no switch detection (offered for comparison). */
-  bool standard = false;
+/** The homotopy of ocp_solve: HomotopyOptions (fesd/homotopy_options.h) with the optimal
+    control's defaults (sigma from 100 to 1e-10 by factors 0.1, IPOPT's tol 1e-10 for the last NLP,
+    3000 iterations per NLP), and what only ocp_solve's homotopy has: the relaxation, the
+    tolerances of the NLPs before the last, the warm starts, IPOPT's acceptable levels, the
+    iteration budget and the polish. */
+struct OcpHomotopyOptions : HomotopyOptions {
+  OcpHomotopyOptions() : HomotopyOptions{100.0, 1e-10, 0.1, false, 1e-10, 3000} {}
+  /** How the complementarity rows are relaxed: products <= sigma, or penalised. */
   OcpRelaxation relaxation = OcpRelaxation::kScholtes;
-  double sigma_initial = 100.0;
-  double sigma_final = 1e-10;
-  double sigma_factor = 0.1;  ///< linear update sigma <- factor sigma
-  bool superlinear = false;   ///< sigma <- min(factor sigma, sigma^1.5)
-  /** The rows of the cross complementarity (fesd.h): one aggregated product per pair and
-      element, or every product of two points on its own row (nosnoc's Stewart benchmark). Each
-      row is relaxed to <= sigma, and the complementarity residual is the largest row. */
-  CrossComplementarity cross_complementarity = CrossComplementarity::kElementSums;
   /** The largest complementarity row (an aggregated product, or a point product with
       kPointPairs) a "solved" result may have. */
   double complementarity_tolerance = 1e-9;
-  double nlp_tolerance = 1e-10;  ///< IPOPT's tol for the last NLP
   /** IPOPT's tol for the NLPs before the last: max(nlp_tolerance, this times sigma), so the
       early, loosely relaxed NLPs are solved only as far as sigma allows; 0 solves every NLP to
       nlp_tolerance (nosnoc's rule). */
   double intermediate_tolerance_factor = 1e-2;
-  /** Weight of the step equilibration (39) in the objective of the homotopy's NLPs, times
-      min(1, sigma): it regularises the element lengths early and fades, so that it does not
-      bias the optimum; the polish imposes the exact equilibration instead. */
-  double equilibration_weight = 0.0;
-  /** rho_h of rho_h sum_n (h_n - h_0)^2 over every element, h_n in units of time and h_0 =
-      T / (N N_FE) (nosnoc's heuristic_mean step equilibration); unlike equilibration_weight it
-      keeps its weight at every sigma and so biases the optimum towards uniform elements. Every
-      element length lies in [0, 2 h_0] in any case. */
-  double step_deviation_weight = 0.0;
-  /** How the tracking cost is discretised. */
-  OcpTracking tracking = OcpTracking::kQuadrature;
-  /** The guess's algebraic variables favour no side: Heaviside step a = lambda+ = lambda- = 1/2
-      (the lifted theta and beta consistent with it), Stewart theta = 1/n_f, lambda = 1, mu = 0
-      (nosnoc's initialisation); else they follow the sides of the guessed states. */
-  bool neutral_algebraic_guess = false;
-  bool exact_hessian = true;  ///< else IPOPT's limited-memory approximation
   /** Every NLP but the first starts from the previous solution. With warm_start it also takes
       the previous multipliers and stays at the bounds it reached (IPOPT's warm start, bound
       pushes 1e-9); without, IPOPT moves the point off its bounds and recomputes the multipliers
@@ -454,7 +427,6 @@ struct OcpOptions {
   /** > 0: IPOPT's mu_init on every NLP after the first (IPOPT's default 0.1, as nosnoc); 0:
       max(1e-11, 1e-2 sigma), a start near the previous solution's barrier. */
   double later_mu_init = 0.0;
-  int max_nlp_iterations = 3000;  ///< per NLP of the homotopy
   /** > 0: IPOPT iterations of the whole homotopy, its early polishes included: each NLP and
       early polish gets at most what is left (an NLP solved again with a widened structure,
       probe_sparsity, shares it between both solves), and when it runs out the result is
@@ -465,6 +437,41 @@ struct OcpOptions {
       smaller sigma (nosnoc's rule; notes name each), instead of being retried from the last
       solved NLP at sqrt(sigma sigma_last) (bflow's rule, up to 6 times). */
   bool continue_after_failure = false;
+};
+
+struct OcpOptions {
+  int stages = 10;   ///< N control stages, >= 1
+  int elements = 3;  ///< N_FE per stage, >= 1
+  CollocationScheme scheme = CollocationScheme::kRadauIIA;
+  int collocation_stages = 2;  ///< n_s, 1..9
+  DcsFormulation formulation = DcsFormulation::kStep;
+  int lifting_depth = 0;  ///< as FesdOptions::lifting_depth
+  /** Standard time-stepping: equal fixed element lengths and complementarity point by point
+      ([F] (34)); no switch detection (offered for comparison). */
+  bool standard = false;
+  /** The rows of the cross complementarity (fesd.h): one aggregated product per pair and
+      element, or every product of two points on its own row (nosnoc's Stewart benchmark). Each
+      row is relaxed to <= sigma, and the complementarity residual is the largest row. */
+  CrossComplementarity cross_complementarity = CrossComplementarity::kElementSums;
+  /** Weight of the step equilibration (39) in the objective of the homotopy's NLPs, times
+      min(1, sigma): it regularises the element lengths early and fades, so that it does not
+      bias the optimum; the polish imposes the exact equilibration instead. */
+  double equilibration_weight = 0.0;
+  /** rho_h of rho_h sum_n (h_n - h_0)^2 over every element, h_n in units of time and h_0 =
+      T / (N N_FE) (nosnoc's heuristic_mean step equilibration); unlike equilibration_weight it
+      keeps its weight at every sigma and so biases the optimum towards uniform elements. Every
+      element length lies in [0, 2 h_0] in any case. */
+  double step_deviation_weight = 0.0;
+  /** How the tracking cost is discretised. */
+  OcpTracking tracking = OcpTracking::kQuadrature;
+  /** The guess's algebraic variables favour no side: Heaviside step a = lambda+ = lambda- = 1/2
+      (the lifted theta and beta consistent with it), Stewart theta = 1/n_f, lambda = 1, mu = 0
+      (nosnoc's initialisation); else they follow the sides of the guessed states. */
+  bool neutral_algebraic_guess = false;
+  bool exact_hessian = true;  ///< else IPOPT's limited-memory approximation
+  /** The sigma schedule, the NLPs' tolerances, warm starts and the polish
+      (OcpHomotopyOptions). */
+  OcpHomotopyOptions homotopy;
   /** IPOPT and its linear solver for every NLP (and for the simulated guess), shared with
       FesdOptions (solver_options.h). */
   SolverOptions solver;
@@ -493,7 +500,8 @@ enum class OcpStatus {
   kAcceptableOnly,  ///< last NLP stopped at IPOPT's acceptable level, KKT error > nlp_tolerance
   kNlpFailed,       ///< IPOPT failed on some NLP of the homotopy (result: last good)
   kInfeasible,      ///< IPOPT found the NLP locally infeasible
-  /** OcpOptions::max_total_iterations ran out before the homotopy ended (result: last good). */
+  /** OcpHomotopyOptions::max_total_iterations ran out before the homotopy ended (result: last
+     good). */
   kBudgetExhausted,
   /** OcpOptions::cancelled asked to stop (result: the last solved NLP's, else the NLP's last
       iterate, or the guess when none had started). */
