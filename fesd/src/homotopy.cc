@@ -40,6 +40,7 @@ struct HomotopySolver::Impl {
     const ScopedMumpsAmalgamation fronts(settings.solver.mumps_amalgamation &&
                                          linear_solver == "mumps");
     const ScopedBlasThreads blas(settings.solver.blas_threads);
+    if (settings.solver.keep_freed_memory) keep_freed_memory();
     nlp.keep_start();
     nlp.clear_missed();
     IpoptSession::Outcome run = session.optimize(nlp);

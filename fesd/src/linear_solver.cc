@@ -1,6 +1,9 @@
 #include "bflow/fesd/linear_solver.h"
 
 #include <dlfcn.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 
 #include <atomic>
 #include <cmath>
@@ -12,6 +15,16 @@
 #include "bflow/core/text.h"
 #include "ipopt_adapter.h"
 #include "mumps_fronts.h"
+
+// A sanitizer's allocator replaces malloc: its settings are not glibc's (keep_freed_memory).
+#if defined(__SANITIZE_ADDRESS__)
+#define BFLOW_OWN_ALLOCATOR 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(memory_sanitizer) || \
+    __has_feature(thread_sanitizer)
+#define BFLOW_OWN_ALLOCATOR 1
+#endif
+#endif
 
 namespace bflow {
 namespace {
@@ -269,6 +282,17 @@ void check_solver_options(const SolverOptions& s, bool exact_hessian, const std:
   }
   check_blas_threads(s.blas_threads, who);
   check_linear_solver(s.linear_solver, s.linear_solver_library, who);
+}
+
+bool keep_freed_memory() {
+#if defined(__GLIBC__) && !defined(BFLOW_OWN_ALLOCATOR)
+  static const bool kept = [] {
+    return mallopt(M_MMAP_MAX, 0) == 1 && mallopt(M_TRIM_THRESHOLD, 512 << 20) == 1;
+  }();
+  return kept;
+#else
+  return false;
+#endif
 }
 
 int blas_threads() {

@@ -99,7 +99,8 @@ def _set_option(obj, key: str, value, where: str) -> None:
 # bflow::HomotopyOptions, or OcpHomotopyOptions for ocp_solve) and IPOPT with its linear solver
 # (its `solver`, a bflow::SolverOptions, the same for fesd_simulate and ocp_solve). The keywords
 # name them flat; each is set in its group.
-_SOLVER_OPTIONS = ("linear_solver", "linear_solver_library", "blas_threads")
+_SOLVER_OPTIONS = ("linear_solver", "linear_solver_library", "blas_threads",
+                   "keep_freed_memory")
 _HOMOTOPY_OPTIONS = ("sigma_initial", "sigma_final", "sigma_factor", "superlinear",
                      "nlp_tolerance", "max_nlp_iterations", "relaxation",
                      "complementarity_tolerance", "intermediate_tolerance_factor", "warm_start",
@@ -525,7 +526,7 @@ _FESD_OPTIONS = ("scheme", "stages", "elements", "standard", "formulation", "lif
                  "newton", "sensitivities",
                  "sigma_initial", "sigma_final", "sigma_factor", "superlinear", "nlp_tolerance",
                  "max_nlp_iterations",
-                 "exact_hessian", "linear_solver", "linear_solver_library", "blas_threads")
+                 "exact_hessian") + _SOLVER_OPTIONS
 
 
 def _interrupted(result):
@@ -557,7 +558,9 @@ def fesd_simulate(model, T: Optional[float] = None, x0=None, *,
     (on), nlp_tolerance (1e-13), max_nlp_iterations (500). The solver: exact_hessian,
     linear_solver ("mumps", "spral", HSL's "ma27" ... "ma97", "pardiso"),
     linear_solver_library (the HSL or PARDISO library file), blas_threads (OpenBLAS's threads
-    while IPOPT solves, 1; 0: OpenBLAS's own count). ``progress=True`` prints one line per
+    while IPOPT solves, 1; 0: OpenBLAS's own count), keep_freed_memory (the process keeps
+    the memory MUMPS frees between factorisations, on; glibc's malloc settings, kept for the
+    process once a solve has set them). ``progress=True`` prints one line per
     integration step on stderr.
 
     Returns a FesdResult: ok (the run reached T), status ("converged", "step failed", "invalid
@@ -649,7 +652,8 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
     intermediate_tolerance_factor, warm_start, polish, early_polish_sigma,
     stop_at_complementarity, acceptable_tolerance, max_total_iterations,
     continue_after_failure. The solver: exact_hessian, linear_solver, linear_solver_library,
-    blas_threads (OpenBLAS's threads while IPOPT solves, 1; 0: its own count). ``progress=True`` prints one line per NLP on stderr. The GIL is
+    blas_threads (OpenBLAS's threads while IPOPT solves, 1; 0: its own count),
+    keep_freed_memory (as for fesd_simulate). ``progress=True`` prints one line per NLP on stderr. The GIL is
     released while IPOPT runs; calls from several threads are safe, their NLPs taking turns
     (IPOPT solves run one at a time in a process). Ctrl-C stops the solve at the next IPOPT
     iteration and raises KeyboardInterrupt, the result of the last solved NLP (status

@@ -78,7 +78,8 @@ void bind_fesd(nb::module_& m) {
       .def_rw("linear_solver", &SolverOptions::linear_solver)
       .def_rw("linear_solver_library", &SolverOptions::linear_solver_library)
       .def_rw("mumps_amalgamation", &SolverOptions::mumps_amalgamation)
-      .def_rw("blas_threads", &SolverOptions::blas_threads);
+      .def_rw("blas_threads", &SolverOptions::blas_threads)
+      .def_rw("keep_freed_memory", &SolverOptions::keep_freed_memory);
 
   // The relaxation homotopy's schedule FesdOptions and OcpOptions share
   // (bflow/fesd/homotopy_options.h; OcpHomotopyOptions extends it).

@@ -5,10 +5,12 @@
 #include "bflow/ocp/ocp.h"
 
 #include <dlfcn.h>
+#include <sys/resource.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <iterator>
 #include <string>
 #include <vector>
@@ -666,6 +668,43 @@ TEST(OcpLinearAlgebra, SmallFrontAmalgamationFollowsTheOption) {
   EXPECT_EQ(without, 0);
   EXPECT_NEAR(on.T, TurboCar::kOptimalTime, 1e-8);
   EXPECT_NEAR(off.T, TurboCar::kOptimalTime, 1e-8);
+}
+
+// A large block freed and taken again faults every page in again while malloc is as the process
+// had it (glibc maps a 64 MiB block of its own and unmaps it at free: 16384 pages, as MUMPS's
+// workspace in every factorisation), and after a solve at the default SolverOptions
+// (keep_freed_memory) it costs no page faults. The solve with keep_freed_memory false comes first:
+// malloc's settings stay with the process once set.
+TEST(OcpLinearAlgebra, MemoryFreedAfterASolveStaysWithTheProcess) {
+  constexpr std::size_t kBytes = std::size_t{64} << 20, kPage = 4096;
+  constexpr long kPages = static_cast<long>(kBytes / kPage);
+  // The minor page faults of taking the block, touching each page and freeing it.
+  const auto faults_of_a_block = [] {
+    rusage usage{};
+    getrusage(RUSAGE_SELF, &usage);
+    const long before = usage.ru_minflt;
+    volatile char* block = static_cast<volatile char*>(std::malloc(kBytes));
+    if (block == nullptr) return -1L;
+    for (std::size_t i = 0; i < kBytes; i += kPage) block[i] = 1;
+    std::free(const_cast<char*>(block));
+    getrusage(RUSAGE_SELF, &usage);
+    return static_cast<long>(usage.ru_minflt) - before;
+  };
+  OcpOptions left_alone;
+  left_alone.solver.keep_freed_memory = false;
+  ASSERT_TRUE(solve_car(3, left_alone).ok());
+  faults_of_a_block();
+  const long unmapped = faults_of_a_block();
+  ASSERT_GE(unmapped, 0) << "no 64 MiB block";
+  if (unmapped < kPages / 2) {
+    GTEST_SKIP() << "this malloc keeps a freed 64 MiB block by itself (" << unmapped
+                 << " faults for " << kPages << " pages): a sanitizer's allocator, or malloc "
+                 << "already set by an earlier solve of this process";
+  }
+  ASSERT_TRUE(solve_car(3, OcpOptions{}).ok());
+  EXPECT_TRUE(keep_freed_memory());
+  faults_of_a_block();  // the heap grows by the block once
+  EXPECT_LT(faults_of_a_block(), kPages / 16) << "with malloc as it was: " << unmapped;
 }
 
 // OpenBLAS, where it is the BLAS under MUMPS, runs on blas_threads threads inside every NLP (1 by

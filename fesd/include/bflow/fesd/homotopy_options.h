@@ -11,10 +11,10 @@ namespace bflow {
 
 /** The defaults are FESD simulation's; OcpHomotopyOptions (ocp.h) sets its own. */
 struct HomotopyOptions {
-  double sigma_initial = 1.0;  ///< the first NLP's relaxation, > 0
-  double sigma_final = 1e-12;  ///< the last NLP's, in (0, sigma_initial]
-  double sigma_factor = 0.1;   ///< linear update sigma <- factor sigma, in (0, 1)
-  bool superlinear = true;     ///< sigma <- min(factor sigma, sigma^1.5)
+  double sigma_initial = 1.0;    ///< the first NLP's relaxation, > 0
+  double sigma_final = 1e-12;    ///< the last NLP's, in (0, sigma_initial]
+  double sigma_factor = 0.1;     ///< linear update sigma <- factor sigma, in (0, 1)
+  bool superlinear = true;       ///< sigma <- min(factor sigma, sigma^1.5)
   double nlp_tolerance = 1e-13;  ///< IPOPT's tol for the last NLP
   int max_nlp_iterations = 500;  ///< IPOPT's max_iter for each NLP
 };

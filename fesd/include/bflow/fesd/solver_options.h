@@ -41,6 +41,12 @@ struct SolverOptions {
       the count.
       @throws InvalidArgument (from fesd_simulate and ocp_solve) for a count below 0. */
   int blas_threads = 1;
+  /** The process keeps the memory MUMPS frees between factorisations instead of faulting it
+      in again at every one (bflow::keep_freed_memory, linear_solver.h: glibc's malloc
+      settings, set once at the first solve that asks and kept for the process): the hopper's
+      solve took 183 instead of 241 s of CPU; small KKT matrices stay below malloc's
+      thresholds. false leaves malloc as the process has it. */
+  bool keep_freed_memory = true;
   /** Further IPOPT options, set after bflow's own (mu_strategy adaptive, bound_relax_factor 0,
       timing_statistics no, and the homotopy's: tol, mu_init, warm_start_*, acceptable_*, set
       before every NLP), once at the start and again before every NLP, so that these win (e.g.
