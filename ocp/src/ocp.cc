@@ -639,33 +639,10 @@ OcpProblemSize ocp_problem_size(const OcpModel& model, const OcpOptions& options
   return size;
 }
 
-OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpOptions& options) {
-  check_input(model, problem, options);
-  const int d = model.states(), nu = model.controls();
-  if (const std::string excess = ocp_problem_size(model, options).excess(); !excess.empty()) {
-    throw InvalidArgument("ocp: N = " + std::to_string(options.stages) + " stages of N_FE = " +
-                          std::to_string(options.elements) + " elements give " + excess);
-  }
-  const ControlsAsStates step_model(model);
-  FesdOptions shape;
-  shape.scheme = options.scheme;
-  shape.stages = options.collocation_stages;
-  shape.elements = options.elements;
-  shape.formulation = options.formulation;
-  shape.lifting_depth = options.lifting_depth;
-  shape.newton = false;
-  shape.sensitivities = false;
+namespace {
 
-  const double cpu_start = fesd::process_cpu_seconds();
-  const ButcherTableau tab = collocation_tableau(options.scheme, options.collocation_stages);
-  const PointDcs dcs(step_model, options.formulation, options.lifting_depth);
-  OcpLayout layout(dcs, d, model.switches(), nu, tab, options.stages, options.elements,
-                   /*time_scaled=*/true);
-  // Standard time-stepping has one product per point and pair, whatever the cross rows.
-  if (!options.standard) layout.cross = options.cross_complementarity;
-  const OcpLayout& l = layout;
-  OcpResult result;
-
+// The transcription's problem data and the options that shape its rows and costs.
+fesd::TranscriptionSetup transcription_setup(const OcpProblem& problem, const OcpOptions& options) {
   fesd::TranscriptionSetup setup;
   setup.x0 = problem.x0;
   setup.horizon = problem.horizon;
@@ -695,8 +672,15 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   setup.exact_hessian = options.exact_hessian;
   setup.exact_hessian_scale = options.solver.exact_hessian_scale;
   setup.probe_sparsity = options.probe_sparsity;
-  const OcpTerms terms(model, problem, options.stages, options.tracking);
+  return setup;
+}
 
+// The initial guess set on `nlp`: the controls given (or 0 clamped into the bounds) and the states
+// of a simulation of them (OcpGuess::kSimulation, notes when it cannot serve), of the reference
+// trajectory or constant. @throws InvalidArgument for a guess where the model is not finite.
+void set_initial_guess(const OcpModel& model, const OcpProblem& problem, const OcpOptions& options,
+                       const OcpLayout& l, fesd::Transcription& nlp, OcpResult& result) {
+  const int d = model.states(), nu = model.controls();
   // Controls of the guess: given, or 0 clamped into the bounds.
   Eigen::MatrixXd u_guess = problem.guess_u;
   if (u_guess.size() == 0) {
@@ -706,14 +690,19 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
                                  bound(problem.u_upper, j, kInfinity));
     }
   }
-  fesd::Transcription nlp(tab, l, setup, &terms);
   FesdResult simulation;
   bool simulated = false;
   if (problem.guess == OcpGuess::kSimulation) {
     Eigen::MatrixXd per_stage(nu, options.stages);
     for (int k = 0; k < options.stages; ++k)
       per_stage.col(k) = u_guess.col(u_guess.cols() == 1 ? 0 : k);
-    FesdOptions sim = shape;
+    FesdOptions sim;
+    sim.scheme = options.scheme;
+    sim.stages = options.collocation_stages;
+    sim.elements = options.elements;
+    sim.formulation = options.formulation;
+    sim.lifting_depth = options.lifting_depth;
+    sim.sensitivities = false;
     sim.steps = 1;
     sim.newton = true;
     sim.solver = options.solver;
@@ -780,16 +769,11 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
                           "; guess_x, guess_u, x0) " + bad +
                           ": the model cannot be evaluated there; give a guess where it is finite");
   }
-  // The elastic slack is IPOPT's last unknown.
-  result.unknowns =
-      l.variables() + (options.homotopy.relaxation == OcpRelaxation::kElastic ? 1 : 0);
-  result.constraints = nlp.constraints();
+}
 
-  fesd::HomotopySolver solver(fesd::ipopt_settings(options, "ocp"));
-  result.ipopt = ipopt_description();
-  result.linear_solver =
-      linear_solver_description(solver.linear_solver(), solver.linear_solver_library());
-  result.blas = blas_description(options.solver.blas_threads);
+// The homotopy's rules from OcpOptions::homotopy: the sigma schedule, the NLPs' tolerances and
+// acceptable levels, the warm starts, the budget and the early polish.
+fesd::HomotopyRules ocp_homotopy_rules(const OcpOptions& options) {
   fesd::HomotopyRules rules = fesd::homotopy_schedule(options);
   rules.warm_start = options.homotopy.warm_start;
   rules.warm_start_multipliers = options.homotopy.warm_start_multipliers;
@@ -819,39 +803,42 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   if (options.homotopy.stop_at_complementarity)
     rules.stop_complementarity = options.homotopy.complementarity_tolerance;
   if (options.homotopy.polish) rules.early_polish_sigma = options.homotopy.early_polish_sigma;
-  const auto on_step = [&](const OcpHomotopyStep& step) {
-    result.ipopt_iterations += step.iterations;
-    result.homotopy.push_back(step);
-    result.homotopy.back().index = static_cast<int>(result.homotopy.size()) - 1;
-    if (options.progress) options.progress(result.homotopy.back());
-  };
-  const fesd::HomotopyOutcome outcome = solver.run(nlp, rules, on_step);
-  if (!outcome.done) {
-    result.status = outcome.cancelled          ? OcpStatus::kCancelled
-                    : outcome.budget_exhausted ? OcpStatus::kBudgetExhausted
-                    : outcome.infeasible       ? OcpStatus::kInfeasible
-                                               : OcpStatus::kNlpFailed;
-    result.message =
-        outcome.cancelled ? "cancelled (OcpOptions::cancelled) during the NLP at sigma = " +
-                                number(outcome.failed_sigma)
-        : outcome.budget_exhausted
-            ? "the budget of " + std::to_string(options.homotopy.max_total_iterations) +
-                  " IPOPT iterations (max_total_iterations) ran out " +
-                  (outcome.budget_exhausted_before
-                       ? "before the NLP at sigma = " + number(outcome.failed_sigma) +
-                             ", the NLPs and early polishes before it having used it up"
-                       : "in the NLP at sigma = " + number(outcome.failed_sigma)) +
-                  " (complementarity residual " + number(outcome.failed_complementarity) + ")"
-            : "IPOPT returned " + outcome.failed_status +
-                  " at sigma = " + number(outcome.failed_sigma) + " (complementarity residual " +
-                  number(outcome.failed_complementarity) + ")";
-    if (outcome.any_solved) {
-      result.message += "; the result is the solution at sigma = " + number(outcome.last_sigma);
-    } else if (outcome.cancelled) {
-      result.message += "; no NLP was solved: the result is that NLP's last iterate";
-    }
-  }
+  return rules;
+}
 
+// The status and message of a homotopy that did not end (cancelled, out of budget, infeasible or
+// failed).
+void report_unfinished(const fesd::HomotopyOutcome& outcome, const OcpOptions& options,
+                       OcpResult& result) {
+  result.status = outcome.cancelled          ? OcpStatus::kCancelled
+                  : outcome.budget_exhausted ? OcpStatus::kBudgetExhausted
+                  : outcome.infeasible       ? OcpStatus::kInfeasible
+                                             : OcpStatus::kNlpFailed;
+  result.message =
+      outcome.cancelled ? "cancelled (OcpOptions::cancelled) during the NLP at sigma = " +
+                              number(outcome.failed_sigma)
+      : outcome.budget_exhausted
+          ? "the budget of " + std::to_string(options.homotopy.max_total_iterations) +
+                " IPOPT iterations (max_total_iterations) ran out " +
+                (outcome.budget_exhausted_before
+                     ? "before the NLP at sigma = " + number(outcome.failed_sigma) +
+                           ", the NLPs and early polishes before it having used it up"
+                     : "in the NLP at sigma = " + number(outcome.failed_sigma)) +
+                " (complementarity residual " + number(outcome.failed_complementarity) + ")"
+          : "IPOPT returned " + outcome.failed_status +
+                " at sigma = " + number(outcome.failed_sigma) + " (complementarity residual " +
+                number(outcome.failed_complementarity) + ")";
+  if (outcome.any_solved) {
+    result.message += "; the result is the solution at sigma = " + number(outcome.last_sigma);
+  } else if (outcome.cancelled) {
+    result.message += "; no NLP was solved: the result is that NLP's last iterate";
+  }
+}
+
+// The notes of what the homotopy decided: structures widened, NLPs handed on unsolved, an early
+// stop, polishes tried and not kept, an early polish kept.
+void report_homotopy_notes(const fesd::HomotopyOutcome& outcome, const OcpOptions& options,
+                           OcpResult& result) {
   for (const fesd::HomotopyStep& step : outcome.steps) {
     if (!step.structure_widened) continue;
     result.notes.push_back("at sigma = " + number(step.sigma) +
@@ -868,10 +855,6 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
                            ": its complementarity residual is within the tolerance " +
                            number(options.homotopy.complementarity_tolerance));
   }
-  // The active set is read at the last sigma (sigma_final unless the homotopy stopped earlier).
-  const double active_tol = std::clamp(
-      std::sqrt(outcome.done ? outcome.last_sigma : options.homotopy.sigma_final), 1e-9, 1e-4);
-  bool polished = outcome.polished_early;
   for (const double sigma : outcome.polishes_not_kept) {
     result.notes.push_back("the polish with the active set of sigma = " + number(sigma) +
                            " was not kept; the homotopy went on");
@@ -882,35 +865,41 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
                            "relaxation's reach, so the homotopy stopped (early_polish_sigma " +
                            number(options.homotopy.early_polish_sigma) + ")");
   }
-  if (outcome.done && options.homotopy.polish && !outcome.polished_early) {
-    // The active set of the last NLP, fixed: an exact FESD solution without relaxation.
-    const fesd::PolishOutcome p = solver.polish(nlp, active_tol, options.homotopy.nlp_tolerance,
-                                                options.homotopy.complementarity_tolerance,
-                                                static_cast<int>(result.homotopy.size()), on_step);
-    polished = p.kept;
-    if (p.step.structure_widened) {
-      result.notes.push_back(
-          "in the polish a derivative outside the probed sparsity was nonzero (the model "
-          "branches on values): every candidate entry was declared and the polish solved again");
-    }
-    if (p.kept) {
-      result.notes.push_back("polished: the active set of sigma = " + number(outcome.last_sigma) +
-                             " fixed, cost " + number(p.cost_before) + " -> " +
-                             number(p.step.objective));
-    } else {
-      result.notes.push_back(
-          "the polish with the active set fixed was not kept (IPOPT " + p.step.ipopt_status +
-          ", complementarity " + number(p.step.complementarity) + ", cost " +
-          number(p.cost_before) + " -> " + number(p.step.objective) +
-          "); the result is the relaxed solution at sigma = " + number(outcome.last_sigma));
-    }
-  }
-  result.polished = polished;
+}
 
-  // The result from the last solved NLP (or the last iterate when none was solved).
-  const Eigen::VectorXd& w = nlp.solution();
-  result.max_complementarity = nlp.complementarity(w);
-  // The last solved NLP (the polish when kept): how IPOPT stopped and its KKT error.
+// The final polish with the last NLP's active set fixed, and its note; whether it was kept.
+bool final_polish(fesd::HomotopySolver& solver, fesd::Transcription& nlp,
+                  const fesd::HomotopyOutcome& outcome, double active_tol,
+                  const OcpOptions& options,
+                  const std::function<void(const OcpHomotopyStep&)>& on_step, OcpResult& result) {
+  // The active set of the last NLP, fixed: an exact FESD solution without relaxation.
+  const fesd::PolishOutcome p = solver.polish(nlp, active_tol, options.homotopy.nlp_tolerance,
+                                              options.homotopy.complementarity_tolerance,
+                                              static_cast<int>(result.homotopy.size()), on_step);
+  if (p.step.structure_widened) {
+    result.notes.push_back(
+        "in the polish a derivative outside the probed sparsity was nonzero (the model "
+        "branches on values): every candidate entry was declared and the polish solved again");
+  }
+  if (p.kept) {
+    result.notes.push_back("polished: the active set of sigma = " + number(outcome.last_sigma) +
+                           " fixed, cost " + number(p.cost_before) + " -> " +
+                           number(p.step.objective));
+  } else {
+    result.notes.push_back(
+        "the polish with the active set fixed was not kept (IPOPT " + p.step.ipopt_status +
+        ", complementarity " + number(p.step.complementarity) + ", cost " + number(p.cost_before) +
+        " -> " + number(p.step.objective) +
+        "); the result is the relaxed solution at sigma = " + number(outcome.last_sigma));
+  }
+  return p.kept;
+}
+
+// How IPOPT stopped on the last solved NLP (the polish when kept), and the result's status when
+// the homotopy ended: solved, only to IPOPT's acceptable level, or short of the complementarity
+// tolerance.
+void report_status(const fesd::HomotopyOutcome& outcome, bool polished, const OcpOptions& options,
+                   OcpResult& result) {
   const OcpHomotopyStep* last = nullptr;
   for (const OcpHomotopyStep& step : result.homotopy) {
     if (step.polish ? polished : step.sigma == outcome.last_sigma) last = &step;
@@ -941,6 +930,14 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
       result.status = OcpStatus::kSolved;
     }
   }
+}
+
+// The solution's trajectory from the NLP's point w: T, the stage times, controls and states, the
+// element grid and lengths, the active sets (sides within active_tol) and the switch times.
+void read_solution(const fesd::Transcription& nlp, const Eigen::VectorXd& w, const OcpLayout& l,
+                   const OcpProblem& problem, const OcpOptions& options, double active_tol,
+                   OcpResult& result) {
+  const int d = l.d, nu = l.nu;
   result.objective = nlp.cost(w);
   result.T = w[OcpLayout::kT];
   const int n_stages = options.stages;
@@ -980,6 +977,69 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
     }
     result.active_sets.push_back(std::move(sides));
   }
+}
+
+}  // namespace
+
+OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpOptions& options) {
+  check_input(model, problem, options);
+  const int d = model.states(), nu = model.controls();
+  if (const std::string excess = ocp_problem_size(model, options).excess(); !excess.empty()) {
+    throw InvalidArgument("ocp: N = " + std::to_string(options.stages) + " stages of N_FE = " +
+                          std::to_string(options.elements) + " elements give " + excess);
+  }
+  const ControlsAsStates step_model(model);
+
+  const double cpu_start = fesd::process_cpu_seconds();
+  const ButcherTableau tab = collocation_tableau(options.scheme, options.collocation_stages);
+  const PointDcs dcs(step_model, options.formulation, options.lifting_depth);
+  OcpLayout layout(dcs, d, model.switches(), nu, tab, options.stages, options.elements,
+                   /*time_scaled=*/true);
+  // Standard time-stepping has one product per point and pair, whatever the cross rows.
+  if (!options.standard) layout.cross = options.cross_complementarity;
+  const OcpLayout& l = layout;
+  OcpResult result;
+
+  const fesd::TranscriptionSetup setup = transcription_setup(problem, options);
+  const OcpTerms terms(model, problem, options.stages, options.tracking);
+
+  fesd::Transcription nlp(tab, l, setup, &terms);
+  set_initial_guess(model, problem, options, l, nlp, result);
+  // The elastic slack is IPOPT's last unknown.
+  result.unknowns =
+      l.variables() + (options.homotopy.relaxation == OcpRelaxation::kElastic ? 1 : 0);
+  result.constraints = nlp.constraints();
+
+  fesd::HomotopySolver solver(fesd::ipopt_settings(options, "ocp"));
+  result.ipopt = ipopt_description();
+  result.linear_solver =
+      linear_solver_description(solver.linear_solver(), solver.linear_solver_library());
+  result.blas = blas_description(options.solver.blas_threads);
+  const fesd::HomotopyRules rules = ocp_homotopy_rules(options);
+  const auto on_step = [&](const OcpHomotopyStep& step) {
+    result.ipopt_iterations += step.iterations;
+    result.homotopy.push_back(step);
+    result.homotopy.back().index = static_cast<int>(result.homotopy.size()) - 1;
+    if (options.progress) options.progress(result.homotopy.back());
+  };
+  const fesd::HomotopyOutcome outcome = solver.run(nlp, rules, on_step);
+  if (!outcome.done) report_unfinished(outcome, options, result);
+  report_homotopy_notes(outcome, options, result);
+  // The active set is read at the last sigma (sigma_final unless the homotopy stopped earlier).
+  const double active_tol = std::clamp(
+      std::sqrt(outcome.done ? outcome.last_sigma : options.homotopy.sigma_final), 1e-9, 1e-4);
+  bool polished = outcome.polished_early;
+  if (outcome.done && options.homotopy.polish && !outcome.polished_early) {
+    polished = final_polish(solver, nlp, outcome, active_tol, options, on_step, result);
+  }
+  result.polished = polished;
+
+  // The result from the last solved NLP (or the last iterate when none was solved).
+  const Eigen::VectorXd& w = nlp.solution();
+  result.max_complementarity = nlp.complementarity(w);
+  // The last solved NLP (the polish when kept): how IPOPT stopped and its KKT error.
+  report_status(outcome, polished, options, result);
+  read_solution(nlp, w, l, problem, options, active_tol, result);
   result.cpu_seconds = fesd::process_cpu_seconds() - cpu_start;
   // The structure the last NLP was given (probe_sparsity: widened after a miss).
   result.jacobian_nonzeros = static_cast<int>(nlp.jacobian_nonzeros());
