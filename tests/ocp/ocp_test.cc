@@ -676,6 +676,14 @@ TEST(OcpLinearAlgebra, SmallFrontAmalgamationFollowsTheOption) {
 // (keep_freed_memory) it costs no page faults. The solve with keep_freed_memory false comes first:
 // malloc's settings stay with the process once set.
 TEST(OcpLinearAlgebra, MemoryFreedAfterASolveStaysWithTheProcess) {
+#if defined(__SANITIZE_ADDRESS__)
+  GTEST_SKIP() << "a sanitizer's allocator replaces glibc's malloc";
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(memory_sanitizer) || \
+    __has_feature(thread_sanitizer)
+  GTEST_SKIP() << "a sanitizer's allocator replaces glibc's malloc";
+#endif
+#endif
   constexpr std::size_t kBytes = std::size_t{64} << 20, kPage = 4096;
   constexpr long kPages = static_cast<long>(kBytes / kPage);
   // The minor page faults of taking the block, touching each page and freeing it.
