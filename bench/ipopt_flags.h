@@ -4,8 +4,8 @@
 //   --ipopt-int=name=value   --ipopt-num=name=value   --ipopt-str=name=value   (repeatable)
 //
 // take_ipopt_flags() removes them from argv (before benchmark::Initialize) and apply_to() appends
-// them to OcpOptions::ipopt_*_options, which ocp_solve applies after its own options, so they win.
-// A malformed flag prints an error naming it and exits with status 2.
+// them to OcpOptions::solver.ipopt_*_options, which ocp_solve applies after its own options, so
+// they win. A malformed flag prints an error naming it and exits with status 2.
 //
 // IpoptLog sends IPOPT's output to a temporary file (output_file, file_print_level 6,
 // print_timing_statistics yes) and reads back, summed over every NLP the solve ran:

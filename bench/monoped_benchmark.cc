@@ -31,9 +31,9 @@
 // (repeatable; bench/ipopt_flags.h); the context records them and the BLAS and LAPACK loaded.
 // --budget=K bounds each BM_Monoped row's homotopy to K IPOPT iterations in all
 // (OcpHomotopyOptions::max_total_iterations; counter "budget"). --no-mumps-amalgamation solves
-// every row with MUMPS as it comes (OcpOptions::mumps_amalgamation false; the context says which).
-// A row's label is its status (and message) and, after " | ", its homotopy: "sigma objective
-// complementarity iterations status" per NLP, "; " between them.
+// every row with MUMPS as it comes (OcpOptions::solver.mumps_amalgamation false; the context says
+// which). A row's label is its status (and message) and, after " | ", its homotopy: "sigma
+// objective complementarity iterations status" per NLP, "; " between them.
 //
 //   build-bench/bench/monoped_benchmark   (scripts/bench --monoped stores the JSON and draws
 //                                          docs/monoped_cpu.png; scripts/bench

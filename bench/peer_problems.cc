@@ -426,8 +426,9 @@ int main(int argc, char** argv) {
   app.add_option("--max-nlp-iterations", f.max_nlp_iterations);
   app.add_flag("--continue-after-failure", f.continue_after_failure);
   app.add_flag("--neutral-guess", f.neutral_guess);
-  app.add_flag("--no-mumps-amalgamation", f.no_mumps_amalgamation,
-               "MUMPS without its small-front amalgamation (OcpOptions::mumps_amalgamation)");
+  app.add_flag(
+      "--no-mumps-amalgamation", f.no_mumps_amalgamation,
+      "MUMPS without its small-front amalgamation (OcpOptions::solver.mumps_amalgamation)");
   app.add_flag("--probe-sparsity", f.probe_sparsity,
                "only the Jacobian and Hessian entries found nonzero at random points declared to "
                "IPOPT (OcpOptions::probe_sparsity)");
