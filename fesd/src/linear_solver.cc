@@ -17,7 +17,7 @@
 #include "mumps_fronts.h"
 
 // A sanitizer's allocator replaces malloc: its settings are not glibc's (keep_freed_memory).
-#if defined(__SANITIZE_ADDRESS__)
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
 #define BFLOW_OWN_ALLOCATOR 1
 #elif defined(__has_feature)
 #if __has_feature(address_sanitizer) || __has_feature(memory_sanitizer) || \

@@ -676,7 +676,7 @@ TEST(OcpLinearAlgebra, SmallFrontAmalgamationFollowsTheOption) {
 // (keep_freed_memory) it costs no page faults. The solve with keep_freed_memory false comes first:
 // malloc's settings stay with the process once set.
 TEST(OcpLinearAlgebra, MemoryFreedAfterASolveStaysWithTheProcess) {
-#if defined(__SANITIZE_ADDRESS__)
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
   GTEST_SKIP() << "a sanitizer's allocator replaces glibc's malloc";
 #elif defined(__has_feature)
 #if __has_feature(address_sanitizer) || __has_feature(memory_sanitizer) || \
