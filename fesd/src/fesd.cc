@@ -484,6 +484,11 @@ std::string FesdProblemSize::run_excess() const {
 }
 
 FesdProblemSize fesd_problem_size(const StepModel& model, const FesdOptions& options) {
+  return fesd_problem_size(model, options, /*end_apart=*/true);
+}
+
+FesdProblemSize fesd_problem_size(const StepModel& model, const FesdOptions& options,
+                                  bool end_apart) {
   check_structure(model, options);
   const ButcherTableau tab = collocation_tableau(options.scheme, options.stages);
   const int n_c = model.switches();
@@ -507,11 +512,13 @@ FesdProblemSize fesd_problem_size(const StepModel& model, const FesdOptions& opt
   }
   const std::int64_t d = model.states(), s = tab.stages, n_fe = options.elements;
   size.points = s + (tab.stiffly_accurate() ? 0 : 1);
-  // Layout: per element [h | X_1..X_s | x_{n+1} | z of every point]; its rows the collocation
-  // and end equations, the algebraic equalities and one aggregated product per pair.
-  const std::int64_t block = add(1 + (s + 1) * d, mul(size.points, size.point_variables));
+  // Layout (element.h): per element [h | X_1..X_s | x_{n+1} (unless it is X_s) | z of every
+  // point]; its rows the collocation and end equations, the algebraic equalities and one
+  // aggregated product per pair.
+  const std::int64_t ends = end_apart || !tab.stiffly_accurate() ? d : 0;
+  const std::int64_t block = add(1 + s * d + ends, mul(size.points, size.point_variables));
   const std::int64_t rows =
-      add(add((s + 1) * d, mul(size.points, size.point_equalities)), size.point_pairs);
+      add(add(s * d + ends, mul(size.points, size.point_equalities)), size.point_pairs);
   // Inputs of element n >= 1: the previous end x_n and its last point's v of every pair.
   const std::int64_t local = add(d + size.point_pairs, block);
   size.unknowns = mul(n_fe, block);
@@ -554,8 +561,12 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   }
   const ButcherTableau tab = collocation_tableau(options.scheme, options.stages);
   const PointDcs dcs(model, options.formulation, options.lifting_depth);
+  // The element's end stays an unknown of its own here (ocp_solve identifies it with the last
+  // Radau stage): the same solutions, but Newton's method and the homotopy take other paths, and
+  // at the end of a time-freezing impact, where a selection is free, other paths can reach other
+  // FESD solutions (docs/ocp.md, "The element's end as its last Radau stage").
   const Layout l(dcs, model.states(), model.switches(), /*controls=*/0, tab, /*stages=*/1,
-                 options.elements, /*time_scaled=*/false);
+                 options.elements, /*time_scaled=*/false, /*end_apart=*/true);
   // The closed forms against the layout (its int sizes cannot overflow within kFesdMaxIndex).
   BFLOW_ASSERT(l.nz == size.point_variables && l.neq == size.point_equalities &&
                l.npairs == size.point_pairs && l.points == size.points);

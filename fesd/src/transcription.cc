@@ -337,12 +337,7 @@ class Transcription::Nlp final : public HomotopyNlp {
     std::vector<double> base;
     element_inputs(w, e, base);
     Eigen::MatrixXd jac;
-    dense_jacobian(
-        base, l_.rows_per_element(), jac,
-        [&](const JetChunk* in, JetChunk* out) {
-          element_residual(tab_, l_, p_.standard, in, out);
-        },
-        values);
+    fesd::element_jacobian(tab_, l_, p_.standard, base, jac, values);
     return jac;
   }
 
@@ -391,10 +386,10 @@ class Transcription::Nlp final : public HomotopyNlp {
       if (r < s * d) {
         what += "collocation row of point " + std::to_string(r / d) + ", state " +
                 std::to_string(r % d);
-      } else if (r < s * d + d) {
+      } else if (r < l_.dynamics) {
         what += "end row of state " + std::to_string(r - s * d);
       } else if (r < l_.equalities) {
-        const int a = r - s * d - d;
+        const int a = r - l_.dynamics;
         what += "algebraic row " + std::to_string(a % l_.neq) + " of point " +
                 std::to_string(a / l_.neq);
       } else {
@@ -741,9 +736,7 @@ class Transcription::Nlp final : public HomotopyNlp {
     Eigen::MatrixXd jac;
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, base);
-      dense_jacobian(base, rpe, jac, [&](const JetChunk* in, JetChunk* out) {
-        element_residual(tab_, l_, p_.standard, in, out);
-      });
+      fesd::element_jacobian(tab_, l_, p_.standard, base, jac);
       const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
       for (int r = 0; r < rpe; ++r) {
         for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {

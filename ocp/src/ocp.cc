@@ -615,7 +615,7 @@ OcpProblemSize ocp_problem_size(const OcpModel& model, const OcpOptions& options
   f.newton = false;
   f.sensitivities = false;
   const HeldControlModel held(model, Eigen::VectorXd::Zero(model.controls()));
-  const FesdProblemSize elements = fesd_problem_size(held, f);
+  const FesdProblemSize elements = fesd_problem_size(held, f, /*end_apart=*/false);
   // T, and the elastic slack.
   size.unknowns = elements.unknowns + std::int64_t{options.stages} * model.controls() + 1 +
                   (options.homotopy.relaxation == OcpRelaxation::kElastic ? 1 : 0);

@@ -143,6 +143,82 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
               c.name().c_str(), n, blocks.size(), worst, scale);
 }
 
+// The element's Jacobian by its pieces (fesd::element_jacobian: narrow Jets per stage and point,
+// closed forms for the rest) is the dense Jet Jacobian of element_residual entry for entry, with
+// the same residual, in both layouts of a Radau IIA element's end (the last stage, or unknowns
+// of its own); the same numbers by the same operations, so equality is exact.
+TEST_P(ElementHessianTest, JacobianByPiecesIsTheDenseJetJacobian) {
+  const Config c = GetParam();
+  const auto model = adapt_step(Coupled{});
+  const fesd::PointDcs dcs(model, c.formulation, c.lifting_depth);
+  const ButcherTableau tab = collocation_tableau(c.scheme, 2);
+  for (const bool apart : {false, true}) {
+    fesd::ElementShape l(dcs, 2, 2, tab, 1, true, apart);
+    if (c.point_pairs) l.cross = CrossComplementarity::kPointPairs;
+    if (c.point_sums) l.cross = CrossComplementarity::kPointSums;
+    EXPECT_EQ(l.shared_end, !apart && c.scheme == CollocationScheme::kRadauIIA) << c.name();
+    std::mt19937 gen(5);
+    std::uniform_real_distribution<double> uniform(0.1, 0.9);
+    std::vector<double> local(static_cast<std::size_t>(l.local));
+    for (double& v : local) v = uniform(gen);
+    Eigen::MatrixXd dense, pieces;
+    Eigen::VectorXd dense_values, piece_values;
+    fesd::dense_jacobian(
+        local, l.rows_per_element(), dense,
+        [&](const JetChunk* in, JetChunk* out) {
+          fesd::element_residual(tab, l, c.standard, in, out);
+        },
+        &dense_values);
+    fesd::element_jacobian(tab, l, c.standard, local, pieces, &piece_values);
+    ASSERT_EQ(pieces.rows(), dense.rows());
+    ASSERT_EQ(pieces.cols(), dense.cols());
+    EXPECT_EQ((pieces - dense).cwiseAbs().maxCoeff(), 0.0) << c.name() << " apart " << apart;
+    EXPECT_EQ((piece_values - dense_values).cwiseAbs().maxCoeff(), 0.0) << c.name();
+    EXPECT_GT(dense.cwiseAbs().maxCoeff(), 0.1) << c.name();
+  }
+}
+
+// Radau IIA's end as its last stage: b is A's last row, so with x_{n+1} = X_s the end rows of the
+// layout that keeps the end apart are its last collocation rows, and the shared layout's rows
+// are the apart layout's without them (the same residual, d unknowns and d rows fewer).
+TEST(ElementEnd, TheLastRadauStageIsTheEnd) {
+  const auto model = adapt_step(Coupled{});
+  for (const DcsFormulation formulation : {DcsFormulation::kStep, DcsFormulation::kStewart}) {
+    const fesd::PointDcs dcs(model, formulation, 0);
+    for (const int stages : {1, 2, 3}) {
+      const ButcherTableau tab = collocation_tableau(CollocationScheme::kRadauIIA, stages);
+      const fesd::ElementShape shared(dcs, 2, 2, tab, 1, true);
+      const fesd::ElementShape apart(dcs, 2, 2, tab, 1, true, /*end_apart=*/true);
+      ASSERT_TRUE(shared.shared_end);
+      ASSERT_FALSE(apart.shared_end);
+      EXPECT_EQ(apart.local - shared.local, 2);
+      EXPECT_EQ(apart.rows_per_element() - shared.rows_per_element(), 2);
+      std::mt19937 gen(3);
+      std::uniform_real_distribution<double> uniform(0.1, 0.9);
+      std::vector<double> in(static_cast<std::size_t>(shared.local));
+      for (double& v : in) v = uniform(gen);
+      // The apart layout's inputs: the same, with x_{n+1} = X_s inserted before z.
+      std::vector<double> wide(in.begin(), in.begin() + shared.own() + shared.off_z);
+      for (int i = 0; i < 2; ++i) {
+        wide.push_back(in[static_cast<std::size_t>(shared.own() + shared.off_x + i)]);
+      }
+      wide.insert(wide.end(), in.begin() + shared.own() + shared.off_z, in.end());
+      ASSERT_EQ(static_cast<int>(wide.size()), apart.local);
+      std::vector<double> a(static_cast<std::size_t>(shared.rows_per_element()));
+      std::vector<double> b(static_cast<std::size_t>(apart.rows_per_element()));
+      fesd::element_residual(tab, shared, false, in.data(), a.data());
+      fesd::element_residual(tab, apart, false, wide.data(), b.data());
+      const int sd = shared.dynamics;
+      for (int r = 0; r < sd; ++r) EXPECT_EQ(a[r], b[r]) << r;
+      for (int i = 0; i < 2; ++i) {
+        // The end row against the last collocation row: b and A's last row agree to rounding.
+        EXPECT_NEAR(b[sd + i], b[sd - 2 + i], 1e-15) << stages;
+      }
+      for (std::size_t r = sd; r < a.size(); ++r) EXPECT_EQ(a[r], b[r + 2]) << r;
+    }
+  }
+}
+
 INSTANTIATE_TEST_SUITE_P(
     AllFormulations, ElementHessianTest,
     ::testing::Values(

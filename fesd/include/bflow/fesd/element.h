@@ -4,9 +4,13 @@
 // assembly of exact second derivatives by pieces (hessian_blocks.h).
 //
 // An element's own unknowns ("block"):
-//   [h | X_1..X_s (s d) | x_{n+1} (d) | z_1..z_P (P nz)]
-// with z a point's algebraic variables (dcs.h) and P = s points (Radau IIA: the last stage
-// is the element's end) or s + 1 (Gauss-Legendre: the stages and the end point of (42)). Its
+//   [h | X_1..X_s (s d) | z_1..z_P (P nz)]             Radau IIA (the default)
+//   [h | X_1..X_s (s d) | x_{n+1} (d) | z_1..z_P (P nz)]  Gauss-Legendre, or Radau IIA asked to
+//                                                         keep the end apart (shared_end false)
+// with z a point's algebraic variables (dcs.h) and P = s points (Radau IIA: c_s = 1 and b is A's
+// last row, so the last stage value is the element's end x_{n+1} and its collocation rows are the
+// end rows; the end is then that stage, with no unknowns or rows of its own, as nosnoc lays the
+// element out) or s + 1 (Gauss-Legendre: the stages and the end point of (42)). Its
 // "local" vector puts what it reads from elsewhere in front:
 //   [x_n (d) | v of every pair at the start (npairs) | u (nu) | T (1 if time-scaled) | block]
 // u is the control of the element's stage (the model then sees the point [X; u]); with time
@@ -40,25 +44,32 @@ struct ElementShape {
   bool scaled = false;  // a time-scaling variable T multiplies h
   int nz = 0, neq = 0, npairs = 0;
   bool end_point = false;  // Gauss-Legendre: an extra point at the element's end
+  /** Radau IIA: x_{n+1} is the last stage value X_s (no end unknowns, no end rows). */
+  bool shared_end = false;
   int off_x = 0, off_z = 0, block = 0;
+  int dynamics = 0;    // collocation (and end) rows per element: the first rows
   int equalities = 0;  // per element
   int params = 0;      // nu + (scaled ? 1 : 0)
   int local = 0;
   /** The rows of the cross complementarity (fesd.h); set before the rows are counted. */
   CrossComplementarity cross = CrossComplementarity::kElementSums;
 
+  /** end_apart keeps a Radau IIA element's end as unknowns of its own (d more unknowns and d
+      more rows per element, the same solutions); Gauss-Legendre always has them. */
   ElementShape(const PointDcs& point, int states, int switches, const ButcherTableau& tableau,
-               int controls = 0, bool time_scaled = false)
+               int controls = 0, bool time_scaled = false, bool end_apart = false)
       : dcs(&point), d(states), nc(switches), s(tableau.stages), nu(controls), scaled(time_scaled) {
     nz = point.size();
     neq = point.equations();
     npairs = static_cast<int>(point.pairs().size());
     end_point = !tableau.stiffly_accurate();
+    shared_end = !end_point && !end_apart;
     points = s + (end_point ? 1 : 0);
-    off_x = 1 + s * d;
-    off_z = off_x + d;
+    off_x = shared_end ? 1 + (s - 1) * d : 1 + s * d;
+    off_z = 1 + s * d + (shared_end ? 0 : d);
     block = off_z + points * nz;
-    equalities = s * d + d + points * neq;
+    dynamics = s * d + (shared_end ? 0 : d);
+    equalities = dynamics + points * neq;
     params = nu + (scaled ? 1 : 0);
     local = d + npairs + params + block;
   }
@@ -160,12 +171,12 @@ void element_residual(const ButcherTableau& tab, const ElementShape& l, bool sta
       eq[m * d + i] = stage[m * d + i] - xn[i] - h * sum;
     }
   }
-  for (int i = 0; i < d; ++i) {
+  for (int i = 0; !l.shared_end && i < d; ++i) {
     T sum(0.0);
     for (int k = 0; k < s; ++k) sum += tab.b(k) * f[static_cast<std::size_t>(k * d + i)];
     eq[s * d + i] = xnext[i] - xn[i] - h * sum;
   }
-  T* alg = eq + s * d + d;
+  T* alg = eq + l.dynamics;
   for (int m = 0; m < l.points; ++m) {
     dcs.algebraic(at(m < s ? stage + m * d : xnext), z + m * nz, alg + m * l.neq);
   }
@@ -233,19 +244,19 @@ inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape
   std::vector<int> dynamics;
   range(dynamics, 0, d);
   range(dynamics, u0, l.params);
-  range(dynamics, own, l.off_z);  // h, X, x_{n+1}
+  range(dynamics, own, l.off_z);  // h, X, x_{n+1} (when apart)
   for (int m = 0; m < l.s; ++m) {
     range(dynamics, own + l.off_z + m * l.nz + l.dcs->field_first(), l.dcs->field_count());
   }
   std::vector<std::vector<int>> rows(static_cast<std::size_t>(l.rows_per_element()));
-  for (int r = 0; r < l.s * d + d; ++r) rows[static_cast<std::size_t>(r)] = dynamics;
+  for (int r = 0; r < l.dynamics; ++r) rows[static_cast<std::size_t>(r)] = dynamics;
   for (int m = 0; m < l.points; ++m) {
     std::vector<int> alg;
     range(alg, m < l.s ? own + 1 + m * d : own + l.off_x, d);
     range(alg, u0, l.nu);
     range(alg, own + l.off_z + m * l.nz, l.nz);
     for (int r = 0; r < l.neq; ++r) {
-      rows[static_cast<std::size_t>(l.s * d + d + m * l.neq + r)] = alg;
+      rows[static_cast<std::size_t>(l.dynamics + m * l.neq + r)] = alg;
     }
   }
   if (!standard && l.cross == CrossComplementarity::kPointPairs) {
@@ -361,7 +372,7 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l,
   const double one = 1.0;
   for (int k = 0; k < l.s; ++k) {
     for (int i = 0; i < d; ++i) {
-      double sum = tab.b(k) * lambda[l.s * d + i];
+      double sum = l.shared_end ? 0.0 : tab.b(k) * lambda[l.s * d + i];
       for (int m = 0; m < l.s; ++m) sum += lambda[m * d + i] * tab.a(m, k);
       w[static_cast<std::size_t>(i)] = sum;
     }
@@ -385,7 +396,7 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l,
         },
         values);
   }
-  const double* alg = lambda + l.s * d + d;
+  const double* alg = lambda + l.dynamics;
   // The step and Stewart equalities are the model's switching functions of [x; u] plus terms
   // linear in z (dcs.h): z enters them as constants, which leaves their (exactly zero)
   // second derivatives out of the AD. The lifted products of z are not linear.
@@ -507,6 +518,183 @@ void dense_jacobian(const std::vector<double>& base, int rows, Eigen::MatrixXd& 
     values->resize(rows);
     for (int r = 0; r < rows; ++r) (*values)[r] = out[static_cast<std::size_t>(r)].a;
   }
+}
+
+// The dense Jacobian of element_residual (rows_per_element() x local) at `local`, by its
+// pieces: the field at each stage by Jets over [X_k, u, the entries of z_k the field reads],
+// the algebraic rows of each point by Jets over [X_m, u, z_m], the rest (x_n, h, T, x_{n+1}, the
+// complementarity products of affine members) in closed form. Every entry is the number
+// dense_jacobian(element_residual) gives, computed by the same operations in the same order
+// (a Jet's directions are independent, so a direction seeded in a narrower pass gets the same
+// arithmetic), for the s + P narrow passes of the pieces instead of local / kTangentChunk
+// passes over the whole element. `values`, when given, receives the residual.
+inline void element_jacobian(const ButcherTableau& tab, const ElementShape& l, bool standard,
+                             const std::vector<double>& local, Eigen::MatrixXd& jac,
+                             Eigen::VectorXd* values = nullptr) {
+  const PointDcs& dcs = *l.dcs;
+  const int d = l.d, s = l.s, nu = l.nu, nz = l.nz, P = l.points;
+  const int own = l.own(), u0 = d + l.npairs, zf = dcs.field_first(), nf = dcs.field_count();
+  const double* in = local.data();
+  const double* xn = in;
+  const double* blk = in + own;
+  const double hb = blk[0];
+  const double T = l.scaled ? in[u0 + nu] : 1.0;
+  const double h = l.scaled ? hb * T : hb;
+  const double* z = blk + l.off_z;
+  const int rows = l.rows_per_element();
+  jac.setZero(rows, l.local);
+  thread_local Eigen::VectorXd out;
+  out.resize(rows);
+  // f_k and its derivatives by [X_k, u, z_k's field entries] (d x (d + nu + nf)), per stage.
+  const int wf = d + nu + nf;
+  thread_local std::vector<double> f, df;
+  f.resize(static_cast<std::size_t>(s * d));
+  df.resize(static_cast<std::size_t>(s * d * wf));
+  thread_local std::vector<JetChunk> point, zj, rate, alg;
+  point.resize(static_cast<std::size_t>(d + nu));
+  zj.resize(static_cast<std::size_t>(nz));
+  rate.resize(static_cast<std::size_t>(d + nu));
+  alg.resize(static_cast<std::size_t>(std::max(l.neq, 1)));
+  const auto load = [&](const double* x, const double* zm) {
+    for (int i = 0; i < d; ++i) point[static_cast<std::size_t>(i)] = JetChunk(x[i]);
+    for (int j = 0; j < nu; ++j) point[static_cast<std::size_t>(d + j)] = JetChunk(in[u0 + j]);
+    for (int k = 0; k < nz; ++k) zj[static_cast<std::size_t>(k)] = JetChunk(zm[k]);
+  };
+  // The inputs of a piece, in order: the point [x; u] then z from zfirst.
+  const auto seed = [&](int count_point, int zfirst, int count_z, auto eval) {
+    thread_local std::vector<JetChunk*> lanes;
+    lanes.clear();
+    for (int i = 0; i < count_point; ++i) lanes.push_back(&point[static_cast<std::size_t>(i)]);
+    for (int k = 0; k < count_z; ++k) lanes.push_back(&zj[static_cast<std::size_t>(zfirst + k)]);
+    const int count = static_cast<int>(lanes.size());
+    for (int chunk = 0; chunk < count; chunk += kTangentChunk) {
+      const int width = std::min(kTangentChunk, count - chunk);
+      for (int c = 0; c < width; ++c) lanes[static_cast<std::size_t>(chunk + c)]->v[c] = 1.0;
+      eval(chunk, width);
+      for (int c = 0; c < width; ++c) lanes[static_cast<std::size_t>(chunk + c)]->v[c] = 0.0;
+    }
+  };
+  for (int k = 0; k < s; ++k) {
+    load(blk + 1 + k * d, z + k * nz);
+    double* dfk = df.data() + static_cast<std::size_t>(k * d * wf);
+    seed(d + nu, zf, nf, [&](int chunk, int width) {
+      dcs.field(point.data(), zj.data(), rate.data());
+      for (int i = 0; i < d; ++i) {
+        for (int c = 0; c < width; ++c) {
+          dfk[i * wf + chunk + c] = rate[static_cast<std::size_t>(i)].v[c];
+        }
+      }
+    });
+    for (int i = 0; i < d; ++i)
+      f[static_cast<std::size_t>(k * d + i)] = rate[static_cast<std::size_t>(i)].a;
+  }
+  // Collocation rows (weights a(m, .), target X_m) and the end rows (b, x_{n+1}) when apart:
+  // eq = x - x_n - h sum_k w_k f_k as element_residual's Jets compute it.
+  const auto dynamics_row = [&](int row, int target, const auto& weight) {
+    for (int i = 0; i < d; ++i) {
+      const int r = row + i;
+      double sum = 0.0;
+      for (int k = 0; k < s; ++k) sum += f[static_cast<std::size_t>(k * d + i)] * weight(k);
+      out[r] = (in[own + target + i] - xn[i]) - h * sum;
+      jac(r, i) = -1.0;
+      jac(r, own + target + i) += 1.0;
+      jac(r, own) = -((l.scaled ? T : 1.0) * sum);
+      if (l.scaled) jac(r, u0 + nu) = -(hb * sum);
+      for (int k = 0; k < s; ++k) {
+        const double* dfk = df.data() + static_cast<std::size_t>(k * d * wf + i * wf);
+        const double wk = weight(k);
+        for (int j = 0; j < d; ++j) jac(r, own + 1 + k * d + j) -= h * (dfk[j] * wk);
+        for (int q = 0; q < nf; ++q)
+          jac(r, own + l.off_z + k * nz + zf + q) = -(h * (dfk[d + nu + q] * wk));
+      }
+      for (int j = 0; j < nu; ++j) {
+        double sum_u = 0.0;
+        for (int k = 0; k < s; ++k) {
+          sum_u += df[static_cast<std::size_t>(k * d * wf + i * wf + d + j)] * weight(k);
+        }
+        jac(r, u0 + j) = -(h * sum_u);
+      }
+    }
+  };
+  for (int m = 0; m < s; ++m) {
+    dynamics_row(m * d, 1 + m * d, [&](int k) { return tab.a(m, k); });
+  }
+  if (!l.shared_end) dynamics_row(s * d, l.off_x, [&](int k) { return tab.b(k); });
+  // Algebraic rows of each point: Jets over [X_m (x_{n+1} at Gauss-Legendre's end), u, z_m].
+  for (int m = 0; m < P; ++m) {
+    const int at = m < s ? 1 + m * d : l.off_x;
+    load(blk + at, z + m * nz);
+    const int row = l.dynamics + m * l.neq;
+    seed(d + nu, 0, nz, [&](int chunk, int width) {
+      dcs.algebraic(point.data(), zj.data(), alg.data());
+      for (int c = 0; c < width; ++c) {
+        const int lane = chunk + c;
+        const int col = lane < d        ? own + at + lane
+                        : lane < d + nu ? u0 + lane - d
+                                        : own + l.off_z + m * nz + lane - d - nu;
+        for (int e = 0; e < l.neq; ++e) jac(row + e, col) = alg[static_cast<std::size_t>(e)].v[c];
+      }
+    });
+    for (int e = 0; e < l.neq; ++e) out[row + e] = alg[static_cast<std::size_t>(e)].a;
+  }
+  // Complementarity rows: products U V of an affine member U (z_u or 1 - z_u) and a V (one v or
+  // a sum of them), so d(UV) = sign V at u's column and U at each of V's.
+  const int z0 = own + l.off_z;
+  const auto product = [&](int r, int ucol, double sign, double U, const int* vcols, int nv,
+                           double V) {
+    jac(r, ucol) += sign * V;
+    for (int k = 0; k < nv; ++k) jac(r, vcols[k]) += U;
+    return U * V;
+  };
+  thread_local std::vector<int> vcols;
+  for (int k = 0; k < l.npairs; ++k) {
+    const Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
+    const double sign = pair.flipped ? -1.0 : 1.0;
+    const auto U = [&](int r) { return PointDcs::member_u(pair, z + r * nz); };
+    const auto vcol = [&](int m) { return m == 0 ? d + k : z0 + (m - 1) * nz + pair.v; };
+    const auto vval = [&](int m) { return in[vcol(m)]; };
+    const int base = l.equalities;
+    if (!standard && l.cross == CrossComplementarity::kPointPairs) {
+      for (int m = 0; m <= P; ++m) {
+        const int vc = vcol(m);
+        for (int r = 0; r < P; ++r) {
+          const int row = base + k * P * (P + 1) + m * P + r;
+          out[row] = product(row, z0 + r * nz + pair.u, sign, U(r), &vc, 1, vval(m));
+        }
+      }
+      continue;
+    }
+    vcols.clear();
+    double sum_v = standard ? 0.0 : vval(0);
+    if (!standard) vcols.push_back(vcol(0));
+    for (int m = 1; m <= P; ++m) {
+      sum_v += vval(m);
+      vcols.push_back(vcol(m));
+    }
+    if (!standard && l.cross == CrossComplementarity::kPointSums) {
+      for (int r = 0; r < P; ++r) {
+        const int row = base + k * P + r;
+        out[row] = product(row, z0 + r * nz + pair.u, sign, U(r), vcols.data(),
+                           static_cast<int>(vcols.size()), sum_v);
+      }
+    } else if (standard) {
+      const int row = base + k;
+      double sum = 0.0;
+      for (int m = 0; m < P; ++m) {
+        const int vc = vcol(m + 1);
+        sum += product(row, z0 + m * nz + pair.u, sign, U(m), &vc, 1, vval(m + 1));
+      }
+      out[row] = sum;
+    } else {
+      const int row = base + k;
+      double sum_u = 0.0;
+      for (int m = 0; m < P; ++m) sum_u += U(m);
+      for (int m = 0; m < P; ++m) jac(row, z0 + m * nz + pair.u) += sign * sum_v;
+      for (int c : vcols) jac(row, c) += sum_u;
+      out[row] = sum_u * sum_v;
+    }
+  }
+  if (values != nullptr) *values = out;
 }
 
 }  // namespace fesd

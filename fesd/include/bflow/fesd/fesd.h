@@ -265,6 +265,11 @@ struct FesdProblemSize {
     [1, 9], a lifting depth of 1 or < 0, lifting with Stewart's formulation, Stewart with more
     than 10 switching functions), quoting the values. */
 FesdProblemSize fesd_problem_size(const StepModel& model, const FesdOptions& options);
+/** The same for a layout whose Radau IIA elements keep their end apart (end_apart, as
+    fesd_simulate's) or identify it with the last stage (as ocp_solve's: d unknowns and d rows
+    fewer per element; element.h). Gauss-Legendre elements always keep it. */
+FesdProblemSize fesd_problem_size(const StepModel& model, const FesdOptions& options,
+                                  bool end_apart);
 
 /** Integrates x' in f(x, a) from x0 over [0, t_end] by FESD. Thread-safe; IPOPT solves run
     one at a time in a process (ipopt_mutex(), linear_solver.h): concurrent runs give the

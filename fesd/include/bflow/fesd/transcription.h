@@ -7,15 +7,16 @@
 // absolute element lengths (sum h_n = H) and the step equilibration at full weight:
 //
 //   TranscriptionLayout layout(dcs, d, n_c, /*controls=*/0, tableau, /*stages=*/1, n_fe,
-//                              /*time_scaled=*/false);
+//                              /*time_scaled=*/false, /*end_apart=*/true);
 //   TranscriptionSetup setup;  setup.x0 = x;  setup.horizon = H;
 //   Transcription step(tableau, layout, setup, /*terms=*/nullptr);
 //   HomotopySolver solver(ipopt_settings);
 //   const HomotopyOutcome outcome = solver.run(step, rules);
 //
-// ocp_solve's problem has N stages, the controls u_k per stage, a time-scaling unknown T (fixed
-// to the horizon, or free for a time-optimal problem; element lengths are then relative, T h_n,
-// with sum h_n = 1/N per stage) and its costs and constraints through TranscriptionTerms.
+// (fesd_simulate keeps a Radau IIA element's end apart, ocp_solve shares it with the last stage:
+// element.h.) ocp_solve's problem has N stages, the controls u_k per stage, a time-scaling unknown
+// T (fixed to the horizon, or free for a time-optimal problem; element lengths are then relative, T
+// h_n, with sum h_n = 1/N per stage) and its costs and constraints through TranscriptionTerms.
 // Whatever improves the transcription, its derivatives or the homotopy reaches both.
 //
 // Unknowns (TranscriptionLayout): [T (time-scaled only) | stage 0: u_0 (nu), its N_FE element
@@ -51,8 +52,9 @@ struct TranscriptionLayout : ElementShape {
   int stages = 1, per_stage = 1, elements = 1;
 
   TranscriptionLayout(const PointDcs& point, int states, int switches, int controls,
-                      const ButcherTableau& tableau, int n_stages, int n_fe, bool time_scaled)
-      : ElementShape(point, states, switches, tableau, controls, time_scaled),
+                      const ButcherTableau& tableau, int n_stages, int n_fe, bool time_scaled,
+                      bool end_apart = false)
+      : ElementShape(point, states, switches, tableau, controls, time_scaled, end_apart),
         stages(n_stages),
         per_stage(n_fe),
         elements(n_stages * n_fe) {}
