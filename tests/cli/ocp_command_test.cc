@@ -450,8 +450,8 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
        "error: --N: 1000000000 control stages of 3 finite elements give 3000000000 finite "
        "elements, above IPOPT's limit of 2147483647"},
       {"N above the memory limit", [](OcpCommandOptions& o) { o.n = 100000; },
-       "error: --N: 100000 control stages of 3 finite elements give 4000001 NLP unknowns, "
-       "needing about 9.5e+09 bytes, above the limit of 4 GiB = 4294967296 bytes"},
+       "error: --N: 100000 control stages of 3 finite elements give 3400001 NLP unknowns, "
+       "needing about 8.2e+09 bytes, above the limit of 4 GiB = 4294967296 bytes"},
   };
   for (const Case& c : cases) {
     OcpCommandOptions o;
