@@ -151,8 +151,14 @@ Eigen::MatrixXd step_sensitivity(const Transcription& nlp, const Layout& l,
   active.assemble(nlp, l, w, step, gw, gx, residual);
   const Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(gw);
   if (qr.rank() < nv) {
+    // Singular at a solution: the solution may not be isolated, and then other FESD solutions lie
+    // arbitrarily close (e.g. a selection that no equation fixes where the state lies on a
+    // surface at an element's end, the end of a time-freezing impact: docs/ocp.md).
     *why = "the fixed-active-set system is singular (rank " + std::to_string(qr.rank()) + " of " +
-           std::to_string(nv) + ")";
+           std::to_string(nv) +
+           "), so the step's FESD solution may not be isolated and its end state may be one of "
+           "many the FESD equations allow (a selection no equation fixes, e.g. where the state "
+           "lies on a switching surface at an element's end); compare with another N_sim or N_FE";
     return {};
   }
   const Eigen::MatrixXd dw = qr.solve(-gx);

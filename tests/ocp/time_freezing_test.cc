@@ -162,14 +162,15 @@ struct BallRun {
 
 // The ball from (0, 1) at (vx0, 0) with friction mu and a_n = 100, over tau in [0, tau_end].
 template <typename Model>
-BallRun simulate_ball(double vx0, double mu, double k, int steps, double tau_end = 1.2) {
+BallRun simulate_ball(double vx0, double mu, double k, int steps, double tau_end = 1.2,
+                      bool sensitivities = false) {
   FallingBall ball;
   ball.k = k;
   const Model tf(ball, {mu, 100.0});
   const PiecewiseSmoothAsStep<Model> pss(tf, Model::sign_matrix());
   FesdOptions o;
   o.steps = steps;
-  o.sensitivities = false;
+  o.sensitivities = sensitivities;
   if constexpr (Model::kBaseSets) o.formulation = DcsFormulation::kStewart;
   Eigen::VectorXd x0(5);
   x0 << 0.0, 1.0, vx0, 0.0, 0.0;
@@ -350,6 +351,29 @@ TEST(TimeFreezingBall, WithDragConvergesWithTheGrid) {
     EXPECT_GT(order, 2.5);
   }
   EXPECT_LT(errors.back(), 5e-8);
+}
+
+// The end of the impact with drag at the defaults (sensitivities on): where the normal velocity
+// reaches 0 at the auxiliary element's end while the gap slides, the selection there is free, and
+// on some grids the step lands on an FESD solution whose clock and position advanced during the
+// impact (docs/ocp.md, "The element's end as its last Radau stage"; measured 7.3e-2, 3.0e-2 and
+// 2.0e-2 at N_sim = 5, 8 and 18). Such a step's fixed-active-set system is singular, and the
+// result says so: every run is right (largest error below 1e-5) or its message names a step whose
+// solution may not be isolated.
+TEST(TimeFreezingBall, ImpactEndIsRightOrNamedAsNotIsolated) {
+  BFLOW_SKIP_UNDER_SANITIZERS();
+  int named = 0;
+  for (int steps : {5, 6, 8, 12, 18, 24}) {
+    const BallRun run = simulate_ball<Ball>(5.0, 0.5, 0.5, steps, 0.75, /*sensitivities=*/true);
+    ASSERT_TRUE(run.result.ok()) << steps << ": " << run.result.message;
+    const BallErrors e = errors_of(run);
+    const double worst = std::max({e.impact_time, e.after_impact, e.trajectory});
+    const bool notice = run.result.message.find("may not be isolated") != std::string::npos;
+    std::printf("N_sim %d: largest error %.2e, notice %d\n", steps, worst, notice);
+    EXPECT_TRUE(worst < 1e-5 || notice) << steps << ": " << worst << " " << run.result.message;
+    named += notice ? 1 : 0;
+  }
+  std::printf("%d of 6 runs name a step that may not be isolated\n", named);
 }
 
 // Time-freezing in an OCP: the ball with the speed of time s as its only control and the
