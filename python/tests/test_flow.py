@@ -129,7 +129,11 @@ def scipy_flow(x0, t):
         state = sol.y[:, -1]
         now = sol.t[-1]
         if sol.status == 1:
-            hit = [j for j in range(2) if sol.t_events[j].size]
+            # The surface whose event stopped the step, and every other one the state has reached
+            # or crossed by then: from the diagonal both are crossed at once, and the rounding of
+            # the dense output (which differs between CPUs) can put the second a few ulps past
+            # its surface, where its event would never fire.
+            hit = [j for j in range(2) if sol.t_events[j].size or sides[j] * state[j] <= 1e-12]
             for j in hit:
                 sides[j] = -sides[j]
                 state[j] = 0.0
