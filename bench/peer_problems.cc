@@ -84,6 +84,7 @@ struct Flags {
   bool no_polish = false, stop_at_complementarity = false, continue_after_failure = false;
   bool first_from_zero_multipliers = false, neutral_guess = false, no_newton = false;
   bool probe_sparsity = false, no_mumps_amalgamation = false;
+  std::string collocation_form = "integral";
   bool x_bounds_at_stage_points = false;
 };
 
@@ -124,6 +125,7 @@ bflow::OcpOptions ocp_options(const Flags& f) {
   if (f.max_nlp_iterations > 0) o.homotopy.max_nlp_iterations = f.max_nlp_iterations;
   o.neutral_algebraic_guess = f.neutral_guess;
   o.probe_sparsity = f.probe_sparsity;
+  o.collocation_form = bflow::parse_collocation_form(f.collocation_form);
   o.solver.mumps_amalgamation = !f.no_mumps_amalgamation;
   return o;
 }
@@ -393,6 +395,8 @@ int main(int argc, char** argv) {
   app.add_option("--stages", f.stages, "N control stages (OCPs)")->check(CLI::PositiveNumber);
   app.add_option("--elements", f.elements, "N_FE per stage or integration step")
       ->check(CLI::PositiveNumber);
+  app.add_option("--collocation-form", f.collocation_form,
+                 "integral or derivative (OcpOptions::collocation_form)");
   app.add_option("--collocation-stages", f.collocation_stages, "n_s of Radau IIA")
       ->check(CLI::Range(1, 9));
   app.add_option("--steps", f.steps,

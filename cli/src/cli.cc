@@ -552,6 +552,12 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->type_name("NAME")
         ->capture_default_str()
         ->group(kDiscretisationGroup);
+    ocp->add_option("--collocation-form", ocp_options.collocation_form,
+                    "integral (X = x_n + h A F) or derivative (D (X - x_n) = h F, nosnoc's; "
+                    "sparser KKT matrices, the same solutions)")
+        ->type_name("NAME")
+        ->capture_default_str()
+        ->group(kDiscretisationGroup);
     ocp->add_option("--formulation", ocp_options.formulation,
                     "step or stewart (default step; stewart for the hopper)")
         ->type_name("NAME")

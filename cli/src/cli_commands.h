@@ -221,6 +221,8 @@ struct OcpCommandOptions {
   int nfe = 3;                   ///< finite elements per control stage, >= 1
   int stages = 2;                ///< n_s, 1..9
   std::string scheme = "radau";  ///< radau or gauss
+  /** integral or derivative (bflow::CollocationForm). */
+  std::string collocation_form = "integral";
   /** step or stewart; not given: stewart for the hopper, else step. */
   std::optional<std::string> formulation;
   bool standard = false;                ///< standard time-stepping, no switch detection

@@ -593,6 +593,13 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
                             ": use radau or gauss");
       return kExitBadInput;
     }
+    try {
+      o.collocation_form = parse_collocation_form(options.collocation_form);
+    } catch (const InvalidArgument&) {
+      report_error(err, "--collocation-form: unknown collocation form " +
+                            quote(options.collocation_form) + ": use integral or derivative");
+      return kExitBadInput;
+    }
     o.homotopy.relaxation = parse_relaxation(options.relaxation);
     if (options.cross) {
       try {

@@ -109,7 +109,55 @@ ButcherTableau collocation_tableau(CollocationScheme scheme, int stages) {
   tableau.c.resize(s);
   for (int i = 0; i < s; ++i) tableau.c(i) = static_cast<double>(c[static_cast<std::size_t>(i)]);
   tableau.order = scheme == CollocationScheme::kGaussLegendre ? 2 * s : 2 * s - 1;
+
+  // The derivative form: D = A^-1 = (A^T)^-1^T, D_0 = -D 1, e = b^T D, e_0 = 1 - sum e.
+  const RealMatrix derivative = Eigen::FullPivLU<RealMatrix>(a_transposed).inverse().transpose();
+  RealVector end = derivative.transpose() * b;
+  Real end_0 = 1;
+  if (scheme == CollocationScheme::kRadauIIA) {
+    end.setZero();  // b is A's last row: e is the unit vector of X_s, exactly
+    end(s - 1) = 1;
+    end_0 = 0;
+  } else {
+    for (int k = 0; k < s; ++k) end_0 -= end(k);
+  }
+  tableau.derivative = derivative.cast<double>();
+  tableau.derivative_0 = (-derivative.rowwise().sum()).cast<double>();
+  tableau.end = end.cast<double>();
+  tableau.end_0 = static_cast<double>(end_0);
   return tableau;
+}
+
+const char* to_string(CollocationForm form) {
+  return form == CollocationForm::kDerivative ? "derivative" : "integral";
+}
+
+CollocationForm parse_collocation_form(const std::string& text) {
+  if (text == "integral") return CollocationForm::kIntegral;
+  if (text == "derivative") return CollocationForm::kDerivative;
+  throw InvalidArgument("unknown collocation form \"" + text + "\": use integral or derivative");
+}
+
+CollocationRows collocation_rows(const ButcherTableau& tableau, CollocationForm form) {
+  const int s = tableau.stages;
+  CollocationRows rows;
+  rows.form = form;
+  if (form == CollocationForm::kDerivative) {
+    rows.state = tableau.derivative;
+    rows.start = tableau.derivative_0;
+    rows.rate = Eigen::MatrixXd::Identity(s, s);
+    rows.end_start = tableau.end_0;
+    rows.end_state = tableau.end;
+    rows.end_rate = Eigen::VectorXd::Zero(s);
+  } else {
+    rows.state = Eigen::MatrixXd::Identity(s, s);
+    rows.start = Eigen::VectorXd::Constant(s, -1.0);
+    rows.rate = tableau.a;
+    rows.end_start = 1.0;
+    rows.end_state = Eigen::VectorXd::Zero(s);
+    rows.end_rate = tableau.b;
+  }
+  return rows;
 }
 
 }  // namespace bflow

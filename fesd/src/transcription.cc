@@ -337,7 +337,7 @@ class Transcription::Nlp final : public HomotopyNlp {
     std::vector<double> base;
     element_inputs(w, e, base);
     Eigen::MatrixXd jac;
-    fesd::element_jacobian(tab_, l_, p_.standard, base, jac, values);
+    fesd::element_jacobian(l_, p_.standard, base, jac, values);
     return jac;
   }
 
@@ -368,7 +368,7 @@ class Transcription::Nlp final : public HomotopyNlp {
     std::vector<double> in, out(static_cast<std::size_t>(l_.rows_per_element()));
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(w, e, in);
-      element_residual(tab_, l_, p_.standard, in.data(), out.data());
+      element_residual(l_, p_.standard, in.data(), out.data());
       for (int r = l_.equalities; r < l_.rows_per_element(); ++r) {
         worst = std::max(worst, std::abs(out[static_cast<std::size_t>(r)]));
       }
@@ -651,7 +651,7 @@ class Transcription::Nlp final : public HomotopyNlp {
       std::vector<double> out(static_cast<std::size_t>(l_.rows_per_element()));
       for (int e = 0; e < l_.elements; ++e) {
         element_inputs(x, e, in);
-        element_residual(tab_, l_, p_.standard, in.data(), out.data());
+        element_residual(l_, p_.standard, in.data(), out.data());
         for (int r = l_.equalities; r < l_.rows_per_element(); ++r) {
           value += out[static_cast<std::size_t>(r)] / sigma_;
         }
@@ -678,7 +678,7 @@ class Transcription::Nlp final : public HomotopyNlp {
         add_gradient(
             element_globals_[static_cast<std::size_t>(e)], in, 1.0 / sigma_,
             [&](const JetChunk* v) {
-              element_residual(tab_, l_, p_.standard, v, out.data());
+              element_residual(l_, p_.standard, v, out.data());
               JetChunk sum(0.0);
               for (int r = l_.equalities; r < l_.rows_per_element(); ++r)
                 sum += out[static_cast<std::size_t>(r)];
@@ -694,7 +694,7 @@ class Transcription::Nlp final : public HomotopyNlp {
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, in);
       double* rows = g + e * l_.rows_per_element();
-      element_residual(tab_, l_, p_.standard, in.data(), rows);
+      element_residual(l_, p_.standard, in.data(), rows);
       // Products <= s (s = 0 in the polish).
       for (int r = l_.equalities; elastic() && r < l_.rows_per_element(); ++r)
         rows[r] -= x[slack()];
@@ -736,7 +736,7 @@ class Transcription::Nlp final : public HomotopyNlp {
     Eigen::MatrixXd jac;
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, base);
-      fesd::element_jacobian(tab_, l_, p_.standard, base, jac);
+      fesd::element_jacobian(l_, p_.standard, base, jac);
       const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
       for (int r = 0; r < rpe; ++r) {
         for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
@@ -797,8 +797,8 @@ class Transcription::Nlp final : public HomotopyNlp {
         for (int r = l_.equalities; r < l_.rows_per_element(); ++r)
           weights[static_cast<std::size_t>(r)] += obj_factor / sigma_;
       }
-      add_element_hessian(tab_, l_, pieces_, comp_, element_globals_[static_cast<std::size_t>(e)],
-                          base, weights.data(), hessian_, values);
+      add_element_hessian(l_, pieces_, comp_, element_globals_[static_cast<std::size_t>(e)], base,
+                          weights.data(), hessian_, values);
     }
     for (const Term& t : objective_terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
@@ -845,7 +845,7 @@ class Transcription::Nlp final : public HomotopyNlp {
     full_structure_ = full;
     const int d = l_.d, rpe = l_.rows_per_element();
     const auto residual = [&](const JetChunk* in, JetChunk* out) {
-      element_residual(tab_, l_, p_.standard, in, out);
+      element_residual(l_, p_.standard, in, out);
     };
     const std::vector<std::vector<int>> candidates = element_jacobian_pattern(l_, p_.standard);
     jac_pattern_ = full ? candidates : probe_jacobian_pattern(l_.local, rpe, candidates, residual);
@@ -912,7 +912,7 @@ class Transcription::Nlp final : public HomotopyNlp {
           l_.local, rpe, pieces_,
           [&](HessianBlocks& probe, const std::vector<double>& base, const double* weights,
               double* values) {
-            add_element_hessian(tab_, l_, pieces_, comp_, identity, base, weights, probe, values);
+            add_element_hessian(l_, pieces_, comp_, identity, base, weights, probe, values);
           });
     }
     std::vector<std::pair<int, int>> global_pairs;

@@ -994,7 +994,7 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   const ButcherTableau tab = collocation_tableau(options.scheme, options.collocation_stages);
   const PointDcs dcs(step_model, options.formulation, options.lifting_depth);
   OcpLayout layout(dcs, d, model.switches(), nu, tab, options.stages, options.elements,
-                   /*time_scaled=*/true);
+                   /*time_scaled=*/true, /*end_apart=*/false, options.collocation_form);
   // Standard time-stepping has one product per point and pair, whatever the cross rows.
   if (!options.standard) layout.cross = options.cross_complementarity;
   const OcpLayout& l = layout;

@@ -67,6 +67,12 @@ void bind_ocp(nb::module_& m) {
           "scheme", [](const OcpOptions& o) { return std::string(to_string(o.scheme)); },
           [](OcpOptions& o, const std::string& v) { o.scheme = parse_collocation_scheme(v); })
       .def_prop_rw(
+          "collocation_form",
+          [](const OcpOptions& o) { return std::string(to_string(o.collocation_form)); },
+          [](OcpOptions& o, const std::string& v) {
+            o.collocation_form = parse_collocation_form(v);
+          })
+      .def_prop_rw(
           "formulation", [](const OcpOptions& o) { return std::string(to_string(o.formulation)); },
           [](OcpOptions& o, const std::string& v) { o.formulation = parse_dcs_formulation(v); })
       .def_rw("standard", &OcpOptions::standard)

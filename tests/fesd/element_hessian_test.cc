@@ -44,9 +44,10 @@ struct Config {
   bool standard;
   bool point_pairs = false;
   bool point_sums = false;
+  CollocationForm form = CollocationForm::kIntegral;
   std::string name() const {
     return std::string(to_string(formulation)) + " n_d " + std::to_string(lifting_depth) + " " +
-           to_string(scheme) +
+           to_string(scheme) + " " + to_string(form) +
            (standard      ? " standard"
             : point_pairs ? " point-pair cross"
             : point_sums  ? " point-sum cross"
@@ -61,7 +62,7 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
   const auto model = adapt_step(Coupled{});
   const fesd::PointDcs dcs(model, c.formulation, c.lifting_depth);
   const ButcherTableau tab = collocation_tableau(c.scheme, 2);
-  fesd::ElementShape l(dcs, 2, 2, tab, 1, true);
+  fesd::ElementShape l(dcs, 2, 2, tab, 1, true, false, c.form);
   if (c.point_pairs) l.cross = CrossComplementarity::kPointPairs;
   if (c.point_sums) l.cross = CrossComplementarity::kPointSums;
   const int n = l.local;
@@ -76,7 +77,7 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
   const auto gradient = [&](const std::vector<double>& at) {
     Eigen::MatrixXd jac;
     fesd::dense_jacobian(at, l.rows_per_element(), jac, [&](const JetChunk* in, JetChunk* out) {
-      fesd::element_residual(tab, l, c.standard, in, out);
+      fesd::element_residual(l, c.standard, in, out);
     });
     const Eigen::Map<const Eigen::VectorXd> w(lambda.data(), l.rows_per_element());
     return Eigen::VectorXd(jac.transpose() * w);
@@ -106,8 +107,7 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
   }
   blocks.add_pairs(comp_pairs);
   std::vector<double> values(blocks.size(), 0.0);
-  fesd::add_element_hessian(tab, l, pieces, comp, globals, local, lambda.data(), blocks,
-                            values.data());
+  fesd::add_element_hessian(l, pieces, comp, globals, local, lambda.data(), blocks, values.data());
   EXPECT_EQ(blocks.missed(), 0) << c.name();
   Eigen::MatrixXd exact = Eigen::MatrixXd::Zero(n, n);
   for (std::size_t k = 0; k < blocks.size(); ++k) {
@@ -126,7 +126,7 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
   // and leaves some out of every row kind (not every row against every input).
   Eigen::MatrixXd jac;
   fesd::dense_jacobian(local, l.rows_per_element(), jac, [&](const JetChunk* in, JetChunk* out) {
-    fesd::element_residual(tab, l, c.standard, in, out);
+    fesd::element_residual(l, c.standard, in, out);
   });
   const std::vector<std::vector<int>> pattern = fesd::element_jacobian_pattern(l, c.standard);
   int unlisted_nonzeros = 0;
@@ -153,7 +153,7 @@ TEST_P(ElementHessianTest, JacobianByPiecesIsTheDenseJetJacobian) {
   const fesd::PointDcs dcs(model, c.formulation, c.lifting_depth);
   const ButcherTableau tab = collocation_tableau(c.scheme, 2);
   for (const bool apart : {false, true}) {
-    fesd::ElementShape l(dcs, 2, 2, tab, 1, true, apart);
+    fesd::ElementShape l(dcs, 2, 2, tab, 1, true, apart, c.form);
     if (c.point_pairs) l.cross = CrossComplementarity::kPointPairs;
     if (c.point_sums) l.cross = CrossComplementarity::kPointSums;
     EXPECT_EQ(l.shared_end, !apart && c.scheme == CollocationScheme::kRadauIIA) << c.name();
@@ -165,11 +165,9 @@ TEST_P(ElementHessianTest, JacobianByPiecesIsTheDenseJetJacobian) {
     Eigen::VectorXd dense_values, piece_values;
     fesd::dense_jacobian(
         local, l.rows_per_element(), dense,
-        [&](const JetChunk* in, JetChunk* out) {
-          fesd::element_residual(tab, l, c.standard, in, out);
-        },
+        [&](const JetChunk* in, JetChunk* out) { fesd::element_residual(l, c.standard, in, out); },
         &dense_values);
-    fesd::element_jacobian(tab, l, c.standard, local, pieces, &piece_values);
+    fesd::element_jacobian(l, c.standard, local, pieces, &piece_values);
     ASSERT_EQ(pieces.rows(), dense.rows());
     ASSERT_EQ(pieces.cols(), dense.cols());
     EXPECT_EQ((pieces - dense).cwiseAbs().maxCoeff(), 0.0) << c.name() << " apart " << apart;
@@ -179,16 +177,22 @@ TEST_P(ElementHessianTest, JacobianByPiecesIsTheDenseJetJacobian) {
 }
 
 // Radau IIA's end as its last stage: b is A's last row, so with x_{n+1} = X_s the end rows of the
-// layout that keeps the end apart are its last collocation rows, and the shared layout's rows
-// are the apart layout's without them (the same residual, d unknowns and d rows fewer).
+// layout that keeps the end apart are, in the integral form, its last collocation rows (b and A's
+// last row agree to rounding), and in the derivative form x_{n+1} - X_s (e = b^T A^-1 the unit
+// vector, butcher.h), exactly 0; the shared layout's rows are the apart layout's without them
+// (the same residual, d unknowns and d rows fewer).
 TEST(ElementEnd, TheLastRadauStageIsTheEnd) {
   const auto model = adapt_step(Coupled{});
-  for (const DcsFormulation formulation : {DcsFormulation::kStep, DcsFormulation::kStewart}) {
+  for (const auto& [formulation, form] :
+       {std::make_pair(DcsFormulation::kStep, CollocationForm::kIntegral),
+        std::make_pair(DcsFormulation::kStewart, CollocationForm::kIntegral),
+        std::make_pair(DcsFormulation::kStep, CollocationForm::kDerivative),
+        std::make_pair(DcsFormulation::kStewart, CollocationForm::kDerivative)}) {
     const fesd::PointDcs dcs(model, formulation, 0);
     for (const int stages : {1, 2, 3}) {
       const ButcherTableau tab = collocation_tableau(CollocationScheme::kRadauIIA, stages);
-      const fesd::ElementShape shared(dcs, 2, 2, tab, 1, true);
-      const fesd::ElementShape apart(dcs, 2, 2, tab, 1, true, /*end_apart=*/true);
+      const fesd::ElementShape shared(dcs, 2, 2, tab, 1, true, false, form);
+      const fesd::ElementShape apart(dcs, 2, 2, tab, 1, true, /*end_apart=*/true, form);
       ASSERT_TRUE(shared.shared_end);
       ASSERT_FALSE(apart.shared_end);
       EXPECT_EQ(apart.local - shared.local, 2);
@@ -206,13 +210,16 @@ TEST(ElementEnd, TheLastRadauStageIsTheEnd) {
       ASSERT_EQ(static_cast<int>(wide.size()), apart.local);
       std::vector<double> a(static_cast<std::size_t>(shared.rows_per_element()));
       std::vector<double> b(static_cast<std::size_t>(apart.rows_per_element()));
-      fesd::element_residual(tab, shared, false, in.data(), a.data());
-      fesd::element_residual(tab, apart, false, wide.data(), b.data());
+      fesd::element_residual(shared, false, in.data(), a.data());
+      fesd::element_residual(apart, false, wide.data(), b.data());
       const int sd = shared.dynamics;
       for (int r = 0; r < sd; ++r) EXPECT_EQ(a[r], b[r]) << r;
       for (int i = 0; i < 2; ++i) {
-        // The end row against the last collocation row: b and A's last row agree to rounding.
-        EXPECT_NEAR(b[sd + i], b[sd - 2 + i], 1e-15) << stages;
+        if (form == CollocationForm::kDerivative) {
+          EXPECT_EQ(b[sd + i], 0.0) << stages;
+        } else {
+          EXPECT_NEAR(b[sd + i], b[sd - 2 + i], 1e-15) << stages;
+        }
       }
       for (std::size_t r = sd; r < a.size(); ++r) EXPECT_EQ(a[r], b[r + 2]) << r;
     }
@@ -235,7 +242,18 @@ INSTANTIATE_TEST_SUITE_P(
         Config{DcsFormulation::kStewart, 0, CollocationScheme::kGaussLegendre, false, true},
         Config{DcsFormulation::kStep, 0, CollocationScheme::kRadauIIA, false, false, true},
         Config{DcsFormulation::kStep, 2, CollocationScheme::kGaussLegendre, false, false, true},
-        Config{DcsFormulation::kStewart, 0, CollocationScheme::kRadauIIA, false, false, true}));
+        Config{DcsFormulation::kStewart, 0, CollocationScheme::kRadauIIA, false, false, true},
+        // The derivative form (butcher.h) over each scheme, formulation and row kind.
+        Config{DcsFormulation::kStep, 0, CollocationScheme::kRadauIIA, false, false, false,
+               CollocationForm::kDerivative},
+        Config{DcsFormulation::kStep, 0, CollocationScheme::kGaussLegendre, true, false, false,
+               CollocationForm::kDerivative},
+        Config{DcsFormulation::kStep, 2, CollocationScheme::kRadauIIA, false, true, false,
+               CollocationForm::kDerivative},
+        Config{DcsFormulation::kStewart, 0, CollocationScheme::kRadauIIA, false, false, false,
+               CollocationForm::kDerivative},
+        Config{DcsFormulation::kStewart, 0, CollocationScheme::kGaussLegendre, false, false, true,
+               CollocationForm::kDerivative}));
 
 // The point-pair cross complementarity (kPointPairs) against the aggregated rows: pair k's
 // P (P + 1) products sum to its aggregated product (sum_r u_r)(v_0 + sum_m v_m) exactly by
@@ -258,8 +276,8 @@ TEST(PointPairComplementarity, RowsSumToTheAggregatedProductsAndThePatternHoldsT
     for (double& v : local) v = uniform(gen);
     std::vector<double> aggregated(static_cast<std::size_t>(sums.rows_per_element()));
     std::vector<double> products(static_cast<std::size_t>(pairs.rows_per_element()));
-    fesd::element_residual(tab, sums, false, local.data(), aggregated.data());
-    fesd::element_residual(tab, pairs, false, local.data(), products.data());
+    fesd::element_residual(sums, false, local.data(), aggregated.data());
+    fesd::element_residual(pairs, false, local.data(), products.data());
     const double* z = local.data() + pairs.own() + pairs.off_z;
     for (int k = 0; k < pairs.npairs; ++k) {
       const fesd::Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
@@ -283,10 +301,9 @@ TEST(PointPairComplementarity, RowsSumToTheAggregatedProductsAndThePatternHoldsT
       EXPECT_EQ(products[static_cast<std::size_t>(r)], aggregated[static_cast<std::size_t>(r)]);
     }
     Eigen::MatrixXd jac;
-    fesd::dense_jacobian(local, pairs.rows_per_element(), jac,
-                         [&](const JetChunk* in, JetChunk* out) {
-                           fesd::element_residual(tab, pairs, false, in, out);
-                         });
+    fesd::dense_jacobian(
+        local, pairs.rows_per_element(), jac,
+        [&](const JetChunk* in, JetChunk* out) { fesd::element_residual(pairs, false, in, out); });
     const std::vector<std::vector<int>> pattern = fesd::element_jacobian_pattern(pairs, false);
     int listed = 0;
     for (int r = pairs.equalities; r < pairs.rows_per_element(); ++r) {
@@ -325,8 +342,8 @@ TEST(PointSumComplementarity, RowsSumToTheAggregatedProductsAndThePatternHoldsTh
     for (double& v : local) v = uniform(gen);
     std::vector<double> aggregated(static_cast<std::size_t>(sums.rows_per_element()));
     std::vector<double> rows(static_cast<std::size_t>(points.rows_per_element()));
-    fesd::element_residual(tab, sums, false, local.data(), aggregated.data());
-    fesd::element_residual(tab, points, false, local.data(), rows.data());
+    fesd::element_residual(sums, false, local.data(), aggregated.data());
+    fesd::element_residual(points, false, local.data(), rows.data());
     const double* z = local.data() + points.own() + points.off_z;
     for (int k = 0; k < points.npairs; ++k) {
       const fesd::Pair& pair = dcs.pairs()[static_cast<std::size_t>(k)];
@@ -346,10 +363,9 @@ TEST(PointSumComplementarity, RowsSumToTheAggregatedProductsAndThePatternHoldsTh
       EXPECT_EQ(rows[static_cast<std::size_t>(r)], aggregated[static_cast<std::size_t>(r)]);
     }
     Eigen::MatrixXd jac;
-    fesd::dense_jacobian(local, points.rows_per_element(), jac,
-                         [&](const JetChunk* in, JetChunk* out) {
-                           fesd::element_residual(tab, points, false, in, out);
-                         });
+    fesd::dense_jacobian(
+        local, points.rows_per_element(), jac,
+        [&](const JetChunk* in, JetChunk* out) { fesd::element_residual(points, false, in, out); });
     const std::vector<std::vector<int>> pattern = fesd::element_jacobian_pattern(points, false);
     for (int r = points.equalities; r < points.rows_per_element(); ++r) {
       const std::vector<int>& row = pattern[static_cast<std::size_t>(r)];

@@ -53,12 +53,21 @@ struct ElementShape {
   int local = 0;
   /** The rows of the cross complementarity (fesd.h); set before the rows are counted. */
   CrossComplementarity cross = CrossComplementarity::kElementSums;
+  /** The collocation rows' weights in the form the layout writes them (butcher.h). */
+  CollocationRows rows;
 
   /** end_apart keeps a Radau IIA element's end as unknowns of its own (d more unknowns and d
       more rows per element, the same solutions); Gauss-Legendre always has them. */
   ElementShape(const PointDcs& point, int states, int switches, const ButcherTableau& tableau,
-               int controls = 0, bool time_scaled = false, bool end_apart = false)
-      : dcs(&point), d(states), nc(switches), s(tableau.stages), nu(controls), scaled(time_scaled) {
+               int controls = 0, bool time_scaled = false, bool end_apart = false,
+               CollocationForm form = CollocationForm::kIntegral)
+      : dcs(&point),
+        d(states),
+        nc(switches),
+        s(tableau.stages),
+        nu(controls),
+        scaled(time_scaled),
+        rows(collocation_rows(tableau, form)) {
     nz = point.size();
     neq = point.equations();
     npairs = static_cast<int>(point.pairs().size());
@@ -130,8 +139,7 @@ void complementarity_rows(const ElementShape& l, bool standard, const T* v0, con
 
 // Equalities and aggregated complementarity products of one element from its local vector.
 template <typename T>
-void element_residual(const ButcherTableau& tab, const ElementShape& l, bool standard, const T* in,
-                      T* out) {
+void element_residual(const ElementShape& l, bool standard, const T* in, T* out) {
   const PointDcs& dcs = *l.dcs;
   const int d = l.d, s = l.s, nz = l.nz, nu = l.nu;
   const T* xn = in;
@@ -163,18 +171,34 @@ void element_residual(const ButcherTableau& tab, const ElementShape& l, bool sta
       std::copy(rate.begin(), rate.begin() + d, f.begin() + m * d);
     }
   }
+  // Collocation row (m, i) and end row i (apart) with the weights of l.rows (butcher.h),
+  // leaving out the weights that are exactly 0:
+  //   start(m) x_n,i + sum_k state(m, k) X_k,i - h sum_k rate(m, k) f_i(X_k),
+  //   (x_{n+1},i - (end_start x_n,i + sum_k end_state(k) X_k,i)) - h sum_k end_rate(k) f_i(X_k).
+  const CollocationRows& w = l.rows;
+  const auto rates = [&](int i, const auto& weight) {
+    T sum(0.0);
+    for (int k = 0; k < s; ++k) {
+      if (weight(k) != 0.0) sum += weight(k) * f[static_cast<std::size_t>(k * d + i)];
+    }
+    return sum;
+  };
   T* eq = out;
   for (int m = 0; m < s; ++m) {
     for (int i = 0; i < d; ++i) {
-      T sum(0.0);
-      for (int k = 0; k < s; ++k) sum += tab.a(m, k) * f[static_cast<std::size_t>(k * d + i)];
-      eq[m * d + i] = stage[m * d + i] - xn[i] - h * sum;
+      T sum = w.start(m) * xn[i];
+      for (int k = 0; k < s; ++k) {
+        if (w.state(m, k) != 0.0) sum += w.state(m, k) * stage[k * d + i];
+      }
+      eq[m * d + i] = sum - h * rates(i, [&](int k) { return w.rate(m, k); });
     }
   }
   for (int i = 0; !l.shared_end && i < d; ++i) {
-    T sum(0.0);
-    for (int k = 0; k < s; ++k) sum += tab.b(k) * f[static_cast<std::size_t>(k * d + i)];
-    eq[s * d + i] = xnext[i] - xn[i] - h * sum;
+    T sum = w.end_start * xn[i];
+    for (int k = 0; k < s; ++k) {
+      if (w.end_state(k) != 0.0) sum += w.end_state(k) * stage[k * d + i];
+    }
+    eq[s * d + i] = (xnext[i] - sum) - h * rates(i, [&](int k) { return w.end_rate(k); });
   }
   T* alg = eq + l.dynamics;
   for (int m = 0; m < l.points; ++m) {
@@ -230,26 +254,72 @@ inline void complementarity_hessian(const ElementShape& l, bool standard,
 }
 
 // The local inputs each row of element_residual reads, by construction (whatever the model):
-//   collocation and end rows: x_n, the parameters (u, T), h, the stage values X, x_{n+1} and
-//     the entries of z the field reads at the stage points;
+//   collocation and end rows, integral form: by blocks, x_n, the parameters (u, T), h, the stage
+//     values X, x_{n+1} and the entries of z the field reads at the stage points (the structure
+//     the integral form's homotopy paths were measured on);
+//   collocation and end rows, derivative form: exactly what each reads, x_n's entry i (a nonzero
+//     start weight), the parameters and h (a nonzero rate weight), all of X_k and the entries of
+//     z_k the field reads where rate(m, k) is nonzero, X_k's entry i where only state(m, k) is,
+//     and x_{n+1}'s entry i in the end row i (for Radau IIA apart, x_{n+1},i and X_s,i alone);
 //   algebraic rows of point m: X_m (x_{n+1} at Gauss-Legendre's end point), u and z_m;
 //   complementarity rows: their pairs' members (u and v at the points, v at the start).
 // Everything else in a row's Jacobian is exactly zero, so a sparse Jacobian lists only these.
+// Each row's inputs are increasing.
 inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape& l,
                                                               bool standard) {
-  const int d = l.d, own = l.own(), u0 = d + l.npairs;
+  const int d = l.d, s = l.s, own = l.own(), u0 = d + l.npairs;
   const auto range = [](std::vector<int>& v, int first, int count) {
     for (int k = 0; k < count; ++k) v.push_back(first + k);
   };
-  std::vector<int> dynamics;
-  range(dynamics, 0, d);
-  range(dynamics, u0, l.params);
-  range(dynamics, own, l.off_z);  // h, X, x_{n+1} (when apart)
-  for (int m = 0; m < l.s; ++m) {
-    range(dynamics, own + l.off_z + m * l.nz + l.dcs->field_first(), l.dcs->field_count());
-  }
   std::vector<std::vector<int>> rows(static_cast<std::size_t>(l.rows_per_element()));
-  for (int r = 0; r < l.dynamics; ++r) rows[static_cast<std::size_t>(r)] = dynamics;
+  const CollocationRows& w = l.rows;
+  if (w.form == CollocationForm::kIntegral) {
+    std::vector<int> dynamics;
+    range(dynamics, 0, d);
+    range(dynamics, u0, l.params);
+    range(dynamics, own, l.off_z);  // h, X, x_{n+1} (when apart)
+    for (int m = 0; m < s; ++m) {
+      range(dynamics, own + l.off_z + m * l.nz + l.dcs->field_first(), l.dcs->field_count());
+    }
+    for (int r = 0; r < l.dynamics; ++r) rows[static_cast<std::size_t>(r)] = dynamics;
+  } else {
+    // Row i of a block whose x_n weight is `start`, X_k weights state(k), rate weights rate(k).
+    const auto dynamics_row = [&](std::vector<int>& row, int i, double start, const auto& state,
+                                  const auto& rate, bool end) {
+      bool rates = false;
+      for (int k = 0; k < s; ++k) rates = rates || rate(k) != 0.0;
+      if (start != 0.0) row.push_back(i);
+      if (rates) {
+        range(row, u0, l.params);
+        row.push_back(own);  // h
+      }
+      for (int k = 0; k < s; ++k) {
+        if (rate(k) != 0.0) {
+          range(row, own + 1 + k * d, d);  // the field reads all of X_k
+        } else if (state(k) != 0.0) {
+          row.push_back(own + 1 + k * d + i);
+        }
+      }
+      if (end) row.push_back(own + l.off_x + i);
+      for (int k = 0; k < s; ++k) {
+        if (rate(k) != 0.0) {
+          range(row, own + l.off_z + k * l.nz + l.dcs->field_first(), l.dcs->field_count());
+        }
+      }
+    };
+    for (int m = 0; m < s; ++m) {
+      for (int i = 0; i < d; ++i) {
+        dynamics_row(
+            rows[static_cast<std::size_t>(m * d + i)], i, w.start(m),
+            [&](int k) { return w.state(m, k); }, [&](int k) { return w.rate(m, k); }, false);
+      }
+    }
+    for (int i = 0; !l.shared_end && i < d; ++i) {
+      dynamics_row(
+          rows[static_cast<std::size_t>(s * d + i)], i, w.end_start,
+          [&](int k) { return w.end_state(k); }, [&](int k) { return w.end_rate(k); }, true);
+    }
+  }
   for (int m = 0; m < l.points; ++m) {
     std::vector<int> alg;
     range(alg, m < l.s ? own + 1 + m * d : own + l.off_x, d);
@@ -308,7 +378,8 @@ inline std::vector<std::vector<int>> element_jacobian_pattern(const ElementShape
 // The element's Lagrangian sum_r lambda_r residual_r is linear in everything but a few small
 // pieces, and its second derivatives are theirs:
 //   field piece k (stage point k < s):  -h sum_i w_ki f_i([X_k; u], z_k),
-//        w_ki = sum_m lambda_(m,i) A_mk + lambda_(end,i) b_k   (the collocation and end rows),
+//        w_ki = sum_m lambda_(m,i) rate(m, k) + lambda_(end,i) end_rate(k) (butcher.h: in the
+//        integral form A's column k and b_k, in the derivative form lambda_(k,i) alone),
 //        over [X_k, u, the entries of z_k the field reads, h, T (time-scaled)];
 //   algebraic piece m (point m < P):     lambda_alg(m) . algebraic([X_m or x_{n+1}; u], z_m),
 //        over [X_m or x_{n+1}, u, z_m];
@@ -350,8 +421,7 @@ inline std::vector<std::vector<int>> element_hessian_pieces(const ElementShape& 
 // `local` (globals: the unknown of each local entry, -1 for a constant) to `values`. `pieces` and
 // `comp` are the element's element_hessian_pieces and complementarity_hessian, found once.
 template <typename Blocks>
-void add_element_hessian(const ButcherTableau& tab, const ElementShape& l,
-                         const std::vector<std::vector<int>>& pieces,
+void add_element_hessian(const ElementShape& l, const std::vector<std::vector<int>>& pieces,
                          const ComplementarityHessian& comp, const std::vector<int>& globals,
                          const std::vector<double>& local, const double* lambda, Blocks& hessian,
                          double* values) {
@@ -359,7 +429,7 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l,
   const int d = l.d, nu = l.nu;
   // Scratch kept per thread: this runs for every element of every Hessian evaluation.
   thread_local std::vector<int> piece_globals;
-  thread_local std::vector<double> piece_base, w;
+  thread_local std::vector<double> piece_base, weights;
   const auto gather = [&](const std::vector<int>& piece) {
     piece_globals.resize(piece.size());
     piece_base.resize(piece.size());
@@ -368,14 +438,21 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l,
       piece_base[k] = local[static_cast<std::size_t>(piece[k])];
     }
   };
-  w.resize(static_cast<std::size_t>(d));
   const double one = 1.0;
+  const CollocationRows& cr = l.rows;
+  weights.resize(static_cast<std::size_t>(d));
   for (int k = 0; k < l.s; ++k) {
+    // w_ki = lambda_(end,i) end_rate(k) + sum_m lambda_(m,i) rate(m, k), the weights exactly 0
+    // left out (the derivative form: lambda_(k,i)).
     for (int i = 0; i < d; ++i) {
-      double sum = l.shared_end ? 0.0 : tab.b(k) * lambda[l.s * d + i];
-      for (int m = 0; m < l.s; ++m) sum += lambda[m * d + i] * tab.a(m, k);
-      w[static_cast<std::size_t>(i)] = sum;
+      double sum =
+          l.shared_end || cr.end_rate(k) == 0.0 ? 0.0 : cr.end_rate(k) * lambda[l.s * d + i];
+      for (int m = 0; m < l.s; ++m) {
+        if (cr.rate(m, k) != 0.0) sum += lambda[m * d + i] * cr.rate(m, k);
+      }
+      weights[static_cast<std::size_t>(i)] = sum;
     }
+    const double* w = weights.data();
     gather(pieces[static_cast<std::size_t>(k)]);
     hessian.add(
         piece_globals, piece_base, 1, &one,
@@ -391,7 +468,7 @@ void add_element_hessian(const ButcherTableau& tab, const ElementShape& l,
           std::copy(in + d + nu, in + d + nu + nf, z.begin() + dcs.field_first());
           dcs.field(in, z.data(), rate.data());
           T sum(0.0);
-          for (int i = 0; i < d; ++i) sum += w[static_cast<std::size_t>(i)] * rate[i];
+          for (int i = 0; i < d; ++i) sum += w[i] * rate[i];
           out[0] = -h * sum;
         },
         values);
@@ -528,9 +605,8 @@ void dense_jacobian(const std::vector<double>& base, int rows, Eigen::MatrixXd& 
 // (a Jet's directions are independent, so a direction seeded in a narrower pass gets the same
 // arithmetic), for the s + P narrow passes of the pieces instead of local / kTangentChunk
 // passes over the whole element. `values`, when given, receives the residual.
-inline void element_jacobian(const ButcherTableau& tab, const ElementShape& l, bool standard,
-                             const std::vector<double>& local, Eigen::MatrixXd& jac,
-                             Eigen::VectorXd* values = nullptr) {
+inline void element_jacobian(const ElementShape& l, bool standard, const std::vector<double>& local,
+                             Eigen::MatrixXd& jac, Eigen::VectorXd* values = nullptr) {
   const PointDcs& dcs = *l.dcs;
   const int d = l.d, s = l.s, nu = l.nu, nz = l.nz, P = l.points;
   const int own = l.own(), u0 = d + l.npairs, zf = dcs.field_first(), nf = dcs.field_count();
@@ -588,38 +664,65 @@ inline void element_jacobian(const ButcherTableau& tab, const ElementShape& l, b
     for (int i = 0; i < d; ++i)
       f[static_cast<std::size_t>(k * d + i)] = rate[static_cast<std::size_t>(i)].a;
   }
-  // Collocation rows (weights a(m, .), target X_m) and the end rows (b, x_{n+1}) when apart:
-  // eq = x - x_n - h sum_k w_k f_k as element_residual's Jets compute it.
-  const auto dynamics_row = [&](int row, int target, const auto& weight) {
-    for (int i = 0; i < d; ++i) {
-      const int r = row + i;
-      double sum = 0.0;
-      for (int k = 0; k < s; ++k) sum += f[static_cast<std::size_t>(k * d + i)] * weight(k);
-      out[r] = (in[own + target + i] - xn[i]) - h * sum;
-      jac(r, i) = -1.0;
-      jac(r, own + target + i) += 1.0;
-      jac(r, own) = -((l.scaled ? T : 1.0) * sum);
-      if (l.scaled) jac(r, u0 + nu) = -(hb * sum);
+  // Collocation rows and the end rows when apart, with l.rows' weights, by element_residual's
+  // operations in its order (the weights exactly 0 left out).
+  const CollocationRows& w = l.rows;
+  // Row r (entry i of its block) less h sum_k weight(k) f_i(X_k): its rate terms' derivatives.
+  const auto rate_terms = [&](int r, int i, const auto& weight) {
+    double sum = 0.0;
+    bool any = false;
+    for (int k = 0; k < s; ++k) {
+      if (weight(k) == 0.0) continue;
+      any = true;
+      sum += weight(k) * f[static_cast<std::size_t>(k * d + i)];
+    }
+    if (!any) return 0.0;
+    jac(r, own) = -((l.scaled ? T : 1.0) * sum);
+    if (l.scaled) jac(r, u0 + nu) = -(hb * sum);
+    for (int k = 0; k < s; ++k) {
+      const double wk = weight(k);
+      if (wk == 0.0) continue;
+      const double* dfk = df.data() + static_cast<std::size_t>(k * d * wf + i * wf);
+      for (int j = 0; j < d; ++j) jac(r, own + 1 + k * d + j) -= h * (dfk[j] * wk);
+      for (int q = 0; q < nf; ++q)
+        jac(r, own + l.off_z + k * nz + zf + q) = -(h * (dfk[d + nu + q] * wk));
+    }
+    for (int j = 0; j < nu; ++j) {
+      double sum_u = 0.0;
       for (int k = 0; k < s; ++k) {
-        const double* dfk = df.data() + static_cast<std::size_t>(k * d * wf + i * wf);
-        const double wk = weight(k);
-        for (int j = 0; j < d; ++j) jac(r, own + 1 + k * d + j) -= h * (dfk[j] * wk);
-        for (int q = 0; q < nf; ++q)
-          jac(r, own + l.off_z + k * nz + zf + q) = -(h * (dfk[d + nu + q] * wk));
-      }
-      for (int j = 0; j < nu; ++j) {
-        double sum_u = 0.0;
-        for (int k = 0; k < s; ++k) {
+        if (weight(k) != 0.0) {
           sum_u += df[static_cast<std::size_t>(k * d * wf + i * wf + d + j)] * weight(k);
         }
-        jac(r, u0 + j) = -(h * sum_u);
       }
+      jac(r, u0 + j) = -(h * sum_u);
     }
+    return h * sum;
   };
   for (int m = 0; m < s; ++m) {
-    dynamics_row(m * d, 1 + m * d, [&](int k) { return tab.a(m, k); });
+    for (int i = 0; i < d; ++i) {
+      const int r = m * d + i;
+      double sum = w.start(m) * xn[i];
+      jac(r, i) = w.start(m);
+      for (int k = 0; k < s; ++k) {
+        if (w.state(m, k) == 0.0) continue;
+        sum += w.state(m, k) * blk[1 + k * d + i];
+        jac(r, own + 1 + k * d + i) += w.state(m, k);
+      }
+      out[r] = sum - rate_terms(r, i, [&](int k) { return w.rate(m, k); });
+    }
   }
-  if (!l.shared_end) dynamics_row(s * d, l.off_x, [&](int k) { return tab.b(k); });
+  for (int i = 0; !l.shared_end && i < d; ++i) {
+    const int r = s * d + i;
+    double sum = w.end_start * xn[i];
+    jac(r, i) = -w.end_start;
+    for (int k = 0; k < s; ++k) {
+      if (w.end_state(k) == 0.0) continue;
+      sum += w.end_state(k) * blk[1 + k * d + i];
+      jac(r, own + 1 + k * d + i) -= w.end_state(k);
+    }
+    jac(r, own + l.off_x + i) += 1.0;
+    out[r] = (blk[l.off_x + i] - sum) - rate_terms(r, i, [&](int k) { return w.end_rate(k); });
+  }
   // Algebraic rows of each point: Jets over [X_m (x_{n+1} at Gauss-Legendre's end), u, z_m].
   for (int m = 0; m < P; ++m) {
     const int at = m < s ? 1 + m * d : l.off_x;

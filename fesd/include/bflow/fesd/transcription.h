@@ -53,8 +53,8 @@ struct TranscriptionLayout : ElementShape {
 
   TranscriptionLayout(const PointDcs& point, int states, int switches, int controls,
                       const ButcherTableau& tableau, int n_stages, int n_fe, bool time_scaled,
-                      bool end_apart = false)
-      : ElementShape(point, states, switches, tableau, controls, time_scaled, end_apart),
+                      bool end_apart = false, CollocationForm form = CollocationForm::kIntegral)
+      : ElementShape(point, states, switches, tableau, controls, time_scaled, end_apart, form),
         stages(n_stages),
         per_stage(n_fe),
         elements(n_stages * n_fe) {}

@@ -444,6 +444,10 @@ struct OcpOptions {
   int elements = 3;  ///< N_FE per stage, >= 1
   CollocationScheme scheme = CollocationScheme::kRadauIIA;
   int collocation_stages = 2;  ///< n_s, 1..9
+  /** How the collocation equations are written (butcher.h): kIntegral, X = x_n + h A F (each
+      row reads the field at every stage); kDerivative, D (X - x_n) = h F, nosnoc's form (each row
+      reads it at one stage, a sparser KKT matrix). The same solutions; IPOPT's paths differ. */
+  CollocationForm collocation_form = CollocationForm::kIntegral;
   DcsFormulation formulation = DcsFormulation::kStep;
   int lifting_depth = 0;  ///< as FesdOptions::lifting_depth
   /** Standard time-stepping: equal fixed element lengths and complementarity point by point
