@@ -395,6 +395,9 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
        "error: --stages: the number of Runge-Kutta stages must be in [1, 9], got 10"},
       {"scheme", [](OcpCommandOptions& o) { o.scheme = "lobatto"; },
        "error: --scheme: unknown collocation scheme \"lobatto\": use radau or gauss"},
+      {"collocation form", [](OcpCommandOptions& o) { o.collocation_form = "weak"; },
+       "error: --collocation-form: unknown collocation form \"weak\": use integral or "
+       "derivative"},
       {"formulation", [](OcpCommandOptions& o) { o.formulation = "heaviside"; },
        "error: --formulation: unknown formulation \"heaviside\": use step or stewart"},
       {"relaxation", [](OcpCommandOptions& o) { o.relaxation = "smooth"; },

@@ -859,6 +859,32 @@ TEST(OcpSparsity, ProbedStructureIsSmallerAndReachesTheSameOptimum) {
   EXPECT_LT(probed.hessian_nonzeros, full.hessian_nonzeros);
 }
 
+// The derivative form of the collocation equations (butcher.h), alone and with the probed
+// structure: the same time-optimal T* = 40/3 as the integral form (both to 1e-8), with fewer
+// Jacobian nonzeros (each row reads the field at one stage).
+TEST(OcpCollocationForm, DerivativeFormReachesTheSameOptimum) {
+  OcpOptions o;
+  o.stages = 5;
+  const OcpResult integral = solve_car(5, o);
+  o.collocation_form = CollocationForm::kDerivative;
+  const OcpResult derivative = solve_car(5, o);
+  o.probe_sparsity = true;
+  const OcpResult probed = solve_car(5, o);
+  for (const OcpResult* r : {&integral, &derivative, &probed}) {
+    ASSERT_TRUE(r->ok()) << r->message;
+    EXPECT_NEAR(r->T, TurboCar::kOptimalTime, 1e-8);
+  }
+  EXPECT_LT(derivative.jacobian_nonzeros, integral.jacobian_nonzeros);
+  EXPECT_EQ(derivative.hessian_nonzeros, integral.hessian_nonzeros);
+  EXPECT_LT(probed.jacobian_nonzeros, derivative.jacobian_nonzeros);
+  std::printf(
+      "T - T*: integral %.1e, derivative %.1e, probed %.1e; Jacobian nonzeros %lld, %lld, %lld\n",
+      integral.T - TurboCar::kOptimalTime, derivative.T - TurboCar::kOptimalTime,
+      probed.T - TurboCar::kOptimalTime, static_cast<long long>(integral.jacobian_nonzeros),
+      static_cast<long long>(derivative.jacobian_nonzeros),
+      static_cast<long long>(probed.jacobian_nonzeros));
+}
+
 TEST(OcpInput, BadDataIsRefusedWithTheValues) {
   const auto model = adapt_ocp(TurboCar{});
   const auto message = [&](OcpProblem p, OcpOptions o = {}) -> std::string {
