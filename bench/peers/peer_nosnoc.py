@@ -39,6 +39,10 @@ MATCHED = {
              "acceptable_tol 1e-6 after 15 iterations, max_iter 500, exact Hessian, MUMPS",
     "guess": "x = x0, u = 0, step a = lambda = 1/2 (Stewart theta = 1/2)",
     "state_bounds": "at every collocation stage point",
+    "collocation": "the derivative form D (X - x_n) = h F (nosnoc's IrkRepresentation.INTEGRAL "
+                   "default writes its rows so), the Jacobian and Hessian structure of the "
+                   "entries that are not identically zero (CasADi's symbolic sparsity; bflow's "
+                   "probe_sparsity)",
 }
 
 
@@ -54,6 +58,7 @@ def matched_bflow_flags(rho_h, state_bounds=True):
         "--no-polish", "--warm-start", "cold", "--later-mu-init", "0.1",
         "--acceptable-tolerance", "1e-6", "--acceptable-iterations", "15",
         "--max-nlp-iterations", "500", "--continue-after-failure", "--neutral-guess",
+        "--collocation-form", "derivative", "--probe-sparsity",
         f"--ipopt-num=dual_inf_tol={tol!r}", f"--ipopt-num=compl_inf_tol={tol!r}",
         f"--ipopt-num=mu_target={tol!r}", "--ipopt-str=mu_oracle=quality-function",
     ]

@@ -611,7 +611,8 @@ def fesd_exact(example: str) -> dict:
 
 
 OcpResult = _bflow.OcpResult
-_OCP_OPTIONS = ("elements", "collocation_stages", "scheme", "formulation", "standard",
+_OCP_OPTIONS = ("elements", "collocation_stages", "scheme", "collocation_form", "formulation",
+                "standard",
                 "lifting_depth", "cross_complementarity", "step_deviation_weight",
                 "equilibration_weight") + _HOMOTOPY_OPTIONS + (
                 "exact_hessian",) + _SOLVER_OPTIONS
@@ -643,8 +644,9 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
     override; their full runs take minutes to an hour (docs/ocp.md).
 
     Options, by group (as the C++ OcpOptions, its homotopy and its solver). The
-    discretisation: elements (N_FE, 3), collocation_stages (2), scheme, formulation, standard,
-    lifting_depth, cross_complementarity ("element-sums", "point-pairs", "point-sums"; FESD
+    discretisation: elements (N_FE, 3), collocation_stages (2), scheme, collocation_form
+    ("integral", or "derivative": D (X - x_n) = h F, nosnoc's form, sparser KKT matrices),
+    formulation, standard, lifting_depth, cross_complementarity ("element-sums", "point-pairs", "point-sums"; FESD
     only: with standard=True it is refused, and a contact example's own choice is left out),
     step_deviation_weight, equilibration_weight. The homotopy: relaxation ("scholtes", "l1",
     "elastic"), sigma_initial (100), sigma_final (1e-10), sigma_factor (0.1), superlinear,

@@ -133,7 +133,9 @@ void bind_ocp(nb::module_& m) {
       .def_ro("ipopt_iterations", &OcpResult::ipopt_iterations)
       .def_ro("cpu_seconds", &OcpResult::cpu_seconds)
       .def_ro("unknowns", &OcpResult::unknowns)
-      .def_ro("constraints", &OcpResult::constraints);
+      .def_ro("constraints", &OcpResult::constraints)
+      .def_ro("jacobian_nonzeros", &OcpResult::jacobian_nonzeros)
+      .def_ro("hessian_nonzeros", &OcpResult::hessian_nonzeros);
 
   nb::class_<OcpModel>(m, "_OcpModel", "A compiled optimal control model (OcpModel).")
       .def_prop_ro("states", &OcpModel::states)

@@ -87,6 +87,15 @@ def test_turbo_car_reaches_the_exact_optimal_time():
     np.testing.assert_allclose(r.switch_times, exact["switch_times"], atol=1e-9)
 
 
+def test_derivative_form_reaches_the_same_optimal_time_with_a_sparser_jacobian():
+    exact = bflow.ocp_exact("turbo-car")
+    integral = bflow.ocp_solve("turbo-car", N=5)
+    derivative = bflow.ocp_solve("turbo-car", N=5, collocation_form="derivative")
+    assert derivative.ok
+    assert derivative.T == pytest.approx(exact["T"], abs=1e-9)
+    assert derivative.jacobian_nonzeros < integral.jacobian_nonzeros
+
+
 @pytest.mark.parametrize("call, message", [
     (lambda: bflow.ocp_solve("pendulum"), "braking-block, turbo-car, monoped and hopper"),
     (lambda: bflow.ocp_solve("hopper", N=7), "multiple of 5"),
@@ -94,6 +103,8 @@ def test_turbo_car_reaches_the_exact_optimal_time():
     (lambda: bflow.ocp_solve("monoped", N=3, setup="loose"), "unknown monoped setup"),
     (lambda: bflow.ocp_solve("turbo-car", N=5, relaxation="smooth"), "unknown relaxation"),
     (lambda: bflow.ocp_solve("turbo-car", N=5, stage=5), "unknown option 'stage'"),
+    (lambda: bflow.ocp_solve("turbo-car", N=5, collocation_form="weak"),
+     "unknown collocation form \"weak\""),
     (lambda: bflow.ocp_solve("turbo-car", N=0), r"N=0 is outside \[1, "),
 ])
 def test_bad_input_is_refused(call, message):
