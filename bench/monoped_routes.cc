@@ -249,7 +249,7 @@ int main(int argc, char** argv) {
     guess = "start " + start;
     sides = true;
   }
-  if (sides) o.neutral_algebraic_guess = false;
+  if (sides) o.algebraic_guess = bflow::AlgebraicGuess::kSides;
   ipopt.apply_to(o);
   o.progress = [](const bflow::OcpHomotopyStep& s) {
     std::fprintf(stderr,

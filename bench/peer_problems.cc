@@ -82,7 +82,8 @@ struct Flags {
   double equilibration_weight = 0.0, later_mu_init = 0.0, acceptable_tolerance = 0.0;
   int acceptable_iterations = 15, max_nlp_iterations = -1;
   bool no_polish = false, stop_at_complementarity = false, continue_after_failure = false;
-  bool first_from_zero_multipliers = false, neutral_guess = false, no_newton = false;
+  bool first_from_zero_multipliers = false, neutral_guess = false, nosnoc_guess = false;
+  bool no_newton = false;
   bool probe_sparsity = false, no_mumps_amalgamation = false;
   std::string collocation_form = "integral";
   bool x_bounds_at_stage_points = false;
@@ -123,7 +124,9 @@ bflow::OcpOptions ocp_options(const Flags& f) {
   o.homotopy.acceptable_tolerance = f.acceptable_tolerance;
   o.homotopy.acceptable_iterations = f.acceptable_iterations;
   if (f.max_nlp_iterations > 0) o.homotopy.max_nlp_iterations = f.max_nlp_iterations;
-  o.neutral_algebraic_guess = f.neutral_guess;
+  o.algebraic_guess = f.nosnoc_guess    ? bflow::AlgebraicGuess::kNosnoc
+                      : f.neutral_guess ? bflow::AlgebraicGuess::kNeutral
+                                        : bflow::AlgebraicGuess::kSides;
   o.probe_sparsity = f.probe_sparsity;
   o.collocation_form = bflow::parse_collocation_form(f.collocation_form);
   o.solver.mumps_amalgamation = !f.no_mumps_amalgamation;
@@ -429,7 +432,11 @@ int main(int argc, char** argv) {
   app.add_option("--acceptable-iterations", f.acceptable_iterations);
   app.add_option("--max-nlp-iterations", f.max_nlp_iterations);
   app.add_flag("--continue-after-failure", f.continue_after_failure);
-  app.add_flag("--neutral-guess", f.neutral_guess);
+  app.add_flag("--neutral-guess", f.neutral_guess,
+               "algebraic guess a = lambda = 1/2, Stewart theta = 1/n_f, lambda = 1, mu = 0");
+  app.add_flag(
+      "--nosnoc-guess", f.nosnoc_guess,
+      "nosnoc's algebraic guess: a = lambda = 1/2, Stewart theta = lambda = 1/n_f, mu = 1");
   app.add_flag(
       "--no-mumps-amalgamation", f.no_mumps_amalgamation,
       "MUMPS without its small-front amalgamation (OcpOptions::solver.mumps_amalgamation)");

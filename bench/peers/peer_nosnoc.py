@@ -57,7 +57,7 @@ def matched_bflow_flags(rho_h, state_bounds=True):
         "--intermediate-tolerance-factor", "0", "--step-deviation-weight", repr(rho_h),
         "--no-polish", "--warm-start", "cold", "--later-mu-init", "0.1",
         "--acceptable-tolerance", "1e-6", "--acceptable-iterations", "15",
-        "--max-nlp-iterations", "500", "--continue-after-failure", "--neutral-guess",
+        "--max-nlp-iterations", "500", "--continue-after-failure", "--nosnoc-guess",
         "--collocation-form", "derivative", "--probe-sparsity",
         f"--ipopt-num=dual_inf_tol={tol!r}", f"--ipopt-num=compl_inf_tol={tol!r}",
         f"--ipopt-num=mu_target={tol!r}", "--ipopt-str=mu_oracle=quality-function",

@@ -528,8 +528,8 @@ class Transcription::Nlp final : public HomotopyNlp {
           const double c = m < l_.s ? tab_.c(m) : 1.0;
           y.head(d) = (1.0 - c) * xa + c * xb;
           if (m < l_.s) w_.segment(l_.var(e, 1 + m * d), d) = y.head(d);
-          if (p_.neutral_algebraic_guess) {
-            l_.dcs->neutral(z.data());
+          if (p_.algebraic_guess != AlgebraicGuess::kSides) {
+            l_.dcs->neutral(z.data(), p_.algebraic_guess);
           } else {
             l_.dcs->initial(y.data(), z.data());
           }

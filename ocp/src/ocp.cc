@@ -668,7 +668,7 @@ fesd::TranscriptionSetup transcription_setup(const OcpProblem& problem, const Oc
   setup.equilibration_weight = options.equilibration_weight;
   setup.equilibration_fades = true;
   setup.step_deviation_weight = options.step_deviation_weight;
-  setup.neutral_algebraic_guess = options.neutral_algebraic_guess;
+  setup.algebraic_guess = options.algebraic_guess;
   setup.exact_hessian = options.exact_hessian;
   setup.exact_hessian_scale = options.solver.exact_hessian_scale;
   setup.probe_sparsity = options.probe_sparsity;

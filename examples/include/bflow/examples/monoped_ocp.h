@@ -212,7 +212,7 @@ struct MonopedTask {
     h.later_mu_init = 0.1;
     o.step_deviation_weight = 1.0;
     o.tracking = OcpTracking::kStageEnds;
-    o.neutral_algebraic_guess = true;
+    o.algebraic_guess = AlgebraicGuess::kNeutral;
     return o;
   }
 

@@ -244,15 +244,18 @@ class PointDcs {
     signs_.multipliers(z, theta);
   }
 
-  // A guess that favours no side (nosnoc's initialisation): a = 1/2 and lambda+- = 1/2 with the
-  // lifted theta and beta consistent with a; Stewart: theta = 1/n_f, lambda = 1, mu = 0.
-  void neutral(double* z) const {
+  // A guess that favours no side: a = 1/2 and lambda+- = 1/2 with the lifted theta and beta
+  // consistent with a (nosnoc's initialisation); Stewart: theta = 1/n_f with lambda = 1 and
+  // mu = 0 (kNeutral), or nosnoc's theta = lambda = sigma_0 / n_f and mu = 1 at its sigma_0 = 1
+  // (kNosnoc).
+  void neutral(double* z, AlgebraicGuess guess = AlgebraicGuess::kNeutral) const {
     if (kind_ == Kind::kStewart) {
+      const bool nosnoc = guess == AlgebraicGuess::kNosnoc;
       for (int i = 0; i < nf_; ++i) {
         z[i] = 1.0 / nf_;
-        z[nf_ + i] = 1.0;
+        z[nf_ + i] = nosnoc ? 1.0 / nf_ : 1.0;
       }
-      z[2 * nf_] = 0.0;
+      z[2 * nf_] = nosnoc ? 1.0 : 0.0;
       return;
     }
     for (int j = 0; j < nc_; ++j) z[j] = z[nc_ + j] = z[2 * nc_ + j] = 0.5;

@@ -80,6 +80,13 @@ namespace bflow {
     point pairs give IPOPT more rows with one product each. Standard time-stepping keeps one
     row per pair either way. */
 enum class CrossComplementarity { kElementSums, kPointPairs, kPointSums };
+
+/** The algebraic variables of an OCP's or a step's guess: kSides, from the sides of the guessed
+    states (PointDcs::initial); kNeutral, favouring no side (PointDcs::neutral: a = lambda+- =
+    1/2; Stewart theta = 1/n_f, lambda = 1, mu = 0); kNosnoc, nosnoc's initialisation at its
+    sigma_0 = 1 (a = lambda+- = 1/2; Stewart theta = lambda = 1/n_f, mu = 1). */
+enum class AlgebraicGuess { kSides, kNeutral, kNosnoc };
+
 /** "element-sums", "point-pairs" or "point-sums". */
 inline const char* to_string(CrossComplementarity cross) {
   if (cross == CrossComplementarity::kPointSums) return "point-sums";

@@ -150,9 +150,8 @@ struct TranscriptionSetup {
       H and h_0 the uniform length (nosnoc's heuristic_mean step equilibration); 0: none. It keeps
       its weight through the homotopy. */
   double step_deviation_weight = 0.0;
-  /** The guess's algebraic variables favour no side (PointDcs::neutral: a = lambda = 1/2) in
-      place of the sides of the guessed states (PointDcs::initial). */
-  bool neutral_algebraic_guess = false;
+  /** The guess's algebraic variables (AlgebraicGuess, dcs.h). */
+  AlgebraicGuess algebraic_guess = AlgebraicGuess::kSides;
   bool exact_hessian = true;
   /** The Jacobian and Hessian structure IPOPT is given: true, the entries found nonzero at
       random points (sparsity.h), checked at every evaluation, with every candidate declared and
