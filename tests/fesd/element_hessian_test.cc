@@ -176,6 +176,37 @@ TEST_P(ElementHessianTest, JacobianByPiecesIsTheDenseJetJacobian) {
   }
 }
 
+// The algebraic guesses that favour no side (AlgebraicGuess, fesd.h): in Stewart's formulation
+// [theta (n_f), lambda (n_f), mu] at theta = 1/n_f with lambda = 1, mu = 0 (kNeutral) or as
+// nosnoc's problem.py initialises them at its sigma_0 = 1, theta = lambda = 1/n_f and mu = 1
+// (kNosnoc); in the step formulation a = lambda+ = lambda- = 1/2 for both.
+TEST(NeutralGuess, StewartsIsNosnocsOrBflowsAndTheStepFormulationsIsTheSame) {
+  const auto model = adapt_step(Coupled{});
+  const fesd::PointDcs stewart(model, DcsFormulation::kStewart, 0);
+  const int nf = (stewart.size() - 1) / 2;
+  ASSERT_EQ(stewart.size(), 2 * nf + 1);
+  ASSERT_EQ(nf, 4);  // two switching functions: four regions
+  std::vector<double> z(static_cast<std::size_t>(stewart.size()), -7.0);
+  stewart.neutral(z.data(), AlgebraicGuess::kNosnoc);
+  for (int i = 0; i < nf; ++i) {
+    EXPECT_EQ(z[static_cast<std::size_t>(i)], 0.25) << i;
+    EXPECT_EQ(z[static_cast<std::size_t>(nf + i)], 0.25) << i;
+  }
+  EXPECT_EQ(z[static_cast<std::size_t>(2 * nf)], 1.0);
+  stewart.neutral(z.data(), AlgebraicGuess::kNeutral);
+  for (int i = 0; i < nf; ++i) {
+    EXPECT_EQ(z[static_cast<std::size_t>(i)], 0.25) << i;
+    EXPECT_EQ(z[static_cast<std::size_t>(nf + i)], 1.0) << i;
+  }
+  EXPECT_EQ(z[static_cast<std::size_t>(2 * nf)], 0.0);
+  const fesd::PointDcs step(model, DcsFormulation::kStep, 0);
+  std::vector<double> a(static_cast<std::size_t>(step.size()), -7.0), b = a;
+  step.neutral(a.data(), AlgebraicGuess::kNosnoc);
+  step.neutral(b.data(), AlgebraicGuess::kNeutral);
+  EXPECT_EQ(a, b);
+  for (const double v : a) EXPECT_EQ(v, 0.5);
+}
+
 // Radau IIA's end as its last stage: b is A's last row, so with x_{n+1} = X_s the end rows of the
 // layout that keeps the end apart are, in the integral form, its last collocation rows (b and A's
 // last row agree to rounding), and in the derivative form x_{n+1} - X_s (e = b^T A^-1 the unit
