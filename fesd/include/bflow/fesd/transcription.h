@@ -150,7 +150,7 @@ struct TranscriptionSetup {
       H and h_0 the uniform length (nosnoc's heuristic_mean step equilibration); 0: none. It keeps
       its weight through the homotopy. */
   double step_deviation_weight = 0.0;
-  /** The guess's algebraic variables (AlgebraicGuess, dcs.h). */
+  /** The guess's algebraic variables (AlgebraicGuess, fesd.h). */
   AlgebraicGuess algebraic_guess = AlgebraicGuess::kSides;
   bool exact_hessian = true;
   /** The Jacobian and Hessian structure IPOPT is given: true, the entries found nonzero at

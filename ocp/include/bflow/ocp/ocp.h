@@ -468,7 +468,7 @@ struct OcpOptions {
   double step_deviation_weight = 0.0;
   /** How the tracking cost is discretised. */
   OcpTracking tracking = OcpTracking::kQuadrature;
-  /** The guess's algebraic variables (AlgebraicGuess, dcs.h): kSides (default), from the sides
+  /** The guess's algebraic variables (AlgebraicGuess, fesd.h): kSides (default), from the sides
       of the guessed states; kNeutral, favouring no side (Heaviside step a = lambda+ = lambda- =
       1/2, the lifted theta and beta consistent with it; Stewart theta = 1/n_f, lambda = 1,
       mu = 0); kNosnoc, nosnoc's initialisation at its sigma_0 = 1 (Stewart theta = lambda =
