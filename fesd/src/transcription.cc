@@ -764,7 +764,10 @@ class Transcription::Nlp final : public HomotopyNlp {
       dense_jacobian(base, nterm_, jac,
                      [&](const JetChunk* in, JetChunk* out) { terms_.terminal(in, out); });
       for (int r = 0; r < nterm_; ++r) {
-        for (int i = 0; i < l_.d; ++i) values[k++] = jac(r, i);
+        for (int i : term_pattern_[static_cast<std::size_t>(r)]) values[k++] = jac(r, i);
+        for (int i : term_left_out_[static_cast<std::size_t>(r)]) {
+          if (jac(r, i) != 0.0) jac_missed_ = true;
+        }
       }
     }
     for (int e = 0; elastic() && e < l_.elements; ++e) {
@@ -838,8 +841,8 @@ class Transcription::Nlp final : public HomotopyNlp {
   // The Jacobian's and the Hessian's structure: each element row's inputs and each Hessian
   // piece's pairs as probed (sparsity.h), or with `full` every candidate (what each row reads,
   // every pair of a field or algebraic piece's unknowns, the complementarity products' pairs);
-  // objective terms likewise; path and terminal constraints
-  // keep every pair of their inputs.
+  // objective terms and terminal constraints likewise (a terminal row's states, every pair of
+  // the states); path constraints keep every input and every pair of their inputs.
   void build_structure(bool full) {
     structure_ready_ = true;
     full_structure_ = full;
@@ -857,6 +860,25 @@ class Transcription::Nlp final : public HomotopyNlp {
       for (int c : candidates[static_cast<std::size_t>(r)]) {
         if (!kept[static_cast<std::size_t>(c)])
           jac_left_out_[static_cast<std::size_t>(r)].push_back(c);
+      }
+    }
+    // The terminal constraints' rows: every state, or those found nonzero at random points.
+    std::vector<std::vector<int>> every_state(static_cast<std::size_t>(nterm_));
+    for (std::vector<int>& row : every_state) {
+      for (int i = 0; i < d; ++i) row.push_back(i);
+    }
+    term_pattern_ = full || nterm_ == 0
+                        ? every_state
+                        : probe_jacobian_pattern(
+                              d, nterm_, every_state,
+                              [&](const JetChunk* in, JetChunk* out) { terms_.terminal(in, out); });
+    term_left_out_.assign(static_cast<std::size_t>(nterm_), {});
+    for (int r = 0; r < nterm_; ++r) {
+      const std::vector<int>& kept_states = term_pattern_[static_cast<std::size_t>(r)];
+      for (int i = 0; i < d; ++i) {
+        if (std::find(kept_states.begin(), kept_states.end(), i) == kept_states.end()) {
+          term_left_out_[static_cast<std::size_t>(r)].push_back(i);
+        }
       }
     }
     jac_rows_.clear();
@@ -889,7 +911,7 @@ class Transcription::Nlp final : public HomotopyNlp {
       }
     }
     for (int r = 0; r < nterm_; ++r) {
-      for (int i = 0; i < d; ++i) {
+      for (int i : term_pattern_[static_cast<std::size_t>(r)]) {
         jac_rows_.push_back(rows_elements_ + rows_sums_ + rows_path_ + r);
         jac_cols_.push_back(l_.x_end(l_.elements - 1, i));
       }
@@ -965,7 +987,22 @@ class Transcription::Nlp final : public HomotopyNlp {
                      t.globals);
     }
     for (int b = 0; b <= l_.elements && npath_ > 0; ++b) hessian_.add_block(path_globals(b));
-    if (nterm_ > 0) hessian_.add_block(terminal_globals());
+    if (nterm_ > 0 && full) {
+      hessian_.add_block(terminal_globals());
+    } else if (nterm_ > 0) {
+      std::vector<int> local(static_cast<std::size_t>(d));
+      for (int i = 0; i < d; ++i) local[static_cast<std::size_t>(i)] = i;
+      register_pairs(
+          probe_hessian_pattern(d, nterm_, {local},
+                                [&](HessianBlocks& probe, const std::vector<double>& base,
+                                    const double* weights, double* values) {
+                                  probe.add(
+                                      local, base, nterm_, weights,
+                                      [&](const auto* in, auto* out) { terms_.terminal(in, out); },
+                                      values);
+                                }),
+          terminal_globals());
+    }
   }
 
  private:
@@ -1058,6 +1095,8 @@ class Transcription::Nlp final : public HomotopyNlp {
   ComplementarityHessian comp_;                 // its complementarity piece's constant pairs
   std::vector<std::vector<int>> jac_pattern_;   // per element row: the local inputs it reads
   std::vector<std::vector<int>> jac_left_out_;  // per element row: candidates not declared
+  // Per terminal constraint row: the states it reads (declared) and the others (checked).
+  std::vector<std::vector<int>> term_pattern_, term_left_out_;
   bool structure_ready_ = false, full_structure_ = false, jac_missed_ = false;
   std::array<Eigen::VectorXd, 4> start_;
   bool polish_ = false;
