@@ -852,16 +852,21 @@ class Transcription::Nlp final : public HomotopyNlp {
     };
     const std::vector<std::vector<int>> candidates = element_jacobian_pattern(l_, p_.standard);
     jac_pattern_ = full ? candidates : probe_jacobian_pattern(l_.local, rpe, candidates, residual);
-    jac_left_out_.assign(static_cast<std::size_t>(rpe), {});
-    std::vector<char> kept(static_cast<std::size_t>(l_.local));
-    for (int r = 0; r < rpe; ++r) {
-      std::fill(kept.begin(), kept.end(), 0);
-      for (int c : jac_pattern_[static_cast<std::size_t>(r)]) kept[static_cast<std::size_t>(c)] = 1;
-      for (int c : candidates[static_cast<std::size_t>(r)]) {
-        if (!kept[static_cast<std::size_t>(c)])
-          jac_left_out_[static_cast<std::size_t>(r)].push_back(c);
+    // Per row, the candidates a pattern leaves out (checked at every evaluation).
+    const auto left_out = [](const std::vector<std::vector<int>>& all,
+                             const std::vector<std::vector<int>>& pattern, int count) {
+      std::vector<std::vector<int>> out(all.size());
+      std::vector<char> kept(static_cast<std::size_t>(count));
+      for (std::size_t r = 0; r < all.size(); ++r) {
+        std::fill(kept.begin(), kept.end(), 0);
+        for (int c : pattern[r]) kept[static_cast<std::size_t>(c)] = 1;
+        for (int c : all[r]) {
+          if (!kept[static_cast<std::size_t>(c)]) out[r].push_back(c);
+        }
       }
-    }
+      return out;
+    };
+    jac_left_out_ = left_out(candidates, jac_pattern_, l_.local);
     // The terminal constraints' rows: every state, or those found nonzero at random points.
     std::vector<std::vector<int>> every_state(static_cast<std::size_t>(nterm_));
     for (std::vector<int>& row : every_state) {
@@ -872,15 +877,7 @@ class Transcription::Nlp final : public HomotopyNlp {
                         : probe_jacobian_pattern(
                               d, nterm_, every_state,
                               [&](const JetChunk* in, JetChunk* out) { terms_.terminal(in, out); });
-    term_left_out_.assign(static_cast<std::size_t>(nterm_), {});
-    for (int r = 0; r < nterm_; ++r) {
-      const std::vector<int>& kept_states = term_pattern_[static_cast<std::size_t>(r)];
-      for (int i = 0; i < d; ++i) {
-        if (std::find(kept_states.begin(), kept_states.end(), i) == kept_states.end()) {
-          term_left_out_[static_cast<std::size_t>(r)].push_back(i);
-        }
-      }
-    }
+    term_left_out_ = left_out(every_state, term_pattern_, d);
     jac_rows_.clear();
     jac_cols_.clear();
     for (int e = 0; e < l_.elements; ++e) {

@@ -885,6 +885,23 @@ TEST(OcpCollocationForm, DerivativeFormReachesTheSameOptimum) {
       static_cast<long long>(probed.jacobian_nonzeros));
 }
 
+// The derivative form with the probed structure and the point-pair cross complementarity is
+// nosnoc's NLP entry for entry: nosnoc 0.2.0's CasADi sparsity of the turbo car at N = 5 (the
+// matched row of scripts/peers nosnoc) has 849 Jacobian and 361 Hessian nonzeros. The terminal
+// rows x(T) = (200, 0) read one state each and have no second derivatives (declaring every state
+// and every pair of states gave 851 and 364).
+TEST(OcpCollocationForm, ProbedDerivativeFormHasNosnocsStructure) {
+  OcpOptions o;
+  o.collocation_form = CollocationForm::kDerivative;
+  o.probe_sparsity = true;
+  o.cross_complementarity = CrossComplementarity::kPointPairs;
+  const OcpResult r = solve_car(5, o);
+  ASSERT_TRUE(r.ok()) << r.message;
+  EXPECT_EQ(r.jacobian_nonzeros, 849);
+  EXPECT_EQ(r.hessian_nonzeros, 361);
+  EXPECT_NEAR(r.T, TurboCar::kOptimalTime, 1e-8);
+}
+
 TEST(OcpInput, BadDataIsRefusedWithTheValues) {
   const auto model = adapt_ocp(TurboCar{});
   const auto message = [&](OcpProblem p, OcpOptions o = {}) -> std::string {
