@@ -39,11 +39,15 @@ class Transcription::Nlp final : public HomotopyNlp {
   using ElementEnds = Transcription::ElementEnds;
   // A function of a few unknowns that enters the objective.
   enum class TermKind { kStage, kStageEnd, kTerminal, kEquilibration, kStepDeviation };
+  // Its inputs: the unknowns `globals` (-1: the constant of the same place in `constants`); the
+  // last `factors` of them multiply the rest (term_value = their product times term_part).
   struct Term {
     TermKind kind;
     int stage;
     std::vector<int> globals;
     std::vector<double> constants;
+    int point = 0;    // kStage: the stage point of the quadrature
+    int factors = 0;  // kStage: 2 (T, or the constant 1, and h)
   };
 
   Nlp(const ButcherTableau& tab, const TranscriptionLayout& layout, const TranscriptionSetup& setup,
@@ -67,15 +71,19 @@ class Transcription::Nlp final : public HomotopyNlp {
     }
     // Objective terms.
     if (terms_.has_stage_cost()) {
+      // T h b_m L(X_m, u) per element and stage point: inputs [X_m, u, T (or 1), h].
       for (int e = 0; e < l_.elements; ++e) {
-        Term t{TermKind::kStage, e / l_.per_stage, {}, {}};
-        t.globals.push_back(l_.scaled ? TranscriptionLayout::kT : -1);
-        t.constants.push_back(1.0);
-        t.globals.push_back(l_.var(e, 0));
-        for (int k = 0; k < l_.s * d; ++k) t.globals.push_back(l_.var(e, 1 + k));
-        for (int j = 0; j < nu; ++j) t.globals.push_back(l_.u(t.stage, j));
-        t.constants.resize(t.globals.size(), 0.0);
-        objective_terms_.push_back(std::move(t));
+        for (int m = 0; m < l_.s; ++m) {
+          Term t{TermKind::kStage, e / l_.per_stage, {}, {}, m, 2};
+          for (int i = 0; i < d; ++i) t.globals.push_back(l_.var(e, 1 + m * d + i));
+          for (int j = 0; j < nu; ++j) t.globals.push_back(l_.u(t.stage, j));
+          t.constants.assign(t.globals.size(), 0.0);
+          t.globals.push_back(l_.scaled ? TranscriptionLayout::kT : -1);
+          t.constants.push_back(1.0);
+          t.globals.push_back(l_.var(e, 0));
+          t.constants.push_back(0.0);
+          objective_terms_.push_back(std::move(t));
+        }
       }
     }
     if (terms_.has_stage_end_cost()) {
@@ -690,7 +698,7 @@ class Transcription::Nlp final : public HomotopyNlp {
   }
 
   void constraints(const double* x, double* g) override {
-    std::vector<double> in;
+    std::vector<double>& in = jacobian_base_;
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, in);
       double* rows = g + e * l_.rows_per_element();
@@ -730,43 +738,46 @@ class Transcription::Nlp final : public HomotopyNlp {
   }
 
   void jacobian_values(const double* x, int nele, double* values) override {
-    int k = 0;
-    std::vector<double> base;
+    std::vector<double>& base = jacobian_base_;
     const int rpe = l_.rows_per_element();
-    Eigen::MatrixXd jac;
+    // Each element's entries straight into `values` (their range zeroed first), the candidates
+    // left out of the pattern into `left_out`, checked and cleared.
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, base);
-      fesd::element_jacobian(l_, p_.standard, base, jac);
-      const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
-      for (int r = 0; r < rpe; ++r) {
-        for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
-          if (g[static_cast<std::size_t>(c)] >= 0) values[k++] = jac(r, c);
-        }
-        for (int c : jac_left_out_[static_cast<std::size_t>(r)]) {
-          if (g[static_cast<std::size_t>(c)] >= 0 && jac(r, c) != 0.0) jac_missed_ = true;
-        }
+      const int first = jac_start_[static_cast<std::size_t>(e)];
+      std::fill(values + first, values + jac_start_[static_cast<std::size_t>(e) + 1], 0.0);
+      const SlotMap& map =
+          slot_maps_[static_cast<std::size_t>(jac_map_[static_cast<std::size_t>(e)])];
+      JacobianSlots view{values + first, map.slot.data(), l_.local, left_out_values_.data()};
+      fesd::element_jacobian_into(l_, p_.standard, base, view);
+      for (int i = 0; i < map.left_out; ++i) {
+        double& v = left_out_values_[static_cast<std::size_t>(i)];
+        if (v != 0.0) jac_missed_ = true;
+        v = 0.0;
       }
     }
+    int k = jac_start_.back();
     for (int s = 0; s < rows_sums_ * l_.per_stage; ++s) values[k++] = 1.0;
+    Eigen::MatrixXd dense;
     for (int b = 0; b <= l_.elements && npath_ > 0; ++b) {
       path_inputs(x, b, base);
-      dense_jacobian(base, npath_, jac,
+      dense_jacobian(base, npath_, dense,
                      [&](const JetChunk* in, JetChunk* out) { terms_.path(in, in + l_.d, out); });
       const std::vector<int> g = path_globals(b);
       for (int r = 0; r < npath_; ++r) {
         for (std::size_t c = 0; c < g.size(); ++c) {
-          if (g[c] >= 0) values[k++] = jac(r, static_cast<Eigen::Index>(c));
+          if (g[c] >= 0) values[k++] = dense(r, static_cast<Eigen::Index>(c));
         }
       }
     }
     if (nterm_ > 0) {
       terminal_inputs(x, base);
-      dense_jacobian(base, nterm_, jac,
+      dense_jacobian(base, nterm_, dense,
                      [&](const JetChunk* in, JetChunk* out) { terms_.terminal(in, out); });
       for (int r = 0; r < nterm_; ++r) {
-        for (int i : term_pattern_[static_cast<std::size_t>(r)]) values[k++] = jac(r, i);
+        for (int i : term_pattern_[static_cast<std::size_t>(r)]) values[k++] = dense(r, i);
         for (int i : term_left_out_[static_cast<std::size_t>(r)]) {
-          if (jac(r, i) != 0.0) jac_missed_ = true;
+          if (dense(r, i) != 0.0) jac_missed_ = true;
         }
       }
     }
@@ -791,7 +802,9 @@ class Transcription::Nlp final : public HomotopyNlp {
                       double* values) override {
     std::fill(values, values + nele, 0.0);
     hessian_.begin_evaluation();
-    std::vector<double> base, weights(static_cast<std::size_t>(l_.rows_per_element()));
+    std::vector<double>& base = jacobian_base_;
+    std::vector<double>& weights = hessian_weights_;
+    weights.resize(static_cast<std::size_t>(l_.rows_per_element()));
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, base);
       const double* lam = lambda + e * l_.rows_per_element();
@@ -800,15 +813,28 @@ class Transcription::Nlp final : public HomotopyNlp {
         for (int r = l_.equalities; r < l_.rows_per_element(); ++r)
           weights[static_cast<std::size_t>(r)] += obj_factor / sigma_;
       }
+      // The stage cost joins the field pieces' passes (the same factor h, or h T, and inputs).
+      const StageCostAt cost(terms_, e / l_.per_stage);
+      for (int m = 0; m < l_.s; ++m)
+        cost_weights_[static_cast<std::size_t>(m)] = obj_factor * tab_.b(m);
       add_element_hessian(l_, pieces_, comp_, element_globals_[static_cast<std::size_t>(e)], base,
-                          weights.data(), hessian_, values);
+                          weights.data(), hessian_, values,
+                          terms_.has_stage_cost() ? &cost : nullptr, cost_weights_.data());
     }
     for (const Term& t : objective_terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
+      if (t.kind == TermKind::kStage) continue;  // in add_element_hessian
+      if (t.kind == TermKind::kStepDeviation) {
+        // rho (c (h - h0))^2 with c = horizon / unit: the constant 2 rho c^2.
+        const double c = p_.horizon / unit_;
+        step_term_[0] = obj_factor * (p_.step_deviation_weight * (c * c + c * c));
+        hessian_.add_constant(t.globals, kDiagonal, step_term_, values);
+        continue;
+      }
       gather(t, x, base);
-      hessian_.add(
-          t.globals, base, 1, &obj_factor,
-          [&](const auto* in, auto* out) { out[0] = term_value(t, in); }, values);
+      hessian_.add_scaled(
+          t.globals, base, t.factors, 1, &obj_factor,
+          [&](const auto* in, auto* out) { out[0] = term_part(t, in); }, values);
     }
     for (int b = 0; b <= l_.elements && npath_ > 0; ++b) {
       path_inputs(x, b, base);
@@ -837,6 +863,42 @@ class Transcription::Nlp final : public HomotopyNlp {
     z_u_ = Eigen::Map<const Eigen::VectorXd>(z_u, n);
     lambda_ = Eigen::Map<const Eigen::VectorXd>(lambda, m);
   }
+
+  // Where element_jacobian_into's entry (r, c) of an element goes (r * local + c): >= 0 its
+  // position among the element's values, -1 nowhere (not a candidate, or a constant's column),
+  // <= -2 the left-out candidate -2 - slot (checked to be zero).
+  struct SlotMap {
+    std::vector<int> slot;
+    int left_out = 0;
+  };
+  SlotMap slot_map(const std::vector<int>& g) const {
+    SlotMap map;
+    map.slot.assign(static_cast<std::size_t>(l_.rows_per_element() * l_.local), -1);
+    int next = 0;
+    for (int r = 0; r < l_.rows_per_element(); ++r) {
+      for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
+        if (g[static_cast<std::size_t>(c)] >= 0)
+          map.slot[static_cast<std::size_t>(r * l_.local + c)] = next++;
+      }
+      for (int c : jac_left_out_[static_cast<std::size_t>(r)]) {
+        if (g[static_cast<std::size_t>(c)] >= 0)
+          map.slot[static_cast<std::size_t>(r * l_.local + c)] = -2 - map.left_out++;
+      }
+    }
+    return map;
+  }
+  // element_jacobian_into's view of IPOPT's values through a SlotMap.
+  struct JacobianSlots {
+    double* base;
+    const int* slot;
+    int local;
+    double* left_out;
+    double trash = 0.0;
+    double& operator()(int r, int c) {
+      const int at = slot[r * local + c];
+      return at >= 0 ? base[at] : at == -1 ? trash : left_out[-2 - at];
+    }
+  };
 
   // The Jacobian's and the Hessian's structure: each element row's inputs and each Hessian
   // piece's pairs as probed (sparsity.h), or with `full` every candidate (what each row reads,
@@ -880,8 +942,12 @@ class Transcription::Nlp final : public HomotopyNlp {
     term_left_out_ = left_out(every_state, term_pattern_, d);
     jac_rows_.clear();
     jac_cols_.clear();
+    jac_start_.clear();
+    jac_map_.clear();
+    slot_maps_.clear();
     for (int e = 0; e < l_.elements; ++e) {
       const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
+      jac_start_.push_back(static_cast<int>(jac_rows_.size()));
       for (int r = 0; r < rpe; ++r) {
         for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
           const int col = g[static_cast<std::size_t>(c)];
@@ -890,7 +956,17 @@ class Transcription::Nlp final : public HomotopyNlp {
           jac_cols_.push_back(col);
         }
       }
+      // The element's slots: elements with the same constants share one map.
+      SlotMap map = slot_map(g);
+      std::size_t at = 0;
+      while (at < slot_maps_.size() && slot_maps_[at].slot != map.slot) ++at;
+      if (at == slot_maps_.size()) slot_maps_.push_back(std::move(map));
+      jac_map_.push_back(static_cast<int>(at));
     }
+    jac_start_.push_back(static_cast<int>(jac_rows_.size()));
+    int most = 0;
+    for (const SlotMap& m : slot_maps_) most = std::max(most, m.left_out);
+    left_out_values_.assign(static_cast<std::size_t>(most), 0.0);
     for (int k = 0; k < rows_sums_; ++k) {
       for (int n = 0; n < l_.per_stage; ++n) {
         jac_rows_.push_back(rows_elements_ + k);
@@ -1045,19 +1121,36 @@ class Transcription::Nlp final : public HomotopyNlp {
       in[static_cast<std::size_t>(i)] = T(w[l_.x_end(l_.elements - 1, i)]);
   }
 
-  // The value of an objective term from its inputs.
+  // The stage cost of one stage as add_element_hessian's StageCostTerm.
+  class StageCostAt final : public StageCostTerm {
+   public:
+    StageCostAt(const TranscriptionTerms& terms, int stage) : terms_(terms), stage_(stage) {}
+    JetChunk value(const JetChunk* x, const JetChunk* u) const override {
+      return terms_.stage_cost(stage_, x, u);
+    }
+    HessianScalar value(const HessianScalar* x, const HessianScalar* u) const override {
+      return terms_.stage_cost(stage_, x, u);
+    }
+
+   private:
+    const TranscriptionTerms& terms_;
+    int stage_;
+  };
+
+  // The value of an objective term from its inputs: its factors' product times term_part.
   template <typename T>
   T term_value(const Term& t, const T* in) const {
+    const std::size_t n = t.globals.size() - static_cast<std::size_t>(t.factors);
+    T value = term_part(t, in);
+    for (std::size_t k = n; k < t.globals.size(); ++k) value = in[k] * value;
+    return value;
+  }
+  // The term without its factors (which it does not read).
+  template <typename T>
+  T term_part(const Term& t, const T* in) const {
     switch (t.kind) {
-      case TermKind::kStage: {
-        // [T (or 1), h, X_1..X_s, u]
-        const T* stage = in + 2;
-        const T* u = in + 2 + l_.s * l_.d;
-        T sum(0.0);
-        for (int m = 0; m < l_.s; ++m)
-          sum += tab_.b(m) * terms_.stage_cost(t.stage, stage + m * l_.d, u);
-        return in[0] * in[1] * sum;
-      }
+      case TermKind::kStage:  // [X_m, u]: b_m L(X_m, u)
+        return tab_.b(t.point) * terms_.stage_cost(t.stage, in, in + l_.d);
       case TermKind::kStageEnd:
         return terms_.stage_end_cost(t.stage, in, in + l_.d);
       case TermKind::kTerminal:
@@ -1084,6 +1177,15 @@ class Transcription::Nlp final : public HomotopyNlp {
   double sigma_ = 1.0;
   std::vector<std::vector<int>> element_globals_;
   std::vector<Term> objective_terms_;
+  std::vector<double> jacobian_base_;  // an element's inputs (any evaluation's scratch)
+  std::vector<int> jac_start_;         // per element, where its Jacobian entries start (and end)
+  std::vector<int> jac_map_;           // per element, its map in slot_maps_
+  std::vector<SlotMap> slot_maps_;
+  std::vector<double> left_out_values_;  // an element's left-out candidates (zero between)
+  std::vector<double> hessian_weights_;  // hessian_values' multipliers of an element
+  std::vector<double> cost_weights_ = std::vector<double>(static_cast<std::size_t>(l_.s));
+  const std::vector<std::pair<int, int>> kDiagonal{{0, 0}};  // a term's one second derivative
+  std::vector<double> step_term_ = std::vector<double>(1);
   int rows_elements_ = 0, rows_sums_ = 0, rows_path_ = 0, npath_ = 0, nterm_ = 0;
   int constraints_ = 0;
   std::vector<int> jac_rows_, jac_cols_;

@@ -1,6 +1,6 @@
-// The exact Hessian of one FESD element's Lagrangian sum_r lambda_r residual_r, assembled by
-// pieces (element.h, hessian_blocks.h, HessianJet), against central differences of its exact
-// gradient (Jet chunks: lambda^T of the residual's Jacobian), for every formulation, both
+// The exact Hessian of one FESD element's Lagrangian sum_r lambda_r residual_r plus a stage cost,
+// assembled by pieces (element.h, hessian_blocks.h, HessianJet), against central differences of
+// its exact gradient (Jet chunks: lambda^T of the residual's Jacobian), for every formulation, both
 // collocation schemes, cross and standard complementarity, with a control and time scaling; on
 // the structure the transcription declares, which also holds the Jacobian's nonzeros.
 #include <algorithm>
@@ -34,6 +34,19 @@ struct Coupled {
     xdot[0] = a[0] * x[1] * x[1] + (1.0 - a[0]) * sin(x[0] * x[2]) + a[0] * a[1] * x[0];
     xdot[1] = exp(0.3 * x[0]) * a[1] - x[2] * x[1] * a[0] + cos(x[1]) * (1.0 - a[1]);
     xdot[2] = T(0.0);  // the control's rate (ignored by the element)
+  }
+};
+
+// A stage cost of the state and the control, nonlinear in both.
+class Cost final : public fesd::StageCostTerm {
+ public:
+  template <typename T>
+  static T of(const T* x, const T* u) {
+    return x[0] * x[0] * u[0] + sin(x[1]);
+  }
+  JetChunk value(const JetChunk* x, const JetChunk* u) const override { return of(x, u); }
+  HessianScalar value(const HessianScalar* x, const HessianScalar* u) const override {
+    return of(x, u);
   }
 };
 
@@ -73,14 +86,25 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
   std::vector<double> lambda(static_cast<std::size_t>(l.rows_per_element()));
   for (double& v : lambda) v = uniform(gen) - 0.5;
 
-  // The exact gradient of the Lagrangian at a local vector.
+  // With a stage cost sum_k cost_weights[k] h T L(X_k, u), which add_element_hessian takes in
+  // the field pieces' passes.
+  const Cost cost;
+  const double cost_weights[2] = {0.8, -0.6};
+  const int u0 = l.d + l.npairs;
+  // The exact gradient of the Lagrangian and the cost at a local vector.
   const auto gradient = [&](const std::vector<double>& at) {
-    Eigen::MatrixXd jac;
+    Eigen::MatrixXd jac, cost_jac;
     fesd::dense_jacobian(at, l.rows_per_element(), jac, [&](const JetChunk* in, JetChunk* out) {
       fesd::element_residual(l, c.standard, in, out);
     });
+    fesd::dense_jacobian(at, 1, cost_jac, [&](const JetChunk* in, JetChunk* out) {
+      const JetChunk h = in[l.own()] * in[u0 + l.nu];  // h T
+      out[0] = JetChunk(0.0);
+      for (int k = 0; k < l.s; ++k)
+        out[0] += cost_weights[k] * (h * Cost::of(in + l.own() + 1 + k * l.d, in + u0));
+    });
     const Eigen::Map<const Eigen::VectorXd> w(lambda.data(), l.rows_per_element());
-    return Eigen::VectorXd(jac.transpose() * w);
+    return Eigen::VectorXd(jac.transpose() * w + cost_jac.transpose());
   };
   Eigen::MatrixXd differences(n, n);
   const double eps = 1e-5;
@@ -107,7 +131,8 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
   }
   blocks.add_pairs(comp_pairs);
   std::vector<double> values(blocks.size(), 0.0);
-  fesd::add_element_hessian(l, pieces, comp, globals, local, lambda.data(), blocks, values.data());
+  fesd::add_element_hessian(l, pieces, comp, globals, local, lambda.data(), blocks, values.data(),
+                            &cost, cost_weights);
   EXPECT_EQ(blocks.missed(), 0) << c.name();
   Eigen::MatrixXd exact = Eigen::MatrixXd::Zero(n, n);
   for (std::size_t k = 0; k < blocks.size(); ++k) {
@@ -115,8 +140,9 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
     exact(blocks.cols()[k], blocks.rows()[k]) = values[k];
   }
   // Central differences of an exact gradient: truncation eps^2 f''' / 6 and round-off
-  // 1e-16 |grad| / eps, about 1e-11 here (measured worst 2.8e-11, Stewart with Gauss-Legendre):
-  // the bound 1e-9 leaves a factor 36, while an error of 1e-9 in any entry fails.
+  // 1e-16 |grad| / eps, about 1e-11 here (measured worst 4.5e-11, Stewart with Gauss-Legendre
+  // in the derivative form, with the stage cost): the bound 1e-9 leaves a factor 22, while an
+  // error of 1e-9 in any entry fails.
   const double scale = std::max(1.0, differences.cwiseAbs().maxCoeff());
   const double worst = (exact - differences).cwiseAbs().maxCoeff();
   EXPECT_LT(worst, 1e-9 * scale) << c.name();

@@ -300,4 +300,64 @@ TEST(HessianJet, BlocksOverManyUnknownsMatchTheClosedForm) {
 }
 
 }  // namespace
+// HessianBlocks::add_scaled: s g(y) + q(y), s the product of one or two factors (one of them a
+// constant), against add on the whole function (every entry a lane, the product by HessianJet):
+// over few unknowns (one pass) and over more than one pass holds (groups), on a plan kept from
+// one evaluation to the next (the second evaluation reuses its positions).
+TEST(HessianJet, ScaledBlocksMatchTheWholeFunction) {
+  for (const int m : {5, 30}) {
+    for (const int factors : {1, 2, 3}) {  // 3: two factors, the first a constant
+      const int nf = factors == 1 ? 1 : 2;
+      std::mt19937 gen(static_cast<unsigned>(7 * m + factors));
+      std::uniform_real_distribution<double> uniform(-1.0, 1.0);
+      std::vector<int> globals(static_cast<std::size_t>(m + nf));
+      std::vector<double> base(globals.size());
+      for (std::size_t k = 0; k < globals.size(); ++k) {
+        globals[k] = static_cast<int>(globals.size() - 1 - k);
+        base[k] = uniform(gen);
+      }
+      if (factors == 3) globals[static_cast<std::size_t>(m)] = -1;
+      // g: weights[0] f_0 + weights[1] f_1, q: weights[2] f_2, functions of y = in[0..m).
+      const auto parts = [m](const auto* y, auto* out) {
+        using T = std::remove_const_t<std::remove_pointer_t<decltype(y)>>;
+        T quad(0.0);
+        for (int i = 0; i + 1 < m; ++i) quad += y[i] * y[i + 1] * (0.1 * i - 1.0);
+        out[0] = sin(y[0]) * y[1] + y[2] * y[2] * y[3] + quad;
+        out[1] = exp(0.3 * y[1]) * y[4] + y[m - 1] * y[0];
+        out[2] = y[0] * y[3] + cos(y[2]);
+      };
+      const double weights[3] = {0.7, -1.3, 0.4};
+      const auto whole = [&](const auto* in, auto* out) {
+        using T = std::remove_const_t<std::remove_pointer_t<decltype(in)>>;
+        T f[3];
+        parts(in, f);
+        T s = in[m];
+        if (nf == 2) s = s * in[m + 1];
+        out[0] = s * (weights[0] * f[0] + weights[1] * f[1]) + weights[2] * f[2];
+      };
+      fesd::HessianBlocks reference, blocks;
+      reference.add_block(globals);
+      blocks.add_block(globals);
+      std::vector<double> expected(reference.size(), 0.0);
+      const double one = 1.0;
+      reference.add(globals, base, 1, &one, whole, expected.data());
+      double scale = 0.0;
+      for (double v : expected) scale = std::max(scale, std::abs(v));
+      ASSERT_GT(scale, 0.1);
+      for (int evaluation = 0; evaluation < 2; ++evaluation) {
+        std::vector<double> values(blocks.size(), 0.0);
+        blocks.begin_evaluation();
+        blocks.add_scaled(globals, base, nf, 3, weights, parts, values.data(), 2);
+        blocks.end_evaluation();
+        EXPECT_EQ(blocks.missed(), 0);
+        for (std::size_t k = 0; k < values.size(); ++k) {
+          EXPECT_NEAR(values[k], expected[k], 1e-13 * scale)
+              << "m " << m << " factors " << factors << " evaluation " << evaluation << " pair "
+              << blocks.rows()[k] << " " << blocks.cols()[k];
+        }
+      }
+    }
+  }
+}
+
 }  // namespace bflow

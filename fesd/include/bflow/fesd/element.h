@@ -393,8 +393,8 @@ inline std::vector<std::vector<int>> element_hessian_pieces(const ElementShape& 
     for (int k = 0; k < count; ++k) v.push_back(first + k);
   };
   for (int k = 0; k < l.s; ++k) {
-    // h (and T) last: HessianJet pays for a lane only in the values that depend on it, and the
-    // length enters only in the final product.
+    // h (and T) last: the length is a factor of the piece (add_element_hessian hands them to
+    // HessianBlocks::add_scaled, which takes their second derivatives in closed form).
     std::vector<int> v;
     range(v, own + 1 + k * l.d, l.d);
     range(v, u0, l.nu);
@@ -417,19 +417,36 @@ inline std::vector<std::vector<int>> element_hessian_pieces(const ElementShape& 
   return pieces;
 }
 
+// A cost at an element's stage points, sum_k weight_k h L(X_k, u) (h the element's length, times
+// T when time-scaled): add_element_hessian adds its second derivatives in the passes of the field
+// pieces, which have the same factor and inputs, instead of in passes of its own.
+class StageCostTerm {
+ public:
+  virtual ~StageCostTerm() = default;
+  virtual JetChunk value(const JetChunk* x, const JetChunk* u) const = 0;
+  virtual HessianScalar value(const HessianScalar* x, const HessianScalar* u) const = 0;
+};
+
 // Adds the Hessian of the element's Lagrangian sum_r lambda[r] residual_r at its local values
-// `local` (globals: the unknown of each local entry, -1 for a constant) to `values`. `pieces` and
-// `comp` are the element's element_hessian_pieces and complementarity_hessian, found once.
+// `local` (globals: the unknown of each local entry, -1 for a constant) to `values`, and with
+// `cost` that of the stage cost sum_k cost_weights[k] h L(X_k, u). `pieces` and `comp` are the
+// element's element_hessian_pieces and complementarity_hessian, found once.
+//
+// One pass per stage point k covers field piece k, the cost at X_k and, where z enters them
+// linearly (step, Stewart), the algebraic rows of point k, all functions of [X_k, u, z_k]; the
+// algebraic rows of the other points (Gauss-Legendre's end) and of the lifted formulation have
+// passes of their own.
 template <typename Blocks>
 void add_element_hessian(const ElementShape& l, const std::vector<std::vector<int>>& pieces,
                          const ComplementarityHessian& comp, const std::vector<int>& globals,
                          const std::vector<double>& local, const double* lambda, Blocks& hessian,
-                         double* values) {
+                         double* values, const StageCostTerm* cost = nullptr,
+                         const double* cost_weights = nullptr) {
   const PointDcs& dcs = *l.dcs;
-  const int d = l.d, nu = l.nu;
+  const int d = l.d, nu = l.nu, nz = l.nz, own = l.own();
   // Scratch kept per thread: this runs for every element of every Hessian evaluation.
   thread_local std::vector<int> piece_globals;
-  thread_local std::vector<double> piece_base, weights;
+  thread_local std::vector<double> piece_base, weights, piece_weights;
   const auto gather = [&](const std::vector<int>& piece) {
     piece_globals.resize(piece.size());
     piece_base.resize(piece.size());
@@ -438,8 +455,13 @@ void add_element_hessian(const ElementShape& l, const std::vector<std::vector<in
       piece_base[k] = local[static_cast<std::size_t>(piece[k])];
     }
   };
-  const double one = 1.0;
   const CollocationRows& cr = l.rows;
+  const double* alg = lambda + l.dynamics;
+  // The step and Stewart equalities are the model's switching functions of [x; u] plus terms
+  // linear in z (dcs.h): z enters them as constants, which leaves their (exactly zero)
+  // second derivatives out of the AD. The lifted products of z are not linear.
+  const bool linear_in_z = dcs.kind() != PointDcs::Kind::kLifted;
+  const int merged = linear_in_z ? std::min(l.s, l.points) : 0;  // points whose rows join
   weights.resize(static_cast<std::size_t>(d));
   for (int k = 0; k < l.s; ++k) {
     // w_ki = lambda_(end,i) end_rate(k) + sum_m lambda_(m,i) rate(m, k), the weights exactly 0
@@ -453,32 +475,38 @@ void add_element_hessian(const ElementShape& l, const std::vector<std::vector<in
       weights[static_cast<std::size_t>(i)] = sum;
     }
     const double* w = weights.data();
+    const double c = cost != nullptr ? cost_weights[k] : 0.0;
+    const int rows = k < merged ? l.neq : 0;
+    piece_weights.assign(1, 1.0);
+    piece_weights.insert(piece_weights.end(), alg + k * l.neq, alg + k * l.neq + rows);
+    const double* zk = local.data() + own + l.off_z + k * nz;
     gather(pieces[static_cast<std::size_t>(k)]);
-    hessian.add(
-        piece_globals, piece_base, 1, &one,
+    // -h sum_i w_ki f_i + c h L: the length (h, or h and T) as add_scaled's factors of output 0,
+    // HessianJet's lanes on [X_k, u, z_k's field entries] alone; the algebraic rows after it.
+    hessian.add_scaled(
+        piece_globals, piece_base, l.scaled ? 2 : 1, 1 + rows, piece_weights.data(),
         [&](const auto* in, auto* out) {
           using T = std::remove_const_t<std::remove_pointer_t<decltype(in)>>;
-          const int nf = dcs.field_count();
-          const T h = l.scaled ? in[d + nu + nf] * in[d + nu + nf + 1] : in[d + nu + nf];
+          const int nf = dcs.field_count(), zf = dcs.field_first();
           thread_local std::vector<T> rate, z;
           rate.resize(static_cast<std::size_t>(d + nu));
-          // The model sees [X_k; u] (contiguous here) and the entries of the point's z that the
-          // field reads (the others are not read).
-          z.assign(static_cast<std::size_t>(l.nz), T(0.0));
-          std::copy(in + d + nu, in + d + nu + nf, z.begin() + dcs.field_first());
+          // The model sees [X_k; u] (contiguous here) and the point's z: the entries the field
+          // reads from the lanes, the others (read by the algebraic rows only) as constants.
+          z.resize(static_cast<std::size_t>(nz));
+          for (int j = 0; j < nz; ++j) {
+            z[static_cast<std::size_t>(j)] =
+                j >= zf && j < zf + nf ? in[d + nu + j - zf] : T(zk[j]);
+          }
           dcs.field(in, z.data(), rate.data());
           T sum(0.0);
           for (int i = 0; i < d; ++i) sum += w[i] * rate[i];
-          out[0] = -h * sum;
+          out[0] = -sum;
+          if (cost != nullptr && c != 0.0) out[0] += c * cost->value(in, in + d);
+          if (rows > 0) dcs.algebraic(in, z.data(), out + 1);
         },
-        values);
+        values, 1);
   }
-  const double* alg = lambda + l.dynamics;
-  // The step and Stewart equalities are the model's switching functions of [x; u] plus terms
-  // linear in z (dcs.h): z enters them as constants, which leaves their (exactly zero)
-  // second derivatives out of the AD. The lifted products of z are not linear.
-  const bool linear_in_z = dcs.kind() != PointDcs::Kind::kLifted;
-  for (int m = 0; m < l.points; ++m) {
+  for (int m = merged; m < l.points; ++m) {
     gather(pieces[static_cast<std::size_t>(l.s + m)]);
     if (linear_in_z) std::fill(piece_globals.begin() + d + nu, piece_globals.end(), -1);
     hessian.add(
@@ -605,8 +633,21 @@ void dense_jacobian(const std::vector<double>& base, int rows, Eigen::MatrixXd& 
 // (a Jet's directions are independent, so a direction seeded in a narrower pass gets the same
 // arithmetic), for the s + P narrow passes of the pieces instead of local / kTangentChunk
 // passes over the whole element. `values`, when given, receives the residual.
+//
+// element_jacobian_into writes through `jac(r, c)` (a double&, = and +=) into any view whose
+// entries start at zero: the dense matrix, or IPOPT's value array itself (the transcription's
+// JacobianSlots: each entry of the declared pattern at its position, the others checked).
+template <typename Matrix>
+void element_jacobian_into(const ElementShape& l, bool standard, const std::vector<double>& local,
+                           Matrix& jac, Eigen::VectorXd* values = nullptr);
 inline void element_jacobian(const ElementShape& l, bool standard, const std::vector<double>& local,
                              Eigen::MatrixXd& jac, Eigen::VectorXd* values = nullptr) {
+  jac.setZero(l.rows_per_element(), l.local);
+  element_jacobian_into(l, standard, local, jac, values);
+}
+template <typename Matrix>
+void element_jacobian_into(const ElementShape& l, bool standard, const std::vector<double>& local,
+                           Matrix& jac, Eigen::VectorXd* values) {
   const PointDcs& dcs = *l.dcs;
   const int d = l.d, s = l.s, nu = l.nu, nz = l.nz, P = l.points;
   const int own = l.own(), u0 = d + l.npairs, zf = dcs.field_first(), nf = dcs.field_count();
@@ -618,7 +659,6 @@ inline void element_jacobian(const ElementShape& l, bool standard, const std::ve
   const double h = l.scaled ? hb * T : hb;
   const double* z = blk + l.off_z;
   const int rows = l.rows_per_element();
-  jac.setZero(rows, l.local);
   thread_local Eigen::VectorXd out;
   out.resize(rows);
   // f_k and its derivatives by [X_k, u, z_k's field entries] (d x (d + nu + nf)), per stage.

@@ -82,36 +82,72 @@ class HessianBlocks {
   template <typename Eval>
   void add(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
            const double* weights, Eval eval, double* values) {
+    add_scaled(globals, base, 0, outputs, weights, eval, values);
+  }
+
+  // As add, for the function s g(in) + q(in) with s the product of the last `factors` entries of
+  // `in` (at most 2: an element's length h, or h and the horizon T), g = sum_{r < scaled}
+  // weights[r] f_r(in) and q = sum_{r >= scaled} weights[r] f_r(in) (scaled < 0: every output),
+  // where `eval` gives the f_r of the other entries (it must not read the factors). The lanes of
+  // HessianJet then cover the other entries only, and the factors' second derivatives follow in
+  // closed form: s g'' + q'' among the other entries, (s / s_a) g' between factor a and them, g
+  // between the two factors (a factor's own second derivative is 0).
+  template <typename Eval>
+  void add_scaled(const std::vector<int>& globals, const std::vector<double>& base, int factors,
+                  int outputs, const double* weights, Eval eval, double* values, int scaled = -1) {
+    BFLOW_ASSERT(factors >= 0 && factors <= 2 && factors <= static_cast<int>(globals.size()));
+    if (scaled < 0 || scaled > outputs) scaled = outputs;
     if (!index_ready_) build_index();
     Plan* plan = next_plan();
     const bool fresh = plan == nullptr || plan->globals != globals;
     if (plan != nullptr && fresh) {
       plan->globals = globals;
-      plan->deps = lane_order(globals, base, outputs, weights, eval);
+      plan->deps = lane_order(globals, base, factors, outputs, weights, eval);
       plan->positions.clear();
+      plan->distinct = distinct(globals, plan->deps, factors);
     }
     const std::vector<int>& deps =
-        plan != nullptr ? plan->deps : lane_order(globals, base, outputs, weights, eval);
-    const int count = static_cast<int>(deps.size());
-    if (count == 0) return;
-    Positions positions{plan != nullptr ? &plan->positions : nullptr, fresh, 0};
-    constexpr int kLanes = HessianScalar::kLanes;
-    if (count <= kLanes) {
-      pass(globals, base, outputs, weights, eval, deps, 0, count, count, 0, true, true, positions,
-           values);
-      return;
+        plan != nullptr ? plan->deps : lane_order(globals, base, factors, outputs, weights, eval);
+    Positions positions{plan != nullptr ? &plan->positions : nullptr, fresh, 0,
+                        plan != nullptr && plan->distinct};
+    Scale scale;
+    scale.count = factors;
+    const std::size_t first_factor = globals.size() - static_cast<std::size_t>(factors);
+    for (int a = 0; a < factors; ++a) {
+      scale.globals[a] = globals[first_factor + static_cast<std::size_t>(a)];
+      scale.values[a] = base[first_factor + static_cast<std::size_t>(a)];
     }
-    // More unknowns than lanes: groups of half the lanes, two at a time. Pair (0, 1) gives the
-    // diagonal block of group 0, every pair (0, B) that of group B, every pair its cross block.
-    constexpr int kGroup = kLanes / 2;
-    const int groups = (count + kGroup - 1) / kGroup;
-    for (int ga = 0; ga < groups; ++ga) {
-      for (int gb = ga + 1; gb < groups; ++gb) {
-        pass(globals, base, outputs, weights, eval, deps, ga * kGroup,
-             std::min(kGroup, count - ga * kGroup), gb * kGroup,
-             std::min(kGroup, count - gb * kGroup), ga == 0 && gb == 1, ga == 0, positions, values);
+    scale.product = factors == 0   ? 1.0
+                    : factors == 1 ? scale.values[0]
+                                   : scale.values[0] * scale.values[1];
+    scale.others[0] = factors == 2 ? scale.values[1] : 1.0;
+    scale.others[1] = scale.values[0];
+    const int count = static_cast<int>(deps.size());
+    double g = 0.0;
+    constexpr int kLanes = HessianScalar::kLanes;
+    scale.outputs = scaled;
+    if (count == 0) {
+      if (factors == 2) g = constant_value(globals, base, outputs, scaled, weights, eval);
+    } else if (count <= kLanes) {
+      pass(globals, base, outputs, weights, eval, deps, 0, count, count, 0, true, true, scale, g,
+           positions, values);
+    } else {
+      // More unknowns than lanes: groups of half the lanes, two at a time. Pair (0, 1) gives the
+      // diagonal block of group 0, every pair (0, B) that of group B, every pair its cross
+      // block.
+      constexpr int kGroup = kLanes / 2;
+      const int groups = (count + kGroup - 1) / kGroup;
+      for (int ga = 0; ga < groups; ++ga) {
+        for (int gb = ga + 1; gb < groups; ++gb) {
+          pass(globals, base, outputs, weights, eval, deps, ga * kGroup,
+               std::min(kGroup, count - ga * kGroup), gb * kGroup,
+               std::min(kGroup, count - gb * kGroup), ga == 0 && gb == 1, ga == 0, scale, g,
+               positions, values);
+        }
       }
     }
+    // d2 (s_0 s_1 g) / ds_0 ds_1 = g.
+    if (factors == 2) put(scale.globals[0], scale.globals[1], g, false, positions, values);
   }
 
   // Adds constant second derivatives: terms[t] at the pair of locals pairs[t] = (a, b) of
@@ -157,6 +193,7 @@ class HessianBlocks {
     std::vector<int> globals;
     std::vector<int> deps;
     std::vector<long> positions;
+    bool distinct = false;  // no two lanes or factors name one unknown
   };
   // The plan of the next call in this evaluation's sequence; null outside begin_evaluation()
   // and end_evaluation().
@@ -170,20 +207,43 @@ class HessianBlocks {
     std::vector<long>* list;  // null: no plan, every position searched
     bool fresh;
     std::size_t next;
+    bool distinct;  // the plan's lanes and factors name distinct unknowns
   };
+  // Whether the unknowns of the lanes (deps) and of the factors are distinct.
+  static bool distinct(const std::vector<int>& globals, const std::vector<int>& deps, int factors) {
+    thread_local std::vector<int> named;
+    named.clear();
+    for (int k : deps) named.push_back(globals[static_cast<std::size_t>(k)]);
+    for (std::size_t k = globals.size() - static_cast<std::size_t>(factors); k < globals.size();
+         ++k) {
+      if (globals[k] >= 0) named.push_back(globals[k]);
+    }
+    std::sort(named.begin(), named.end());
+    return std::adjacent_find(named.begin(), named.end()) == named.end();
+  }
+  // Adds `value` at a planned position (-1: not registered, a miss unless the value is 0).
+  void add_at(long at, double value, double* values) {
+    if (value == 0.0) return;
+    if (at < 0) {
+      ++missed_;
+    } else {
+      values[at] += value;
+    }
+  }
 
   // The free entries of `globals` (local indices), those that some output of nonzero weight
   // visibly depends on first.
   template <typename Eval>
   const std::vector<int>& lane_order(const std::vector<int>& globals,
-                                     const std::vector<double>& base, int outputs,
+                                     const std::vector<double>& base, int factors, int outputs,
                                      const double* weights, Eval& eval) {
     thread_local std::vector<int> deps, free, rest;
     thread_local std::vector<JetChunk> in, out;
     deps.clear();
     free.clear();
     rest.clear();
-    for (std::size_t k = 0; k < globals.size(); ++k) {
+    const std::size_t own = globals.size() - static_cast<std::size_t>(factors);
+    for (std::size_t k = 0; k < own; ++k) {
       if (globals[k] >= 0) free.push_back(static_cast<int>(k));
     }
     in.resize(globals.size());
@@ -209,18 +269,75 @@ class HessianBlocks {
     return deps;
   }
 
-  // One HessianJet evaluation with lanes [0, na) on deps[first_a ...] and [na, na + nb) on
-  // deps[first_b ...] (nb = 0: one group). Adds the cross block, and the diagonal blocks of the
-  // first and second group where asked.
+  // The factors of add_scaled: their unknowns (-1: a constant), values, product s and, per
+  // factor, the product of the others (s / s_a without a division).
+  struct Scale {
+    int count = 0;
+    int globals[2] = {-1, -1};
+    double values[2] = {1.0, 1.0};
+    double product = 1.0;
+    double others[2] = {1.0, 1.0};
+    int outputs = 0;  // the outputs the factors multiply (the first ones)
+  };
+
+  // Adds `value` at the pair of unknowns (gi, gj) (either order; `twice` when two lanes of one
+  // unknown make it a diagonal entry counted once per lane pair). A pair with a constant is left
+  // out and takes no position. With a plan the position comes from it (fresh: is found and
+  // kept); without, it is searched for nonzero values only.
+  void put(int gi, int gj, double value, bool twice, Positions& positions, double* values) {
+    if (gi < 0 || gj < 0) return;
+    long at;
+    if (positions.list == nullptr) {
+      if (value == 0.0) return;
+      at = find(std::max(gi, gj), std::min(gi, gj));
+    } else if (positions.fresh) {
+      at = find(std::max(gi, gj), std::min(gi, gj));
+      positions.list->push_back(at);
+    } else {
+      at = (*positions.list)[positions.next++];
+    }
+    if (value == 0.0) return;
+    if (at < 0) {
+      ++missed_;
+    } else {
+      values[at] += twice && gi == gj ? 2.0 * value : value;
+    }
+  }
+
+  // sum_r weights[r] f_r at `base` (no lanes: every entry constant).
   template <typename Eval>
-  void pass(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
-            const double* weights, Eval& eval, const std::vector<int>& deps, int first_a, int na,
-            int first_b, int nb, bool diagonal_a, bool diagonal_b, Positions& positions,
-            double* values) {
+  double constant_value(const std::vector<int>& globals, const std::vector<double>& base,
+                        int outputs, int scaled, const double* weights, Eval& eval) {
     thread_local std::vector<HessianScalar> in, out;
     in.resize(globals.size());
     out.resize(static_cast<std::size_t>(outputs));
-    for (std::size_t k = 0; k < globals.size(); ++k) in[k] = HessianScalar(base[k]);
+    for (std::size_t k = 0; k < globals.size(); ++k) set_constant(in[k], base[k]);
+    eval(static_cast<const HessianScalar*>(in.data()), out.data());
+    double g = 0.0;
+    for (int r = 0; r < scaled; ++r) {
+      if (weights[r] != 0.0) g += weights[r] * out[static_cast<std::size_t>(r)].a;
+    }
+    return g;
+  }
+  static void set_constant(HessianScalar& x, double value) {
+    x.a = value;
+    x.n = 0;
+  }
+
+  // One HessianJet evaluation with lanes [0, na) on deps[first_a ...] and [na, na + nb) on
+  // deps[first_b ...] (nb = 0: one group). Adds the cross block, and the diagonal blocks of the
+  // first and second group where asked, each times the factors' product; with the diagonal
+  // block of a group, the factors' cross entries with its lanes; with the first group's
+  // diagonal block, g's value into `g`.
+  template <typename Eval>
+  void pass(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
+            const double* weights, Eval& eval, const std::vector<int>& deps, int first_a, int na,
+            int first_b, int nb, bool diagonal_a, bool diagonal_b, const Scale& scale, double& g,
+            Positions& positions, double* values) {
+    thread_local std::vector<HessianScalar> in, out;
+    in.resize(globals.size());
+    out.resize(static_cast<std::size_t>(outputs));
+    for (std::size_t k = 0; k < globals.size(); ++k) set_constant(in[k], base[k]);
     const int lanes = na + nb;
     // lane -> local index
     int local[HessianScalar::kLanes];
@@ -229,18 +346,60 @@ class HessianBlocks {
       local[na + j] = deps[static_cast<std::size_t>(first_b + j)];
     }
     for (int i = 0; i < lanes; ++i) {
-      const auto k = static_cast<std::size_t>(local[i]);
-      in[k] = HessianScalar::variable(base[k], i);
+      HessianScalar& x = in[static_cast<std::size_t>(local[i])];
+      x.n = i + 1;
+      for (int k = 0; k <= i; ++k) x.v[k] = 0.0;
+      for (int k = 0; k < HessianScalar::at(i + 1, 0); ++k) x.h[k] = 0.0;
+      x.v[i] = 1.0;
     }
     eval(static_cast<const HessianScalar*>(in.data()), out.data());
-    // The weighted sum's Hessian, lower triangle over the lanes.
-    thread_local std::vector<double> sum;
-    sum.assign(static_cast<std::size_t>(HessianScalar::at(lanes, 0)), 0.0);
+    // The weighted sums' Hessian (lower triangle over the lanes): s times that of the scaled
+    // outputs plus that of the others; the scaled outputs' gradient and value.
+    double sum[HessianScalar::kEntries], plain[HessianScalar::kEntries];
+    double grad[HessianScalar::kLanes];
+    const int entries = HessianScalar::at(lanes, 0);
+    for (int k = 0; k < entries; ++k) sum[k] = 0.0;
+    for (int i = 0; i < lanes; ++i) grad[i] = 0.0;
+    double value = 0.0;
+    bool any_plain = false;
     for (int r = 0; r < outputs; ++r) {
-      if (weights[r] == 0.0) continue;
+      const double w = weights[r];
+      if (w == 0.0) continue;
       const HessianScalar& o = out[static_cast<std::size_t>(r)];
-      const int e = HessianScalar::at(std::min(o.n, lanes), 0);
-      for (int k = 0; k < e; ++k) sum[static_cast<std::size_t>(k)] += weights[r] * o.h[k];
+      const int n = std::min(o.n, lanes);
+      const int e = HessianScalar::at(n, 0);
+      if (r >= scale.outputs) {
+        if (!any_plain) {
+          for (int k = 0; k < entries; ++k) plain[k] = 0.0;
+          any_plain = true;
+        }
+        for (int k = 0; k < e; ++k) plain[k] += w * o.h[k];
+        continue;
+      }
+      value += w * o.a;
+      for (int k = 0; k < e; ++k) sum[k] += w * o.h[k];
+      if (scale.count > 0) {
+        for (int i = 0; i < n; ++i) grad[i] += w * o.v[i];
+      }
+    }
+    if (diagonal_a) g = value;
+    for (int k = 0; k < entries; ++k) sum[k] *= scale.product;
+    if (any_plain) {
+      for (int k = 0; k < entries; ++k) sum[k] += plain[k];
+    }
+    if (nb == 0 && positions.list != nullptr && !positions.fresh && positions.distinct) {
+      // One group on a kept plan: its positions in the order of the loops below, the lower
+      // triangle by rows (the order of `sum`), then each free factor's lanes.
+      const long* at = positions.list->data() + positions.next;
+      for (int k = 0; k < entries; ++k) add_at(at[k], sum[k], values);
+      at += entries;
+      for (int f = 0; f < scale.count; ++f) {
+        if (scale.globals[f] < 0) continue;
+        for (int i = 0; i < lanes; ++i) add_at(at[i], scale.others[f] * grad[i], values);
+        at += lanes;
+      }
+      positions.next = static_cast<std::size_t>(at - positions.list->data());
+      return;
     }
     for (int i = 0; i < lanes; ++i) {
       const bool in_a = i < na;
@@ -251,25 +410,16 @@ class HessianBlocks {
         if (in_a && j_in_a && !diagonal_a) continue;
         if (!in_a && !j_in_a && !diagonal_b) continue;
         const int gj = globals[static_cast<std::size_t>(local[j])];
-        const double value = sum[static_cast<std::size_t>(HessianScalar::at(i, j))];
-        long at;
-        if (positions.list == nullptr) {
-          if (value == 0.0) continue;
-          at = find(std::max(gi, gj), std::min(gi, gj));
-        } else if (positions.fresh) {
-          at = find(std::max(gi, gj), std::min(gi, gj));
-          positions.list->push_back(at);
-        } else {
-          at = (*positions.list)[positions.next++];
-        }
-        if (value == 0.0) continue;
         // Two locals may name one unknown (never in FESD's blocks, but allowed): each pair of
         // lanes is one term of the chain rule, the diagonal counted once per lane pair.
-        if (at < 0) {
-          ++missed_;
-        } else {
-          values[at] += gi == gj && i != j ? 2.0 * value : value;
-        }
+        put(gi, gj, sum[HessianScalar::at(i, j)], i != j, positions, values);
+      }
+    }
+    for (int f = 0; f < scale.count; ++f) {
+      for (int i = 0; i < lanes; ++i) {
+        if (!(i < na ? diagonal_a : diagonal_b)) continue;
+        put(scale.globals[f], globals[static_cast<std::size_t>(local[i])],
+            scale.others[f] * grad[i], true, positions, values);
       }
     }
   }
