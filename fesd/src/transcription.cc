@@ -648,7 +648,7 @@ class Transcription::Nlp final : public HomotopyNlp {
 
   double objective(const double* x) override {
     double value = p_.time_optimal ? x[TranscriptionLayout::kT] : 0.0;
-    std::vector<double> in;
+    std::vector<double>& in = jacobian_base_;
     for (const Term& t : objective_terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
       gather(t, x, in);
@@ -672,7 +672,7 @@ class Transcription::Nlp final : public HomotopyNlp {
     std::fill(grad, grad + n, 0.0);
     if (p_.time_optimal) grad[TranscriptionLayout::kT] = 1.0;
     if (elastic() && !polish_) grad[slack()] = 1.0 / sigma_;
-    std::vector<double> in;
+    std::vector<double>& in = jacobian_base_;
     for (const Term& t : objective_terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
       gather(t, x, in);
