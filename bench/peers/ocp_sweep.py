@@ -7,7 +7,8 @@ Three configurations per (problem, formulation, N): bflow's defaults (`peer_prob
 default rows of peer_nosnoc.py call it), bflow's defaults with `--early-polish-sigma 0` (the
 homotopy to its final sigma and one final polish) and nosnoc's defaults (peer_nosnoc.py's worker
 with the default rows' case dictionaries, N changed). Every run is a process of its own with one
-BLAS thread; CPU is the process CPU time each program reports, and a row keeps the median over
+BLAS thread; CPU is the CPU time each program reports (cpu_s: the tool's calls, the harness's
+reading of IPOPT's logs left out), and a row keeps the median over
 every run of a configuration in the JSON (iterations and optima are the same in every run). The
 JSON is written after every run and a later call resumes it (a sweep tags its runs), so --repeat
 can be raised later. Usage (with the peers environment's Python):
@@ -247,8 +248,9 @@ def markdown(data):
     ratios = [r["cpu_ratio"] for r in rows if r.get("cpu_ratio")]
     if ratios:
         geo = math.exp(sum(math.log(x) for x in ratios) / len(ratios))
-        lines.append(f"CPU bflow default / nosnoc default (median CPU of the runs, the whole "
-                     f"process; 'per iteration': that ratio per IPOPT iteration): at most 1 on "
+        lines.append(f"CPU bflow default / nosnoc default (median CPU of the runs, the tools' "
+                     f"work without the harness's; 'per iteration': that ratio per IPOPT "
+                     f"iteration): at most 1 on "
                      f"{sum(x <= 1 for x in ratios)} of {len(ratios)} rows, geometric mean "
                      f"{geo:.2f}, range {min(ratios):.2f} to {max(ratios):.2f}.")
         lines.append("")
