@@ -114,6 +114,29 @@ TEST(HessianJet, ValuesOfDifferentLaneCountsCombineExactly) {
   EXPECT_EQ(s.n, 2);
   EXPECT_EQ(s.gradient(1), -3.0);
   EXPECT_EQ(s.gradient(0), 0.0);
+  // The in-place operators give the numbers of the binary ones, to the last bit, whichever
+  // operand has more lanes.
+  const HessianJet wide = f * x2, narrow = x1 * x1 * 0.7;
+  for (const bool shorter_first : {false, true}) {
+    const HessianJet& p = shorter_first ? narrow : wide;
+    const HessianJet& r = shorter_first ? wide : narrow;
+    HessianJet sum = p, difference = p, scaled = p, divided = p;
+    sum += r;
+    difference -= r;
+    scaled *= -1.3;
+    divided /= 0.7;
+    const HessianJet expect[4] = {p + r, p - r, p * -1.3, p / 0.7};
+    const HessianJet* got[4] = {&sum, &difference, &scaled, &divided};
+    for (int t = 0; t < 4; ++t) {
+      EXPECT_EQ(got[t]->n, expect[t].n) << t;
+      EXPECT_EQ(got[t]->a, expect[t].a) << t;
+      for (int i = 0; i < expect[t].n; ++i) {
+        EXPECT_EQ(got[t]->gradient(i), expect[t].gradient(i)) << t << " " << i;
+        for (int j = 0; j <= i; ++j)
+          EXPECT_EQ(got[t]->hessian(i, j), expect[t].hessian(i, j)) << t << " " << i << " " << j;
+      }
+    }
+  }
 }
 
 // The special cases of pow, where 0 * inf or log(0) would give NaN, and abs at -0.0 (as Ceres).

@@ -65,8 +65,18 @@ class HessianJet {
   }
   double gradient(int i) const { return i < n ? v[i] : 0.0; }
 
-  HessianJet& operator+=(const HessianJet& o) { return *this = *this + o; }
-  HessianJet& operator-=(const HessianJet& o) { return *this = *this - o; }
+  // In place, without a temporary: the same numbers as x + y and x - y (s = +-1 makes every
+  // product exact), up to the sign of a zero lane.
+  HessianJet& operator+=(const HessianJet& o) {
+    accumulate(1.0, o);
+    a += o.a;
+    return *this;
+  }
+  HessianJet& operator-=(const HessianJet& o) {
+    accumulate(-1.0, o);
+    a -= o.a;
+    return *this;
+  }
   HessianJet& operator*=(const HessianJet& o) { return *this = *this * o; }
   HessianJet& operator/=(const HessianJet& o) { return *this = *this / o; }
   HessianJet& operator+=(double s) {
@@ -77,8 +87,14 @@ class HessianJet {
     a -= s;
     return *this;
   }
-  HessianJet& operator*=(double s) { return *this = *this * s; }
-  HessianJet& operator/=(double s) { return *this = *this * (1.0 / s); }
+  HessianJet& operator*=(double s) {
+    scale(s);
+    return *this;
+  }
+  HessianJet& operator/=(double s) {
+    scale(1.0 / s);
+    return *this;
+  }
 
   friend HessianJet operator+(const HessianJet& x) { return x; }
   friend HessianJet operator-(const HessianJet& x) { return x * -1.0; }
@@ -184,6 +200,23 @@ class HessianJet {
     for (int i = 0; i < o.n; ++i) v[i] = o.v[i];
     const int e = at(o.n, 0);
     for (int k = 0; k < e; ++k) h[k] = o.h[k];
+  }
+  // this += s o on the lanes (o's lanes beyond this one's extend it, from zeros).
+  void accumulate(double s, const HessianJet& o) {
+    if (o.n > n) {
+      for (int i = n; i < o.n; ++i) v[i] = 0.0;
+      for (int k = at(n, 0); k < at(o.n, 0); ++k) h[k] = 0.0;
+      n = o.n;
+    }
+    for (int i = 0; i < o.n; ++i) v[i] += s * o.v[i];
+    const int e = at(o.n, 0);
+    for (int k = 0; k < e; ++k) h[k] += s * o.h[k];
+  }
+  void scale(double s) {
+    a *= s;
+    for (int i = 0; i < n; ++i) v[i] *= s;
+    const int e = at(n, 0);
+    for (int k = 0; k < e; ++k) h[k] *= s;
   }
   // s x + t y with value `value` (lanes beyond a shorter operand are its zeros).
   static HessianJet linear(double s, const HessianJet& x, double t, const HessianJet& y,
