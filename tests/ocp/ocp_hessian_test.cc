@@ -349,6 +349,15 @@ TEST(OcpHessian, TurboCarAndBrakingBlockWithGaussLegendre) {
   pass_and_control(adapt_ocp(examples::TurboCar{}), examples::TurboCar::problem(), o, "turbo car");
   pass_and_control(adapt_ocp(examples::BrakingBlock{}), examples::BrakingBlock::problem(), o,
                    "braking block");
+  // The lengths' deviation from uniform (nosnoc's heuristic_mean, the matched rows of
+  // scripts/peers nosnoc), whose second derivative is the constant 2 rho (H / unit)^2, on the
+  // fixed horizon (unit H) and the time-scaled one (unit 1).
+  o.equilibration_weight = 0.0;
+  o.step_deviation_weight = 1.0;
+  pass_and_control(adapt_ocp(examples::TurboCar{}), examples::TurboCar::problem(), o,
+                   "turbo car, step deviation");
+  pass_and_control(adapt_ocp(examples::BrakingBlock{}), examples::BrakingBlock::problem(), o,
+                   "braking block, step deviation");
 }
 
 // Time-freezing: the monoped's OCP (monoped_ocp.h) with the speed of time as its third control,

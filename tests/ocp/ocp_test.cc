@@ -619,6 +619,44 @@ TEST(OcpSparsity, ABranchNoProbeTookWidensTheStructureAndKeepsTheOptimum) {
   EXPECT_EQ(probed.hessian_nonzeros, full.hessian_nonzeros);
 }
 
+// A branch in the switching function, linear in q, that no probe takes: beyond q = 150 the
+// switching rows gain the Jacobian entry dc / dq and the Hessian nothing (the algebraic rows
+// carry no length factor), so only the check of the Jacobian's left-out candidates, written
+// beside IPOPT's values at every evaluation, can see it.
+struct FarLinearBranchCar {
+  static constexpr int kStates = 2, kControls = 1, kSwitches = 1;
+  static constexpr int kTerminal = 2;
+  template <typename T>
+  void switching(const T* x, T* c) const {
+    TurboCar{}.switching(x, c);
+    if (x[0] > T(150.0)) c[0] = c[0] + T(0.01) * (x[0] - T(150.0));
+  }
+  template <typename T>
+  void field(const T* x, const T* u, const T* a, T* xdot) const {
+    TurboCar{}.field(x, u, a, xdot);
+  }
+  template <typename T>
+  void terminal(const T* x, T* g) const {
+    TurboCar{}.terminal(x, g);
+  }
+};
+
+TEST(OcpSparsity, AJacobianEntryNoProbeSawWidensTheStructure) {
+  OcpOptions o;
+  o.stages = 5;
+  o.probe_sparsity = true;
+  const OcpResult probed = ocp_solve(adapt_ocp(FarLinearBranchCar{}), TurboCar::problem(), o);
+  o.probe_sparsity = false;
+  const OcpResult full = ocp_solve(adapt_ocp(FarLinearBranchCar{}), TurboCar::problem(), o);
+  ASSERT_TRUE(probed.ok()) << probed.message;
+  ASSERT_TRUE(full.ok()) << full.message;
+  EXPECT_NEAR(probed.T, full.T, 1e-8);
+  int widened = 0;
+  for (const auto& step : probed.homotopy) widened += step.structure_widened ? 1 : 0;
+  EXPECT_EQ(widened, 1);
+  EXPECT_EQ(probed.jacobian_nonzeros, full.jacobian_nonzeros);
+}
+
 // With probe_sparsity an NLP found to need a wider structure is solved again from its start; the
 // two solves share that NLP's max_iter (what is left of the budget), so the budget holds there
 // too. The budget here ends inside the widened NLP: the free run's iterations before it plus all
