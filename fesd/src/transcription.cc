@@ -648,7 +648,7 @@ class Transcription::Nlp final : public HomotopyNlp {
 
   double objective(const double* x) override {
     double value = p_.time_optimal ? x[TranscriptionLayout::kT] : 0.0;
-    std::vector<double>& in = jacobian_base_;
+    std::vector<double>& in = inputs_;
     for (const Term& t : objective_terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
       gather(t, x, in);
@@ -672,7 +672,7 @@ class Transcription::Nlp final : public HomotopyNlp {
     std::fill(grad, grad + n, 0.0);
     if (p_.time_optimal) grad[TranscriptionLayout::kT] = 1.0;
     if (elastic() && !polish_) grad[slack()] = 1.0 / sigma_;
-    std::vector<double>& in = jacobian_base_;
+    std::vector<double>& in = inputs_;
     for (const Term& t : objective_terms_) {
       if (polish_ && t.kind == TermKind::kEquilibration) continue;
       gather(t, x, in);
@@ -698,7 +698,7 @@ class Transcription::Nlp final : public HomotopyNlp {
   }
 
   void constraints(const double* x, double* g) override {
-    std::vector<double>& in = jacobian_base_;
+    std::vector<double>& in = inputs_;
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, in);
       double* rows = g + e * l_.rows_per_element();
@@ -738,7 +738,7 @@ class Transcription::Nlp final : public HomotopyNlp {
   }
 
   void jacobian_values(const double* x, int nele, double* values) override {
-    std::vector<double>& base = jacobian_base_;
+    std::vector<double>& base = inputs_;
     const int rpe = l_.rows_per_element();
     // Each element's entries straight into `values` (their range zeroed first), the candidates
     // left out of the pattern into `left_out`, checked and cleared.
@@ -758,7 +758,7 @@ class Transcription::Nlp final : public HomotopyNlp {
     }
     int k = jac_start_.back();
     for (int s = 0; s < rows_sums_ * l_.per_stage; ++s) values[k++] = 1.0;
-    Eigen::MatrixXd dense;
+    Eigen::MatrixXd& dense = dense_jacobian_;
     for (int b = 0; b <= l_.elements && npath_ > 0; ++b) {
       path_inputs(x, b, base);
       dense_jacobian(base, npath_, dense,
@@ -802,9 +802,12 @@ class Transcription::Nlp final : public HomotopyNlp {
                       double* values) override {
     std::fill(values, values + nele, 0.0);
     hessian_.begin_evaluation();
-    std::vector<double>& base = jacobian_base_;
+    std::vector<double>& base = inputs_;
     std::vector<double>& weights = hessian_weights_;
     weights.resize(static_cast<std::size_t>(l_.rows_per_element()));
+    // The stage cost joins the field pieces' passes (the same factor h, or h T, and inputs).
+    for (int m = 0; m < l_.s; ++m)
+      cost_weights_[static_cast<std::size_t>(m)] = obj_factor * tab_.b(m);
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, base);
       const double* lam = lambda + e * l_.rows_per_element();
@@ -813,10 +816,7 @@ class Transcription::Nlp final : public HomotopyNlp {
         for (int r = l_.equalities; r < l_.rows_per_element(); ++r)
           weights[static_cast<std::size_t>(r)] += obj_factor / sigma_;
       }
-      // The stage cost joins the field pieces' passes (the same factor h, or h T, and inputs).
       const StageCostAt cost(terms_, e / l_.per_stage);
-      for (int m = 0; m < l_.s; ++m)
-        cost_weights_[static_cast<std::size_t>(m)] = obj_factor * tab_.b(m);
       add_element_hessian(l_, pieces_, comp_, element_globals_[static_cast<std::size_t>(e)], base,
                           weights.data(), hessian_, values,
                           terms_.has_stage_cost() ? &cost : nullptr, cost_weights_.data());
@@ -1177,14 +1177,15 @@ class Transcription::Nlp final : public HomotopyNlp {
   double sigma_ = 1.0;
   std::vector<std::vector<int>> element_globals_;
   std::vector<Term> objective_terms_;
-  std::vector<double> jacobian_base_;  // an element's inputs (any evaluation's scratch)
-  std::vector<int> jac_start_;         // per element, where its Jacobian entries start (and end)
-  std::vector<int> jac_map_;           // per element, its map in slot_maps_
+  std::vector<double> inputs_;      // an element's or a term's inputs (the evaluations' scratch)
+  Eigen::MatrixXd dense_jacobian_;  // a path or terminal row block's Jacobian
+  std::vector<int> jac_start_;      // per element, where its Jacobian entries start (and end)
+  std::vector<int> jac_map_;        // per element, its map in slot_maps_
   std::vector<SlotMap> slot_maps_;
   std::vector<double> left_out_values_;  // an element's left-out candidates (zero between)
   std::vector<double> hessian_weights_;  // hessian_values' multipliers of an element
   std::vector<double> cost_weights_ = std::vector<double>(static_cast<std::size_t>(l_.s));
-  const std::vector<std::pair<int, int>> kDiagonal{{0, 0}};  // a term's one second derivative
+  static inline const std::vector<std::pair<int, int>> kDiagonal{{0, 0}};  // one term's pair
   std::vector<double> step_term_ = std::vector<double>(1);
   int rows_elements_ = 0, rows_sums_ = 0, rows_path_ = 0, npath_ = 0, nterm_ = 0;
   int constraints_ = 0;

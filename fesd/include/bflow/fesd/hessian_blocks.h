@@ -112,20 +112,19 @@ class HessianBlocks {
                         plan != nullptr && plan->distinct};
     Scale scale;
     scale.count = factors;
+    scale.outputs = scaled;
     const std::size_t first_factor = globals.size() - static_cast<std::size_t>(factors);
+    double factor[2] = {1.0, 1.0};
     for (int a = 0; a < factors; ++a) {
       scale.globals[a] = globals[first_factor + static_cast<std::size_t>(a)];
-      scale.values[a] = base[first_factor + static_cast<std::size_t>(a)];
+      factor[a] = base[first_factor + static_cast<std::size_t>(a)];
     }
-    scale.product = factors == 0   ? 1.0
-                    : factors == 1 ? scale.values[0]
-                                   : scale.values[0] * scale.values[1];
-    scale.others[0] = factors == 2 ? scale.values[1] : 1.0;
-    scale.others[1] = scale.values[0];
+    scale.product = factors == 2 ? factor[0] * factor[1] : factor[0];
+    scale.others[0] = factor[1];
+    scale.others[1] = factor[0];
     const int count = static_cast<int>(deps.size());
     double g = 0.0;
     constexpr int kLanes = HessianScalar::kLanes;
-    scale.outputs = scaled;
     if (count == 0) {
       if (factors == 2) g = constant_value(globals, base, outputs, scaled, weights, eval);
     } else if (count <= kLanes) {
@@ -269,12 +268,11 @@ class HessianBlocks {
     return deps;
   }
 
-  // The factors of add_scaled: their unknowns (-1: a constant), values, product s and, per
-  // factor, the product of the others (s / s_a without a division).
+  // The factors of add_scaled: their unknowns (-1: a constant), product s and, per factor, the
+  // product of the others (s / s_a without a division).
   struct Scale {
     int count = 0;
     int globals[2] = {-1, -1};
-    double values[2] = {1.0, 1.0};
     double product = 1.0;
     double others[2] = {1.0, 1.0};
     int outputs = 0;  // the outputs the factors multiply (the first ones)
@@ -296,12 +294,7 @@ class HessianBlocks {
     } else {
       at = (*positions.list)[positions.next++];
     }
-    if (value == 0.0) return;
-    if (at < 0) {
-      ++missed_;
-    } else {
-      values[at] += twice && gi == gj ? 2.0 * value : value;
-    }
+    add_at(at, twice && gi == gj ? 2.0 * value : value, values);
   }
 
   // sum_r weights[r] f_r at `base` (no lanes: every entry constant).
