@@ -93,6 +93,7 @@ struct Flags {
   double complementarity_tolerance = -1.0, nlp_tolerance = -1.0;
   double intermediate_tolerance_factor = -1.0, step_deviation_weight = 0.0;
   double equilibration_weight = 0.0, later_mu_init = 0.0, acceptable_tolerance = 0.0;
+  double monotone_mu_down_to = -1.0;
   int acceptable_iterations = 15, max_nlp_iterations = -1;
   bool no_polish = false, stop_at_complementarity = false, continue_after_failure = false;
   bool first_from_zero_multipliers = false, neutral_guess = false, nosnoc_guess = false;
@@ -134,6 +135,7 @@ bflow::OcpOptions ocp_options(const Flags& f) {
   o.homotopy.warm_start_multipliers = f.warm_start == "primal-dual";
   o.homotopy.first_from_zero_multipliers = f.first_from_zero_multipliers;
   o.homotopy.later_mu_init = f.later_mu_init;
+  if (f.monotone_mu_down_to >= 0.0) o.homotopy.monotone_mu_down_to = f.monotone_mu_down_to;
   o.homotopy.acceptable_tolerance = f.acceptable_tolerance;
   o.homotopy.acceptable_iterations = f.acceptable_iterations;
   if (f.max_nlp_iterations > 0) o.homotopy.max_nlp_iterations = f.max_nlp_iterations;
@@ -235,6 +237,7 @@ ordered_json nlp_json(const bflow::OcpHomotopyStep& s, int step) {
   j["objective"] = s.objective;
   j["cpu_s"] = s.cpu_seconds;
   j["polish"] = s.polish;
+  j["mu_strategy"] = s.mu_strategy;
   return j;
 }
 
@@ -442,6 +445,8 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"primal-dual", "primal", "cold"}));
   app.add_flag("--first-from-zero-multipliers", f.first_from_zero_multipliers);
   app.add_option("--later-mu-init", f.later_mu_init);
+  app.add_option("--monotone-mu-down-to", f.monotone_mu_down_to,
+                 "OcpHomotopyOptions::monotone_mu_down_to (inf: the adaptive strategy throughout)");
   app.add_option("--acceptable-tolerance", f.acceptable_tolerance);
   app.add_option("--acceptable-iterations", f.acceptable_iterations);
   app.add_option("--max-nlp-iterations", f.max_nlp_iterations);

@@ -296,6 +296,8 @@ OrderedJson homotopy_json(const std::vector<OcpHomotopyStep>& steps) {
     j["status"] = s.ipopt_status;
     j["kkt_error"] = std::isfinite(s.kkt_error) ? OrderedJson(s.kkt_error) : OrderedJson(nullptr);
     j["polish"] = s.polish;
+    j["mu_strategy"] = s.mu_strategy;
+    j["mu_init"] = s.mu_init;
     if (!s.worst_rows.empty()) j["worst_rows"] = s.worst_rows;
     list.push_back(j);
   }

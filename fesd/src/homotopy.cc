@@ -26,6 +26,15 @@ struct HomotopySolver::Impl {
   std::string library;        // the file IPOPT loads it from ("" when linked)
   IpoptSession session;
 
+  // The caller's value of a string option of IPOPT's (applied after bflow's), else `ours`.
+  std::string caller_string(const std::string& name, const std::string& ours) const {
+    std::string value = ours;
+    for (const auto& [n, v] : settings.solver.ipopt_string_options) {
+      if (n == name) value = v;
+    }
+    return value;
+  }
+
   void apply_caller_options() {
     session.apply(settings.solver.ipopt_string_options, settings.solver.ipopt_numeric_options,
                   settings.solver.ipopt_integer_options, settings.who);
@@ -154,19 +163,29 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
     o.set_numeric("acceptable_compl_inf_tol", rules.acceptable_compl_inf_tol);
     o.set_integer("acceptable_iter", rules.acceptable_iter);
     const bool zero_start = first && rules.first_from_zero_multipliers;
+    // The warm start of a relaxed NLP keeps the previous products, about 1/sigma_factor times
+    // the new sigma, with their multipliers, and the point 1e-9 off its bounds: the adaptive
+    // strategy reads mu from that tiny complementarity (1e-11 at its first iteration on the
+    // turbo car), and the iterates then creep off the new relaxation's bounds. The monotone
+    // strategy starts at mu_init, the NLP's own tolerance (docs/ocp.md, Defaults beside
+    // nosnoc's over N).
+    const bool monotone = !first && rules.warm_start && rules.warm_start_multipliers &&
+                          sigma >= rules.monotone_mu_down_to;
+    o.set_string("mu_strategy", monotone ? "monotone" : "adaptive");
+    double mu_init = 0.1;
     o.set_string("warm_start_init_point",
                  (!first && rules.warm_start) || zero_start ? "yes" : "no");
     if (zero_start) {
       // nosnoc's start: IPOPT's warm start from the guess with every multiplier 0.
-      o.set_numeric("mu_init", 0.1);
+      o.set_numeric("mu_init", mu_init);
       o.set_numeric("warm_start_bound_push", 1e-3);
       o.set_numeric("warm_start_mult_bound_push", 1e-3);
       o.set_numeric("warm_start_slack_bound_push", 1e-3);
       nlp.forget_multipliers();
     } else if (!first) {
-      o.set_numeric("mu_init", rules.later_mu_init > 0.0
-                                   ? rules.later_mu_init
-                                   : std::max(rules.mu_init_min, 1e-2 * sigma));
+      mu_init = rules.later_mu_init > 0.0 ? rules.later_mu_init
+                                          : std::max(rules.mu_init_min, 1e-2 * sigma);
+      o.set_numeric("mu_init", mu_init);
       // With the multipliers the point stays at its bounds; without, IPOPT's pushes (1e-3).
       const double push = rules.warm_start_multipliers ? 1e-9 : 1e-3;
       o.set_numeric("warm_start_bound_push", push);
@@ -174,10 +193,12 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
       o.set_numeric("warm_start_slack_bound_push", push);
       if (rules.warm_start && !rules.warm_start_multipliers) nlp.forget_multipliers();
     } else {
-      o.set_numeric("mu_init", 0.1);
+      o.set_numeric("mu_init", mu_init);
     }
     NlpStatus status;
     HomotopyStep step = impl_->solve(nlp, sigma, false, static_cast<int>(out.steps.size()), status);
+    step.mu_strategy = impl_->caller_string("mu_strategy", monotone ? "monotone" : "adaptive");
+    step.mu_init = mu_init;
     out.iterations += step.iterations;
     out.steps.push_back(step);
     if (on_step) on_step(step);
@@ -322,11 +343,14 @@ PolishOutcome HomotopySolver::polish(Transcription& transcription, double active
                                 ? std::min(max_iterations, impl_->settings.max_iterations)
                                 : impl_->settings.max_iterations);
   o.set_string("warm_start_init_point", "no");
+  o.set_string("mu_strategy", "adaptive");
   o.set_numeric("mu_init", 1e-9);
   o.set_numeric("bound_push", 1e-12);
   o.set_numeric("bound_frac", 1e-12);
   NlpStatus status;
   out.step = impl_->solve(nlp, 0.0, true, index, status);
+  out.step.mu_init = 1e-9;
+  out.step.mu_strategy = impl_->caller_string("mu_strategy", "adaptive");
   if (on_step) on_step(out.step);
   const double slack = cost_slack >= 0.0 ? cost_slack : 1e-6 * (1.0 + std::abs(out.cost_before));
   // A polish with as many equations as free unknowns (every control pinned, e.g. by a clock

@@ -255,6 +255,10 @@ void check_input(const OcpModel& model, const OcpProblem& p, const OcpOptions& o
     throw InvalidArgument("ocp: early_polish_sigma = " + number(o.homotopy.early_polish_sigma) +
                           " must be >= 0 and finite (0: only the final polish)");
   }
+  if (!(o.homotopy.monotone_mu_down_to >= 0.0)) {
+    throw InvalidArgument("ocp: monotone_mu_down_to = " + number(o.homotopy.monotone_mu_down_to) +
+                          " must be >= 0 (infinity: the adaptive mu strategy for every NLP)");
+  }
   if (!(o.homotopy.sigma_factor > 0.0 && o.homotopy.sigma_factor < 1.0)) {
     throw InvalidArgument("ocp: sigma_factor = " + number(o.homotopy.sigma_factor) +
                           " must lie in (0, 1)");
@@ -799,6 +803,7 @@ fesd::HomotopyRules ocp_homotopy_rules(const OcpOptions& options) {
     rules.acceptable_violation_min = rules.acceptable_violation_max = 1e-2;
   }
   rules.later_mu_init = options.homotopy.later_mu_init;
+  rules.monotone_mu_down_to = options.homotopy.monotone_mu_down_to;
   rules.intermediate_tolerance_factor = options.homotopy.intermediate_tolerance_factor;
   if (options.homotopy.stop_at_complementarity)
     rules.stop_complementarity = options.homotopy.complementarity_tolerance;

@@ -105,7 +105,8 @@ _HOMOTOPY_OPTIONS = ("sigma_initial", "sigma_final", "sigma_factor", "superlinea
                      "nlp_tolerance", "max_nlp_iterations", "relaxation",
                      "complementarity_tolerance", "intermediate_tolerance_factor", "warm_start",
                      "polish", "early_polish_sigma", "stop_at_complementarity",
-                     "acceptable_tolerance", "max_total_iterations", "continue_after_failure")
+                     "acceptable_tolerance", "max_total_iterations", "continue_after_failure",
+                     "monotone_mu_down_to")
 
 
 def _set_any_option(obj, key, value, where):
@@ -653,7 +654,9 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
     nlp_tolerance (1e-10), max_nlp_iterations (3000), complementarity_tolerance (1e-9),
     intermediate_tolerance_factor, warm_start, polish, early_polish_sigma,
     stop_at_complementarity, acceptable_tolerance, max_total_iterations,
-    continue_after_failure. The solver: exact_hessian, linear_solver, linear_solver_library,
+    continue_after_failure, monotone_mu_down_to (1e-2: the warm-started NLPs at sigma >= it run
+    IPOPT's monotone mu strategy, the rest its adaptive one; ``float("inf")``: adaptive
+    throughout; each step's ``mu_strategy`` says which ran). The solver: exact_hessian, linear_solver, linear_solver_library,
     blas_threads (OpenBLAS's threads while IPOPT solves, 1; 0: its own count),
     keep_freed_memory (as for fesd_simulate). ``progress=True`` prints one line per NLP on stderr. The GIL is
     released while IPOPT runs; calls from several threads are safe, their NLPs taking turns

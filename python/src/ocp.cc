@@ -55,6 +55,7 @@ void bind_ocp(nb::module_& m) {
       .def_rw("early_polish_sigma", &OcpHomotopyOptions::early_polish_sigma)
       .def_rw("stop_at_complementarity", &OcpHomotopyOptions::stop_at_complementarity)
       .def_rw("acceptable_tolerance", &OcpHomotopyOptions::acceptable_tolerance)
+      .def_rw("monotone_mu_down_to", &OcpHomotopyOptions::monotone_mu_down_to)
       .def_rw("max_total_iterations", &OcpHomotopyOptions::max_total_iterations)
       .def_rw("continue_after_failure", &OcpHomotopyOptions::continue_after_failure);
 
@@ -99,6 +100,7 @@ void bind_ocp(nb::module_& m) {
       .def_ro("ipopt_status", &OcpHomotopyStep::ipopt_status)
       .def_ro("kkt_error", &OcpHomotopyStep::kkt_error)
       .def_ro("polish", &OcpHomotopyStep::polish)
+      .def_ro("mu_strategy", &OcpHomotopyStep::mu_strategy)
       .def_ro("product_multipliers", &OcpHomotopyStep::product_multipliers)
       .def_ro("worst_rows", &OcpHomotopyStep::worst_rows);
 

@@ -155,6 +155,7 @@ TEST(OcpSetup, EachHomotopyGroupHasItsOwnersDefaults) {
   EXPECT_EQ(ocp.max_nlp_iterations, 3000);
   EXPECT_EQ(ocp.complementarity_tolerance, 1e-9);
   EXPECT_EQ(ocp.early_polish_sigma, 1e-4);
+  EXPECT_EQ(ocp.monotone_mu_down_to, 1e-2);
   EXPECT_TRUE(ocp.polish);
   const HomotopyOptions fesd = FesdOptions{}.homotopy;
   EXPECT_EQ(fesd.sigma_initial, 1.0);
@@ -187,6 +188,19 @@ TEST(OcpSetup, BadOptionsAreRefusedWithTheValues) {
   } catch (const InvalidArgument& e) {
     EXPECT_NE(std::string(e.what()).find("intermediate_tolerance_factor = -0.5"), std::string::npos)
         << e.what();
+  }
+  o.homotopy.intermediate_tolerance_factor = 1e-2;
+  for (const double bad : {-1e-3, std::numeric_limits<double>::quiet_NaN()}) {
+    o.homotopy.monotone_mu_down_to = bad;
+    try {
+      ocp_solve(adapt_ocp(TurboCar{}), TurboCar::problem(), o);
+      FAIL() << "no exception for " << bad;
+    } catch (const InvalidArgument& e) {
+      EXPECT_NE(std::string(e.what()).find("monotone_mu_down_to = " +
+                                           std::string(std::isnan(bad) ? "nan" : "-0.001")),
+                std::string::npos)
+          << e.what();
+    }
   }
 }
 

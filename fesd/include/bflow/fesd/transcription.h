@@ -299,6 +299,11 @@ struct HomotopyRules {
   double mu_init_min = 1e-12;  ///< warm NLPs start at mu = max(mu_init_min, 1e-2 sigma)
   /** > 0: every NLP after the first starts at this mu instead (IPOPT's default is 0.1). */
   double later_mu_init = 0.0;
+  /** A warm-started NLP (warm_start with its multipliers) at sigma >= this runs IPOPT's monotone
+      mu strategy from its mu_init instead of the adaptive one, whose first mu follows the tiny
+      complementarity of a start held at its bounds; every other NLP (the first, cold starts,
+      polishes) runs the adaptive strategy. Infinity: the adaptive strategy for every NLP. */
+  double monotone_mu_down_to = std::numeric_limits<double>::infinity();
   double acceptable_tol_min = 1e-4, acceptable_tol_factor = 0.0;
   double acceptable_violation_min = 1e-12, acceptable_violation_sigma = 0.0,
          acceptable_violation_max = 1e19;
@@ -346,6 +351,10 @@ struct HomotopyStep {
   /** The final point's largest constraint violation, unscaled. */
   double constraint_violation = std::numeric_limits<double>::infinity();
   bool polish = false;  ///< the final solve with the active set fixed (sigma 0)
+  /** IPOPT's mu strategy for this NLP, "adaptive" or "monotone" (HomotopyRules::
+      monotone_mu_down_to), and its mu_init. */
+  std::string mu_strategy = "adaptive";
+  double mu_init = 0.1;
   /** The multipliers of the complementarity rows relaxed to <= sigma (Scholtes' relaxation; 0
       for the l1 penalty, the elastic mode and the polish) at the NLP's final point: their sum
       and the largest (rows far from their bound carry multipliers of IPOPT's tolerance, of
