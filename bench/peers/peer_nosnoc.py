@@ -271,6 +271,8 @@ def worker(job):
     cpu0, wall0 = time.process_time(), time.perf_counter()
     model, ocp, terminal_time = nosnoc_model(case)
     opts = nosnoc_options(case, setting, log_path)
+    # Further IPOPT options of the job's (perturb_paths.py), over nosnoc's and the harness's.
+    opts.opts_casadi_nlp["ipopt"].update(job.get("ipopt") or {})
     opts.terminal_time = terminal_time
     solver = nosnoc.NosnocSolver(opts, model, ocp)
     problem = solver.problem

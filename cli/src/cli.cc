@@ -275,7 +275,7 @@ struct NumericTexts {
   std::optional<std::string> max_input_bytes, max_output_bytes;
   std::optional<std::string> fesd_stages, fesd_nfe, fesd_nsim, fesd_t, fesd_lifting;
   std::optional<std::string> ocp_n, ocp_nfe, ocp_stages, ocp_sigma0, ocp_sigma_final, ocp_tol,
-      ocp_max_iterations, ocp_lifting, ocp_early_polish_sigma;
+      ocp_max_iterations, ocp_lifting, ocp_early_polish_sigma, ocp_monotone_mu_down_to;
   std::optional<std::string> fesd_blas_threads, ocp_blas_threads;
 };
 
@@ -353,6 +353,9 @@ void read_numbers(const NumericTexts& t, JumpOptions& jump, FesdCommandOptions& 
   if (t.ocp_blas_threads) ocp.solver.blas_threads = read_int(*t.ocp_blas_threads, "--blas-threads");
   if (t.ocp_early_polish_sigma) {
     ocp.early_polish_sigma = read_double(*t.ocp_early_polish_sigma, "--early-polish-sigma");
+  }
+  if (t.ocp_monotone_mu_down_to) {
+    ocp.monotone_mu_down_to = read_double(*t.ocp_monotone_mu_down_to, "--monotone-mu-down-to");
   }
 }
 
@@ -597,6 +600,13 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                     "new active set and end the homotopy at the first one kept, >= 0 (default "
                     "1e-4; 0: only the final polish after --sigma-final; the monoped and the "
                     "hopper do not polish)")
+        ->type_name("X")
+        ->group(kHomotopyGroup);
+    ocp->add_option("--monotone-mu-down-to", numbers.ocp_monotone_mu_down_to,
+                    "The NLPs warm-started from the one before, at sigma >= X, run IPOPT's "
+                    "monotone mu strategy, the others its adaptive one, >= 0 (default 1e-2; inf: "
+                    "adaptive throughout; the monoped and the hopper start cold: adaptive); "
+                    "the JSON's \"homotopy\" names each NLP's \"mu_strategy\"")
         ->type_name("X")
         ->group(kHomotopyGroup);
     ocp->add_option("--tol", numbers.ocp_tol,

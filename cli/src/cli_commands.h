@@ -238,6 +238,9 @@ struct OcpCommandOptions {
   /** --early-polish-sigma: bflow::OcpHomotopyOptions::early_polish_sigma, finite and >= 0 (0: only
       the final polish); not given: the example's. */
   std::optional<double> early_polish_sigma;
+  /** --monotone-mu-down-to: bflow::OcpHomotopyOptions::monotone_mu_down_to, >= 0 (inf: IPOPT's
+      adaptive mu strategy for every NLP); not given: the example's. */
+  std::optional<double> monotone_mu_down_to;
   /** --max-iterations: IPOPT iterations of the whole homotopy, >= 0 (0: no limit but IPOPT's
       per NLP); not given: bflow::OcpHomotopyOptions::max_total_iterations of the example. */
   std::optional<int> max_iterations;

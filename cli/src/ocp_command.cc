@@ -131,6 +131,12 @@ void check_ranges(const OcpCommandOptions& options, const OcpOptions& defaults) 
          ">= 0 (0: only the final polish), got " +
              format_number(*options.early_polish_sigma));
   }
+  if (options.monotone_mu_down_to && !(*options.monotone_mu_down_to >= 0.0)) {
+    fail("--monotone-mu-down-to",
+         "the sigma down to which warm starts run the monotone mu strategy must be >= 0 (inf: "
+         "the adaptive strategy throughout), got " +
+             format_number(*options.monotone_mu_down_to));
+  }
   if (options.tol && *options.tol < kMinNlpTolerance) {
     fail("--tol", "must be >= " + format_number(kMinNlpTolerance) +
                       " (below that IPOPT cannot meet it in double precision), got " +
@@ -638,6 +644,9 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
                                          format_number(*options.early_polish_sigma));
       }
       o.homotopy.early_polish_sigma = *options.early_polish_sigma;
+    }
+    if (options.monotone_mu_down_to) {
+      o.homotopy.monotone_mu_down_to = *options.monotone_mu_down_to;
     }
     if (options.max_iterations) o.homotopy.max_total_iterations = *options.max_iterations;
     if (options.lifting) {

@@ -46,7 +46,8 @@ def test_homotopy_and_solver_keywords_reach_their_groups():
     # The defaults of each owner's homotopy, as docs/ocp.md and docs/fesd.md state them.
     ocp, fesd = bflow._bflow.OcpOptions().homotopy, bflow._bflow.FesdOptions().homotopy
     assert (ocp.sigma_initial, ocp.sigma_final, ocp.nlp_tolerance, ocp.max_nlp_iterations,
-            ocp.superlinear, ocp.polish) == (100.0, 1e-10, 1e-10, 3000, False, True)
+            ocp.superlinear, ocp.polish, ocp.monotone_mu_down_to) == (100.0, 1e-10, 1e-10, 3000,
+                                                                      False, True, 1e-2)
     assert (fesd.sigma_initial, fesd.sigma_final, fesd.nlp_tolerance, fesd.max_nlp_iterations,
             fesd.superlinear) == (1.0, 1e-12, 1e-13, 500, True)
 
@@ -85,6 +86,15 @@ def test_turbo_car_reaches_the_exact_optimal_time():
     assert r.ok and r.polished
     assert r.T == pytest.approx(exact["T"], abs=1e-9)
     np.testing.assert_allclose(r.switch_times, exact["switch_times"], atol=1e-9)
+    # Each NLP names its mu strategy: monotone for the warm starts at sigma >= 1e-2, adaptive
+    # for the first, those below and the polishes; monotone_mu_down_to=inf: adaptive throughout.
+    relaxed = [s for s in r.homotopy if not s.polish]
+    assert [s.mu_strategy for s in relaxed] == [
+        "monotone" if k > 0 and s.sigma >= 1e-2 else "adaptive" for k, s in enumerate(relaxed)]
+    assert all(s.mu_strategy == "adaptive" for s in r.homotopy if s.polish)
+    a = bflow.ocp_solve("turbo-car", N=5, monotone_mu_down_to=float("inf"))
+    assert a.ok and a.T == pytest.approx(exact["T"], abs=1e-9)
+    assert {s.mu_strategy for s in a.homotopy} == {"adaptive"}
 
 
 def test_derivative_form_reaches_the_same_optimal_time_with_a_sparser_jacobian():

@@ -196,6 +196,31 @@ TEST(OcpCommandTest, EarlyPolishSigmaZeroRunsTheHomotopyToSigmaFinal) {
   EXPECT_THAT(early.json["notes"].dump(), HasSubstr("early_polish_sigma"));
 }
 
+// --monotone-mu-down-to: the JSON names each NLP's mu strategy, monotone for the warm-started
+// NLPs at sigma >= 1e-2 by default, adaptive for all with inf; both reach T* = 40/3.
+TEST(OcpCommandTest, MonotoneMuDownToNamesEachNlpsStrategy) {
+  OcpCommandOptions o;
+  o.example = "turbo-car";
+  o.n = 5;
+  o.quiet = true;
+  const Outcome monotone = solve(o);
+  o.monotone_mu_down_to = std::numeric_limits<double>::infinity();
+  const Outcome adaptive = solve(o);
+  ASSERT_EQ(monotone.code, kExitOk) << monotone.err;
+  ASSERT_EQ(adaptive.code, kExitOk) << adaptive.err;
+  int monotone_nlps = 0;
+  const auto& h = monotone.json["homotopy"];
+  for (std::size_t k = 0; k < h.size(); ++k) {
+    const bool expected = k > 0 && !h[k]["polish"].get<bool>() && h[k]["sigma"] >= 1e-2;
+    EXPECT_EQ(h[k]["mu_strategy"], expected ? "monotone" : "adaptive") << h[k].dump();
+    monotone_nlps += expected ? 1 : 0;
+  }
+  EXPECT_GE(monotone_nlps, 3);
+  for (const auto& step : adaptive.json["homotopy"]) EXPECT_EQ(step["mu_strategy"], "adaptive");
+  EXPECT_NEAR(monotone.json["T"].get<double>(), 40.0 / 3.0, 1e-8);
+  EXPECT_NEAR(adaptive.json["T"].get<double>(), 40.0 / 3.0, 1e-8);
+}
+
 // Standard time-stepping cannot put the switches on element boundaries: its solved runs end
 // far from 40/3. Which stationary point a run reaches depends on round-off (the BLAS kernels of
 // the machine): at N = 20 measured T = 18.46 on one machine and 20.0 on an AVX-512 one, and
@@ -445,6 +470,15 @@ TEST(OcpCommandTest, BadOptionsAreNamed) {
        },
        "error: --early-polish-sigma: the monoped does not polish (its homotopy ends at its last "
        "NLP), so there is no early polish to try from sigma 0.001"},
+      {"monotone-mu-down-to", [](OcpCommandOptions& o) { o.monotone_mu_down_to = -1e-3; },
+       "error: --monotone-mu-down-to: the sigma down to which warm starts run the monotone mu "
+       "strategy must be >= 0 (inf: the adaptive strategy throughout), got -0.001"},
+      {"monotone-mu-down-to nan",
+       [](OcpCommandOptions& o) {
+         o.monotone_mu_down_to = std::numeric_limits<double>::quiet_NaN();
+       },
+       "error: --monotone-mu-down-to: the sigma down to which warm starts run the monotone mu "
+       "strategy must be >= 0 (inf: the adaptive strategy throughout), got nan"},
       {"max-iterations", [](OcpCommandOptions& o) { o.max_iterations = -3; },
        "error: --max-iterations: the iteration budget must be >= 0 (0: no limit), got -3"},
       {"plot", [](OcpCommandOptions& o) { o.plot = ""; },
