@@ -602,11 +602,13 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                     "hopper do not polish)")
         ->type_name("X")
         ->group(kHomotopyGroup);
-    ocp->add_option("--monotone-mu-down-to", numbers.ocp_monotone_mu_down_to,
-                    "The NLPs warm-started from the one before, at sigma >= X, run IPOPT's "
-                    "monotone mu strategy, the others its adaptive one, >= 0 (default 1e-2; inf: "
-                    "adaptive throughout; the monoped and the hopper start cold: adaptive); "
-                    "the JSON's \"homotopy\" names each NLP's \"mu_strategy\"")
+    ocp->add_option(
+           "--monotone-mu-down-to", numbers.ocp_monotone_mu_down_to,
+           "The NLPs warm-started from the one before, at sigma >= X, run IPOPT's "
+           "monotone mu strategy, the others its adaptive one, >= 0 (default 1e-2; inf: "
+           "adaptive throughout; the monoped warm-starts without multipliers and the hopper "
+           "starts cold: adaptive); "
+           "the JSON's \"homotopy\" names each NLP's \"mu_strategy\"")
         ->type_name("X")
         ->group(kHomotopyGroup);
     ocp->add_option("--tol", numbers.ocp_tol,

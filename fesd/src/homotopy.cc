@@ -4,6 +4,7 @@
 // transcription's NLP through HomotopyNlp (homotopy_nlp.h) and IPOPT through IpoptSession
 // (ipopt_adapter.h).
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <functional>
 #include <limits>
@@ -26,10 +27,20 @@ struct HomotopySolver::Impl {
   std::string library;        // the file IPOPT loads it from ("" when linked)
   IpoptSession session;
 
-  // The caller's value of a string option of IPOPT's (applied after bflow's), else `ours`.
+  // The caller's value of an option of IPOPT's (applied after bflow's), else `ours`; strings
+  // in lower case, as IPOPT reads them.
   std::string caller_string(const std::string& name, const std::string& ours) const {
     std::string value = ours;
     for (const auto& [n, v] : settings.solver.ipopt_string_options) {
+      if (n == name) value = v;
+    }
+    std::transform(value.begin(), value.end(), value.begin(),
+                   [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+    return value;
+  }
+  double caller_numeric(const std::string& name, double ours) const {
+    double value = ours;
+    for (const auto& [n, v] : settings.solver.ipopt_numeric_options) {
       if (n == name) value = v;
     }
     return value;
@@ -167,10 +178,13 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
     // the new sigma, with their multipliers, and the point 1e-9 off its bounds: the adaptive
     // strategy reads mu from that tiny complementarity (1e-11 at its first iteration on the
     // turbo car), and the iterates then creep off the new relaxation's bounds. The monotone
-    // strategy starts at mu_init, the NLP's own tolerance (docs/ocp.md, Defaults beside
-    // nosnoc's over N).
-    const bool monotone = !first && rules.warm_start && rules.warm_start_multipliers &&
-                          sigma >= rules.monotone_mu_down_to;
+    // strategy starts at mu_init, the NLP's own tolerance (docs/ocp.md, Warm starts and
+    // IPOPT's mu strategy). Not the re-solve at nlp_tolerance of a solved NLP (finishing), whose
+    // tolerance is far below 1e-2 sigma. (sigma_initial times powers of the factor lands within
+    // round-off of a round threshold.)
+    const bool monotone = !first && !finishing && rules.warm_start &&
+                          rules.warm_start_multipliers &&
+                          sigma >= rules.monotone_mu_down_to * (1.0 - 1e-9);
     o.set_string("mu_strategy", monotone ? "monotone" : "adaptive");
     double mu_init = 0.1;
     o.set_string("warm_start_init_point",
@@ -198,7 +212,7 @@ HomotopyOutcome HomotopySolver::run(Transcription& transcription, const Homotopy
     NlpStatus status;
     HomotopyStep step = impl_->solve(nlp, sigma, false, static_cast<int>(out.steps.size()), status);
     step.mu_strategy = impl_->caller_string("mu_strategy", monotone ? "monotone" : "adaptive");
-    step.mu_init = mu_init;
+    step.mu_init = impl_->caller_numeric("mu_init", mu_init);
     out.iterations += step.iterations;
     out.steps.push_back(step);
     if (on_step) on_step(step);
@@ -349,7 +363,7 @@ PolishOutcome HomotopySolver::polish(Transcription& transcription, double active
   o.set_numeric("bound_frac", 1e-12);
   NlpStatus status;
   out.step = impl_->solve(nlp, 0.0, true, index, status);
-  out.step.mu_init = 1e-9;
+  out.step.mu_init = impl_->caller_numeric("mu_init", 1e-9);
   out.step.mu_strategy = impl_->caller_string("mu_strategy", "adaptive");
   if (on_step) on_step(out.step);
   const double slack = cost_slack >= 0.0 ? cost_slack : 1e-6 * (1.0 + std::abs(out.cost_before));

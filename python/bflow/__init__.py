@@ -656,7 +656,8 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
     stop_at_complementarity, acceptable_tolerance, max_total_iterations,
     continue_after_failure, monotone_mu_down_to (1e-2: the warm-started NLPs at sigma >= it run
     IPOPT's monotone mu strategy, the rest its adaptive one; ``float("inf")``: adaptive
-    throughout; each step's ``mu_strategy`` says which ran). The solver: exact_hessian, linear_solver, linear_solver_library,
+    throughout; each step's ``mu_strategy`` says which ran, ``mu_init`` the mu it started
+    from, which the monotone strategy reads). The solver: exact_hessian, linear_solver, linear_solver_library,
     blas_threads (OpenBLAS's threads while IPOPT solves, 1; 0: its own count),
     keep_freed_memory (as for fesd_simulate). ``progress=True`` prints one line per NLP on stderr. The GIL is
     released while IPOPT runs; calls from several threads are safe, their NLPs taking turns

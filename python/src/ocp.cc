@@ -101,6 +101,7 @@ void bind_ocp(nb::module_& m) {
       .def_ro("kkt_error", &OcpHomotopyStep::kkt_error)
       .def_ro("polish", &OcpHomotopyStep::polish)
       .def_ro("mu_strategy", &OcpHomotopyStep::mu_strategy)
+      .def_ro("mu_init", &OcpHomotopyStep::mu_init)
       .def_ro("product_multipliers", &OcpHomotopyStep::product_multipliers)
       .def_ro("worst_rows", &OcpHomotopyStep::worst_rows);
 

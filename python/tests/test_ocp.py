@@ -89,8 +89,10 @@ def test_turbo_car_reaches_the_exact_optimal_time():
     # Each NLP names its mu strategy: monotone for the warm starts at sigma >= 1e-2, adaptive
     # for the first, those below and the polishes; monotone_mu_down_to=inf: adaptive throughout.
     relaxed = [s for s in r.homotopy if not s.polish]
-    assert [s.mu_strategy for s in relaxed] == [
-        "monotone" if k > 0 and s.sigma >= 1e-2 else "adaptive" for k, s in enumerate(relaxed)]
+    assert [s.sigma for s in relaxed[:5]] == pytest.approx([100, 10, 1, 0.1, 0.01], rel=1e-12)
+    assert [s.mu_strategy for s in relaxed] == (["adaptive"] + ["monotone"] * 4
+                                                + ["adaptive"] * (len(relaxed) - 5))
+    assert [s.mu_init for s in relaxed[1:5]] == pytest.approx([0.1, 1e-2, 1e-3, 1e-4])
     assert all(s.mu_strategy == "adaptive" for s in r.homotopy if s.polish)
     a = bflow.ocp_solve("turbo-car", N=5, monotone_mu_down_to=float("inf"))
     assert a.ok and a.T == pytest.approx(exact["T"], abs=1e-9)

@@ -196,31 +196,6 @@ TEST(OcpCommandTest, EarlyPolishSigmaZeroRunsTheHomotopyToSigmaFinal) {
   EXPECT_THAT(early.json["notes"].dump(), HasSubstr("early_polish_sigma"));
 }
 
-// --monotone-mu-down-to: the JSON names each NLP's mu strategy, monotone for the warm-started
-// NLPs at sigma >= 1e-2 by default, adaptive for all with inf; both reach T* = 40/3.
-TEST(OcpCommandTest, MonotoneMuDownToNamesEachNlpsStrategy) {
-  OcpCommandOptions o;
-  o.example = "turbo-car";
-  o.n = 5;
-  o.quiet = true;
-  const Outcome monotone = solve(o);
-  o.monotone_mu_down_to = std::numeric_limits<double>::infinity();
-  const Outcome adaptive = solve(o);
-  ASSERT_EQ(monotone.code, kExitOk) << monotone.err;
-  ASSERT_EQ(adaptive.code, kExitOk) << adaptive.err;
-  int monotone_nlps = 0;
-  const auto& h = monotone.json["homotopy"];
-  for (std::size_t k = 0; k < h.size(); ++k) {
-    const bool expected = k > 0 && !h[k]["polish"].get<bool>() && h[k]["sigma"] >= 1e-2;
-    EXPECT_EQ(h[k]["mu_strategy"], expected ? "monotone" : "adaptive") << h[k].dump();
-    monotone_nlps += expected ? 1 : 0;
-  }
-  EXPECT_GE(monotone_nlps, 3);
-  for (const auto& step : adaptive.json["homotopy"]) EXPECT_EQ(step["mu_strategy"], "adaptive");
-  EXPECT_NEAR(monotone.json["T"].get<double>(), 40.0 / 3.0, 1e-8);
-  EXPECT_NEAR(adaptive.json["T"].get<double>(), 40.0 / 3.0, 1e-8);
-}
-
 // Standard time-stepping cannot put the switches on element boundaries: its solved runs end
 // far from 40/3. Which stationary point a run reaches depends on round-off (the BLAS kernels of
 // the machine): at N = 20 measured T = 18.46 on one machine and 20.0 on an AVX-512 one, and
@@ -766,6 +741,13 @@ TEST(OcpCommandTest, OptionTextIsReadWholeAndChecked) {
       {{"--sigma0", "1e999"}, "--sigma0: \"1e999\" is out of the range of a double"},
       {{"--sigma0", "inf"},
        "--sigma0: the initial relaxation parameter must be finite and > 0, got inf"},
+      {{"--monotone-mu-down-to", ""}, "--monotone-mu-down-to: the value is empty"},
+      {{"--monotone-mu-down-to", "-1"},
+       "--monotone-mu-down-to: the sigma down to which warm starts run the monotone mu strategy "
+       "must be >= 0 (inf: the adaptive strategy throughout), got -1"},
+      {{"--monotone-mu-down-to", "nan"},
+       "--monotone-mu-down-to: the sigma down to which warm starts run the monotone mu strategy "
+       "must be >= 0 (inf: the adaptive strategy throughout), got nan"},
       {{"--scheme", "\xc3\xa9\xff"},
        "--scheme: unknown collocation scheme \"\xc3\xa9\\xff\": use radau or gauss"},
       {{"--example", "\xe2\x88\x92" + std::string(100, 'x')},
@@ -801,6 +783,33 @@ TEST(OcpCommandTest, OptionTextIsReadWholeAndChecked) {
                     "--sigma0", "100", "--sigma-final", "1e-10", "--tol", "1e-10", "--quiet"});
   ASSERT_EQ(defaults.code, kExitOk) << defaults.err;
   EXPECT_NEAR(defaults.json["objective"].get<double>(), 13.0 / 6.0, 1e-12);
+}
+
+// --monotone-mu-down-to: the JSON names each NLP's mu strategy, monotone for the warm-started
+// NLPs at sigma >= 1e-2 by default, adaptive for all with inf; both reach T* = 40/3.
+TEST(OcpCommandTest, MonotoneMuDownToNamesEachNlpsStrategy) {
+  OcpCommandOptions o;
+  o.example = "turbo-car";
+  o.n = 5;
+  o.quiet = true;
+  const Outcome monotone = solve(o);
+  const Outcome adaptive = command_line(
+      {"ocp", "--example", "turbo-car", "--N", "5", "--quiet", "--monotone-mu-down-to", "inf"});
+  ASSERT_EQ(monotone.code, kExitOk) << monotone.err;
+  ASSERT_EQ(adaptive.code, kExitOk) << adaptive.err;
+  // sigma = 100 (the first NLP), then 10, 1, 0.1, 0.01 warm-started at or above 1e-2.
+  const auto& h = monotone.json["homotopy"];
+  ASSERT_GE(h.size(), 6u);
+  for (std::size_t k = 0; k < h.size(); ++k) {
+    const bool expected = k >= 1 && k <= 4;
+    EXPECT_EQ(h[k]["mu_strategy"], expected ? "monotone" : "adaptive") << h[k].dump();
+    if (expected) {
+      EXPECT_NEAR(h[k]["sigma"].get<double>(), std::pow(10.0, 2.0 - static_cast<double>(k)), 1e-12);
+    }
+  }
+  for (const auto& step : adaptive.json["homotopy"]) EXPECT_EQ(step["mu_strategy"], "adaptive");
+  EXPECT_NEAR(monotone.json["T"].get<double>(), 40.0 / 3.0, 1e-8);
+  EXPECT_NEAR(adaptive.json["T"].get<double>(), 40.0 / 3.0, 1e-8);
 }
 
 // --linear-solver: an unknown name, and without libhsl.so an HSL solver, are refused before the

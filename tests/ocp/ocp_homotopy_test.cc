@@ -202,7 +202,8 @@ TEST(OcpHomotopy, FirstNlpFromZeroMultipliers) {
 // IPOPT option mu_strategy, applied after bflow's, is the strategy reported and run (the same
 // iterates as monotone_mu_down_to = inf). Measured: 214 IPOPT iterations against 577 with the
 // adaptive strategy throughout (its NLP at sigma = 1 alone 134, creeping off the bounds of the
-// new relaxation from mu = 1e-11).
+// new relaxation from mu = 1e-11). Warm starts without multipliers, cold starts and the
+// re-solve at nlp_tolerance of stop_at_complementarity run the adaptive strategy.
 TEST(OcpHomotopy, MonotoneMuForTheWarmStartedNlps) {
   OcpOptions options;
   options.stages = 10;
@@ -211,25 +212,27 @@ TEST(OcpHomotopy, MonotoneMuForTheWarmStartedNlps) {
   options.homotopy.monotone_mu_down_to = std::numeric_limits<double>::infinity();
   const OcpResult adaptive = solve_car(options);
   options.homotopy.monotone_mu_down_to = 1e-2;
-  options.solver.ipopt_string_options.push_back({"mu_strategy", "adaptive"});
+  options.solver.ipopt_string_options.push_back({"mu_strategy", "Adaptive"});
   const OcpResult caller = solve_car(options);
   for (const OcpResult* r : {&monotone, &adaptive, &caller}) {
     ASSERT_EQ(r->status, OcpStatus::kSolved) << r->message;
     EXPECT_NEAR(r->T, TurboCar::kOptimalTime, 1e-8);
   }
   const std::vector<OcpHomotopyStep> m = relaxed_steps(monotone), a = relaxed_steps(adaptive);
-  ASSERT_GE(m.size(), 4u);
+  // sigma = 100 (the first), then 10, 1, 0.1 and 0.01 warm-started at or above 1e-2.
+  ASSERT_GE(m.size(), 6u);
   ASSERT_GE(a.size(), 2u);
-  int monotone_count = 0;
+  const double sigmas[] = {100.0, 10.0, 1.0, 0.1, 0.01};
   for (std::size_t k = 0; k < m.size(); ++k) {
-    const bool expected = k > 0 && m[k].sigma >= 1e-2;
-    EXPECT_EQ(m[k].mu_strategy, expected ? "monotone" : "adaptive") << "sigma " << m[k].sigma;
-    if (expected) {
-      ++monotone_count;
-      EXPECT_DOUBLE_EQ(m[k].mu_init, std::max(1e-11, 1e-2 * m[k].sigma)) << m[k].sigma;
+    SCOPED_TRACE("sigma " + std::to_string(m[k].sigma));
+    if (k < 5) {
+      EXPECT_NEAR(m[k].sigma, sigmas[k], 1e-12 * sigmas[k]);
+    }
+    EXPECT_EQ(m[k].mu_strategy, k >= 1 && k <= 4 ? "monotone" : "adaptive");
+    if (k >= 1 && k <= 4) {
+      EXPECT_DOUBLE_EQ(m[k].mu_init, 1e-2 * sigmas[k]);
     }
   }
-  EXPECT_GE(monotone_count, 3);  // sigma = 10, 1, 0.1 (and 1e-2)
   for (const OcpHomotopyStep& s : monotone.homotopy) {
     if (s.polish) {
       EXPECT_EQ(s.mu_strategy, "adaptive");
@@ -243,6 +246,35 @@ TEST(OcpHomotopy, MonotoneMuForTheWarmStartedNlps) {
   EXPECT_EQ(caller.T, adaptive.T);
   std::printf("IPOPT iterations: %d (monotone mu down to sigma = 1e-2), %d (adaptive)\n",
               monotone.ipopt_iterations, adaptive.ipopt_iterations);
+
+  // The other starts: every NLP adaptive, whatever monotone_mu_down_to says.
+  OcpOptions other;
+  other.stages = 5;
+  other.homotopy.monotone_mu_down_to = 0.0;
+  other.homotopy.warm_start_multipliers = false;  // nosnoc's warm start of the primal point
+  const OcpResult primal = solve_car(other);
+  other.homotopy.warm_start_multipliers = true;
+  other.homotopy.warm_start = false;  // IPOPT's own initialisation from the previous point
+  const OcpResult cold = solve_car(other);
+  for (const OcpResult* r : {&primal, &cold}) {
+    ASSERT_GE(r->homotopy.size(), 2u) << r->message;
+    for (const OcpHomotopyStep& s : r->homotopy) EXPECT_EQ(s.mu_strategy, "adaptive") << s.sigma;
+  }
+  // stop_at_complementarity: the NLP solved loosely within the tolerance is solved again at the
+  // same sigma to nlp_tolerance, with the adaptive strategy (its tolerance is far below 1e-2
+  // sigma); the NLPs before it warm-started at sigma >= 1e-2 are monotone.
+  OcpOptions stop;
+  stop.stages = 5;
+  stop.homotopy.polish = false;
+  stop.homotopy.stop_at_complementarity = true;
+  stop.homotopy.complementarity_tolerance = 0.05;  // reached at sigma = 1e-2
+  const std::vector<OcpHomotopyStep> st = relaxed_steps(solve_car(stop));
+  ASSERT_GE(st.size(), 3u);
+  const OcpHomotopyStep &again = st.back(), &before = st[st.size() - 2];
+  ASSERT_EQ(again.sigma, before.sigma) << "no re-solve at the last sigma";
+  EXPECT_GE(again.sigma, 1e-2);
+  EXPECT_EQ(before.mu_strategy, "monotone");
+  EXPECT_EQ(again.mu_strategy, "adaptive");
 }
 
 // OcpHomotopyOptions::continue_after_failure (nosnoc's rule). With half the IPOPT iterations the

@@ -302,7 +302,8 @@ struct HomotopyRules {
   /** A warm-started NLP (warm_start with its multipliers) at sigma >= this runs IPOPT's monotone
       mu strategy from its mu_init instead of the adaptive one, whose first mu follows the tiny
       complementarity of a start held at its bounds; every other NLP (the first, cold starts,
-      polishes) runs the adaptive strategy. Infinity: the adaptive strategy for every NLP. */
+      the re-solve at nlp_tolerance of stop_complementarity, polishes) runs the adaptive
+      strategy. Infinity: the adaptive strategy for every NLP. */
   double monotone_mu_down_to = std::numeric_limits<double>::infinity();
   double acceptable_tol_min = 1e-4, acceptable_tol_factor = 0.0;
   double acceptable_violation_min = 1e-12, acceptable_violation_sigma = 0.0,
@@ -352,7 +353,8 @@ struct HomotopyStep {
   double constraint_violation = std::numeric_limits<double>::infinity();
   bool polish = false;  ///< the final solve with the active set fixed (sigma 0)
   /** IPOPT's mu strategy for this NLP, "adaptive" or "monotone" (HomotopyRules::
-      monotone_mu_down_to), and its mu_init. */
+      monotone_mu_down_to; a caller's IPOPT option mu_strategy if given), and the mu_init it was
+      given (read by the monotone strategy; a caller's mu_init if given). */
   std::string mu_strategy = "adaptive";
   double mu_init = 0.1;
   /** The multipliers of the complementarity rows relaxed to <= sigma (Scholtes' relaxation; 0

@@ -429,13 +429,14 @@ struct OcpHomotopyOptions : HomotopyOptions {
   double later_mu_init = 0.0;
   /** With warm_start and warm_start_multipliers: the NLPs after the first at sigma >= this run
       IPOPT's monotone mu strategy from mu_init (max(1e-11, 1e-2 sigma), the NLP's own
-      tolerance, or later_mu_init), the rest its adaptive strategy. The adaptive strategy reads
+      tolerance, or later_mu_init), the rest (and stop_at_complementarity's re-solve at
+      nlp_tolerance) its adaptive strategy. The adaptive strategy reads
       its first mu from the warm start's complementarity, which a start held 1e-9 off its bounds
       makes tiny (1e-11), and then creeps off the bounds of the new, tighter relaxation. Over
-      the 90 sizes of docs/ocp.md (Defaults beside nosnoc's over N) the defaults with 1e-2 take
+      the 90 sizes of docs/ocp.md (Warm starts and IPOPT's mu strategy) the defaults with 1e-2 take
       17 503 IPOPT iterations instead of 23 160 with the adaptive strategy throughout
       (infinity), and end at or below nosnoc's optimum on every row instead of 87. >= 0 (0: every
-      warm-started NLP); OcpResult::nlps names each NLP's strategy. */
+      warm-started NLP); OcpResult::homotopy names each NLP's strategy. */
   double monotone_mu_down_to = 1e-2;
   /** > 0: IPOPT iterations of the whole homotopy, its early polishes included: each NLP and
       early polish gets at most what is left (an NLP solved again with a widened structure,
