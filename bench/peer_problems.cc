@@ -34,6 +34,7 @@
 #include <cmath>
 #include <cstdio>
 #include <iostream>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -93,7 +94,7 @@ struct Flags {
   double complementarity_tolerance = -1.0, nlp_tolerance = -1.0;
   double intermediate_tolerance_factor = -1.0, step_deviation_weight = 0.0;
   double equilibration_weight = 0.0, later_mu_init = 0.0, acceptable_tolerance = 0.0;
-  double monotone_mu_down_to = -1.0;
+  std::optional<double> monotone_mu_down_to;  // not given: the default
   int acceptable_iterations = 15, max_nlp_iterations = -1;
   bool no_polish = false, stop_at_complementarity = false, continue_after_failure = false;
   bool first_from_zero_multipliers = false, neutral_guess = false, nosnoc_guess = false;
@@ -135,7 +136,7 @@ bflow::OcpOptions ocp_options(const Flags& f) {
   o.homotopy.warm_start_multipliers = f.warm_start == "primal-dual";
   o.homotopy.first_from_zero_multipliers = f.first_from_zero_multipliers;
   o.homotopy.later_mu_init = f.later_mu_init;
-  if (f.monotone_mu_down_to >= 0.0) o.homotopy.monotone_mu_down_to = f.monotone_mu_down_to;
+  if (f.monotone_mu_down_to) o.homotopy.monotone_mu_down_to = *f.monotone_mu_down_to;
   o.homotopy.acceptable_tolerance = f.acceptable_tolerance;
   o.homotopy.acceptable_iterations = f.acceptable_iterations;
   if (f.max_nlp_iterations > 0) o.homotopy.max_nlp_iterations = f.max_nlp_iterations;

@@ -199,11 +199,12 @@ TEST(OcpHomotopy, FirstNlpFromZeroMultipliers) {
 // monotone mu strategy, the first NLP, those below and the polishes the adaptive one, and each
 // step says which. On the turbo car (Stewart, N = 10) both strategies reach T* = 40/3; another
 // path shows the option was applied (the NLP at sigma = 10 ends elsewhere), and the caller's
-// IPOPT option mu_strategy, applied after bflow's, is the strategy reported and run (the same
-// iterates as monotone_mu_down_to = inf). Measured: 214 IPOPT iterations against 577 with the
-// adaptive strategy throughout (its NLP at sigma = 1 alone 134, creeping off the bounds of the
-// new relaxation from mu = 1e-11). Warm starts without multipliers, cold starts and the
-// re-solve at nlp_tolerance of stop_at_complementarity run the adaptive strategy.
+// IPOPT options mu_strategy and mu_init, applied after bflow's, are what is reported and run
+// (the same iterates as monotone_mu_down_to = inf: the adaptive strategy does not read mu_init).
+// Measured: 214 IPOPT iterations against 577 with the adaptive strategy throughout (its NLP at
+// sigma = 1 alone 134, creeping off the bounds of the new relaxation from mu = 1e-11). Warm starts
+// without multipliers, cold starts and the re-solve at nlp_tolerance of stop_at_complementarity run
+// the adaptive strategy.
 TEST(OcpHomotopy, MonotoneMuForTheWarmStartedNlps) {
   OcpOptions options;
   options.stages = 10;
@@ -213,6 +214,7 @@ TEST(OcpHomotopy, MonotoneMuForTheWarmStartedNlps) {
   const OcpResult adaptive = solve_car(options);
   options.homotopy.monotone_mu_down_to = 1e-2;
   options.solver.ipopt_string_options.push_back({"mu_strategy", "Adaptive"});
+  options.solver.ipopt_numeric_options.push_back({"mu_init", 0.25});  // unread when adaptive
   const OcpResult caller = solve_car(options);
   for (const OcpResult* r : {&monotone, &adaptive, &caller}) {
     ASSERT_EQ(r->status, OcpStatus::kSolved) << r->message;
@@ -239,7 +241,10 @@ TEST(OcpHomotopy, MonotoneMuForTheWarmStartedNlps) {
     }
   }
   for (const OcpHomotopyStep& s : adaptive.homotopy) EXPECT_EQ(s.mu_strategy, "adaptive");
-  for (const OcpHomotopyStep& s : caller.homotopy) EXPECT_EQ(s.mu_strategy, "adaptive");
+  for (const OcpHomotopyStep& s : caller.homotopy) {
+    EXPECT_EQ(s.mu_strategy, "adaptive");
+    EXPECT_EQ(s.mu_init, 0.25);
+  }
   EXPECT_TRUE(m[1].iterations != a[1].iterations || m[1].objective != a[1].objective)
       << m[1].iterations << " iterations, objective " << m[1].objective << " with either strategy";
   EXPECT_EQ(caller.ipopt_iterations, adaptive.ipopt_iterations);
@@ -275,6 +280,17 @@ TEST(OcpHomotopy, MonotoneMuForTheWarmStartedNlps) {
   EXPECT_GE(again.sigma, 1e-2);
   EXPECT_EQ(before.mu_strategy, "monotone");
   EXPECT_EQ(again.mu_strategy, "adaptive");
+  // The threshold is meant as written: 0.03 times 1/3 lands at 0.009999999999999998, which is
+  // the sigma 1e-2 of the schedule and runs the monotone strategy; 1/3 of it does not.
+  OcpOptions third;
+  third.stages = 5;
+  third.homotopy.sigma_initial = 0.03;
+  third.homotopy.sigma_factor = 1.0 / 3.0;
+  const std::vector<OcpHomotopyStep> t = relaxed_steps(solve_car(third));
+  ASSERT_GE(t.size(), 3u);
+  EXPECT_LT(t[1].sigma, 1e-2);
+  EXPECT_EQ(t[1].mu_strategy, "monotone");
+  EXPECT_EQ(t[2].mu_strategy, "adaptive");
 }
 
 // OcpHomotopyOptions::continue_after_failure (nosnoc's rule). With half the IPOPT iterations the
