@@ -832,6 +832,15 @@ class Transcription::Nlp final : public HomotopyNlp {
         continue;
       }
       gather(t, x, base);
+      if (t.kind == TermKind::kEquilibration) {
+        // Its weight (which fades with sigma) as add's weight: eval reads its inputs alone
+        // (a traced program, hessian_tape.h, keeps every other number it reads).
+        step_term_[0] = obj_factor * equilibration_factor();
+        hessian_.add_scaled(
+            t.globals, base, t.factors, 1, step_term_.data(),
+            [&](const auto* in, auto* out) { out[0] = equilibration_term(l_, h0_, in); }, values);
+        continue;
+      }
       hessian_.add_scaled(
           t.globals, base, t.factors, 1, &obj_factor,
           [&](const auto* in, auto* out) { out[0] = term_part(t, in); }, values);
@@ -996,6 +1005,7 @@ class Transcription::Nlp final : public HomotopyNlp {
       }
     }
     hessian_.clear();
+    hessian_.set_programs(p_.hessian_programs);
     if (!p_.exact_hessian) return;
     pieces_ = element_hessian_pieces(l_);
     complementarity_hessian(l_, p_.standard, comp_);
@@ -1145,6 +1155,11 @@ class Transcription::Nlp final : public HomotopyNlp {
     for (std::size_t k = n; k < t.globals.size(); ++k) value = in[k] * value;
     return value;
   }
+  // The step equilibration's weight, faded with sigma where the setup asks.
+  double equilibration_factor() const {
+    const double fade = p_.equilibration_fades ? std::min(1.0, sigma_) : 1.0;
+    return fade * p_.equilibration_weight;
+  }
   // The term without its factors (which it does not read).
   template <typename T>
   T term_part(const Term& t, const T* in) const {
@@ -1159,10 +1174,8 @@ class Transcription::Nlp final : public HomotopyNlp {
         const T e = p_.horizon / unit_ * (in[0] - T(h0_));
         return p_.step_deviation_weight * e * e;
       }
-      case TermKind::kEquilibration: {
-        const double fade = p_.equilibration_fades ? std::min(1.0, sigma_) : 1.0;
-        return fade * p_.equilibration_weight * equilibration_term(l_, h0_, in);
-      }
+      case TermKind::kEquilibration:
+        return equilibration_factor() * equilibration_term(l_, h0_, in);
     }
     return T(0.0);
   }

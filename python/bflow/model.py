@@ -37,7 +37,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Dict, Mapping, Sequence
+from typing import Dict, Mapping, Optional, Sequence
 
 import sympy as sp
 from sympy.printing.c import C99CodePrinter
@@ -432,6 +432,7 @@ class Model:
             fields = (self.field_exprs if self.field_exprs is not None
                       else sorted(self.field_words.items()))
             inputs = (engine, _GENERATOR, _command(Path("s"), Path("o")), str(_bflow.__file__),
+                      _installed_digest(),
                       *map(_structure, (self.states, self.parameters, self.sign_symbols,
                                         self.controls, fields, self.surface_exprs,
                                         self.lagrange_expr, self.mayer_expr, self.path_exprs,
@@ -876,6 +877,23 @@ def _command(source: Path, output: Path):
 
 # The generator's version: a change to this file (the printer, the templates) is a new key.
 _GENERATOR = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()
+_INSTALLED: Optional[str] = None
+
+
+def _installed_digest() -> str:
+    """A digest of what a compiled model is built against: the headers and the core library
+    installed with this package (a new bflow in the same place is a new key, so that a model
+    compiled against another layout of its scalar types is never loaded)."""
+    global _INSTALLED
+    if _INSTALLED is None:
+        root = Path(__file__).resolve().parent
+        digest = hashlib.sha256()
+        for path in sorted((root / "include").rglob("*")) + [root / "lib" / "libbflow_core.a"]:
+            if path.is_file():
+                digest.update(str(path.relative_to(root)).encode())
+                digest.update(path.read_bytes())
+        _INSTALLED = digest.hexdigest()
+    return _INSTALLED
 # A temporary of a compile (bflow_tmp_*) or a fresh copy older than this is a leftover of a
 # process that was killed (or is done with it) and is removed by the next compile.
 STALE_SECONDS = 600.0

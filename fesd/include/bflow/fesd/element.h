@@ -474,37 +474,52 @@ void add_element_hessian(const ElementShape& l, const std::vector<std::vector<in
       }
       weights[static_cast<std::size_t>(i)] = sum;
     }
-    const double* w = weights.data();
-    const double c = cost != nullptr ? cost_weights[k] : 0.0;
     const int rows = k < merged ? l.neq : 0;
-    piece_weights.assign(1, 1.0);
+    const int with_cost = cost != nullptr ? 1 : 0;
+    // The outputs f_1 ... f_d (weights -w_ki), L (weight c_k) and the algebraic rows: the
+    // multipliers are weights, not constants of `eval`, so that eval is a function of its
+    // inputs alone (HessianBlocks may run it as a traced program, hessian_tape.h).
+    piece_weights.resize(static_cast<std::size_t>(d + with_cost));
+    for (int i = 0; i < d; ++i)
+      piece_weights[static_cast<std::size_t>(i)] = -weights[static_cast<std::size_t>(i)];
+    if (with_cost > 0) piece_weights[static_cast<std::size_t>(d)] = cost_weights[k];
     piece_weights.insert(piece_weights.end(), alg + k * l.neq, alg + k * l.neq + rows);
     const double* zk = local.data() + own + l.off_z + k * nz;
+    const int nf = dcs.field_count(), zf = dcs.field_first();
     gather(pieces[static_cast<std::size_t>(k)]);
-    // -h sum_i w_ki f_i + c h L: the length (h, or h and T) as add_scaled's factors of output 0,
-    // HessianJet's lanes on [X_k, u, z_k's field entries] alone; the algebraic rows after it.
+    // The point's other z entries (read by the algebraic rows, where z enters linearly) as
+    // constant inputs before the factors: no lanes, but inputs of eval.
+    const std::size_t factors = l.scaled ? 2 : 1;
+    const auto at = static_cast<std::ptrdiff_t>(piece_globals.size() - factors);
+    for (int j = nz - 1; j >= 0; --j) {
+      if (j >= zf && j < zf + nf) continue;
+      piece_globals.insert(piece_globals.begin() + at, -1);
+      piece_base.insert(piece_base.begin() + at, zk[j]);
+    }
+    // -h sum_i w_ki f_i + c h L: the length (h, or h and T) as add_scaled's factors of the first
+    // d + 1 outputs, HessianJet's lanes on [X_k, u, z_k's field entries] alone; the algebraic
+    // rows after them.
     hessian.add_scaled(
-        piece_globals, piece_base, l.scaled ? 2 : 1, 1 + rows, piece_weights.data(),
+        piece_globals, piece_base, static_cast<int>(factors), d + with_cost + rows,
+        piece_weights.data(),
         [&](const auto* in, auto* out) {
           using T = std::remove_const_t<std::remove_pointer_t<decltype(in)>>;
-          const int nf = dcs.field_count(), zf = dcs.field_first();
           thread_local std::vector<T> rate, z;
-          rate.resize(static_cast<std::size_t>(d + nu));
+          rate.resize(static_cast<std::size_t>(d + nu));  // an OCP's u has rates (zero) too
           // The model sees [X_k; u] (contiguous here) and the point's z: the entries the field
-          // reads from the lanes, the others (read by the algebraic rows only) as constants.
+          // reads from the lanes, the others from the constant inputs after them.
           z.resize(static_cast<std::size_t>(nz));
+          const T* other = in + d + nu + nf;
           for (int j = 0; j < nz; ++j) {
             z[static_cast<std::size_t>(j)] =
-                j >= zf && j < zf + nf ? in[d + nu + j - zf] : T(zk[j]);
+                j >= zf && j < zf + nf ? in[d + nu + j - zf] : other[j < zf ? j : j - nf];
           }
           dcs.field(in, z.data(), rate.data());
-          T sum(0.0);
-          for (int i = 0; i < d; ++i) sum += w[i] * rate[i];
-          out[0] = -sum;
-          if (cost != nullptr && c != 0.0) out[0] += c * cost->value(in, in + d);
-          if (rows > 0) dcs.algebraic(in, z.data(), out + 1);
+          for (int i = 0; i < d; ++i) out[i] = rate[static_cast<std::size_t>(i)];
+          if (with_cost > 0) out[d] = cost->value(in, in + d);
+          if (rows > 0) dcs.algebraic(in, z.data(), out + d + with_cost);
         },
-        values, 1);
+        values, d + with_cost);
   }
   for (int m = merged; m < l.points; ++m) {
     gather(pieces[static_cast<std::size_t>(l.s + m)]);

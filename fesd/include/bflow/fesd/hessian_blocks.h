@@ -9,11 +9,13 @@
 #include <cstddef>
 #include <limits>
 #include <map>
+#include <memory>
 #include <utility>
 #include <vector>
 
 #include "bflow/ad/tangent_jet.h"
 #include "bflow/core/errors.h"
+#include "bflow/fesd/hessian_tape.h"
 #include "bflow/fesd/step_model.h"
 
 namespace bflow {
@@ -38,6 +40,13 @@ namespace fesd {
 // evaluation (the same globals), so that an evaluation repeats neither the NaN pass nor the
 // search for the positions. A lane order read at another point stays exact (every free unknown
 // keeps a lane; it is only the order), and the positions depend on the globals alone.
+//
+// A kept plan of one group (up to kLanes unknowns) also keeps its block's second derivatives as
+// a program (hessian_tape.h): traced at the plan's first evaluation, run at the later ones
+// (traced again where a branch of the model goes the other way), and checked against HessianJet
+// at its 1st, 2nd, 4th, 8th, ... run, a block that disagrees staying on HessianJet. `eval` must
+// therefore compute its outputs from its inputs alone: a multiplier or any number that changes
+// between evaluations is a weight or an input, never a captured constant.
 class HessianBlocks {
  public:
   // Registers every pair of the block's unknowns (call for every block before values are added).
@@ -60,10 +69,20 @@ class HessianBlocks {
     cols_.clear();
     index_ready_ = false;
     missed_ = 0;
+    traces_ = 0;
+    jet_only_ = 0;
   }
   // Nonzero second derivatives `add` found at pairs that were not registered, and left out,
   // since the last clear_missed(): the registered structure is too small for them.
   long missed() const { return missed_; }
+  // Blocks traced into programs (hessian_tape.h) since the last clear(), the first time and
+  // again where a guard failed, and those whose program disagreed with HessianJet where it
+  // was traced (kept on HessianJet).
+  long traces() const { return traces_; }
+  long jet_only_blocks() const { return jet_only_; }
+  // Whether the blocks of a kept plan run as programs (the default) or on HessianJet at every
+  // evaluation (SolverOptions::hessian_programs).
+  void set_programs(bool on) { programs_ = on; }
   void clear_missed() { missed_ = 0; }
   // One evaluation of the whole Hessian: the calls of add between these two use and keep the
   // plans of the previous evaluation's calls at the same places (see above).
@@ -108,8 +127,12 @@ class HessianBlocks {
     }
     const std::vector<int>& deps =
         plan != nullptr ? plan->deps : lane_order(globals, base, factors, outputs, weights, eval);
+    if (plan != nullptr && fresh) {
+      plan->program.reset();
+      plan->jet_only = false;
+    }
     Positions positions{plan != nullptr ? &plan->positions : nullptr, fresh, 0,
-                        plan != nullptr && plan->distinct};
+                        plan != nullptr && plan->distinct, plan};
     Scale scale;
     scale.count = factors;
     scale.outputs = scaled;
@@ -193,6 +216,12 @@ class HessianBlocks {
     std::vector<int> deps;
     std::vector<long> positions;
     bool distinct = false;  // no two lanes or factors name one unknown
+    // The block's second derivatives as a program (hessian_tape.h), traced at the first
+    // evaluation and again where a guard fails; jet_only: the program disagreed with HessianJet
+    // at the point it was traced (the block stays on HessianJet).
+    std::unique_ptr<HessianProgram> program;
+    long runs = 0;  // the program's runs since it was traced
+    bool jet_only = false;
   };
   // The plan of the next call in this evaluation's sequence; null outside begin_evaluation()
   // and end_evaluation().
@@ -207,6 +236,7 @@ class HessianBlocks {
     bool fresh;
     std::size_t next;
     bool distinct;  // the plan's lanes and factors name distinct unknowns
+    Plan* plan;     // the call's plan (null: none)
   };
   // Whether the unknowns of the lanes (deps) and of the factors are distinct.
   static bool distinct(const std::vector<int>& globals, const std::vector<int>& deps, int factors) {
@@ -315,6 +345,8 @@ class HessianBlocks {
   static void set_constant(HessianScalar& x, double value) {
     x.a = value;
     x.n = 0;
+    x.tape = nullptr;
+    x.node = -1;
   }
 
   // One HessianJet evaluation with lanes [0, na) on deps[first_a ...] and [na, na + nb) on
@@ -327,10 +359,6 @@ class HessianBlocks {
             const double* weights, Eval& eval, const std::vector<int>& deps, int first_a, int na,
             int first_b, int nb, bool diagonal_a, bool diagonal_b, const Scale& scale, double& g,
             Positions& positions, double* values) {
-    thread_local std::vector<HessianScalar> in, out;
-    in.resize(globals.size());
-    out.resize(static_cast<std::size_t>(outputs));
-    for (std::size_t k = 0; k < globals.size(); ++k) set_constant(in[k], base[k]);
     const int lanes = na + nb;
     // lane -> local index
     int local[HessianScalar::kLanes];
@@ -338,48 +366,18 @@ class HessianBlocks {
     for (int j = 0; j < nb; ++j) {
       local[na + j] = deps[static_cast<std::size_t>(first_b + j)];
     }
-    for (int i = 0; i < lanes; ++i) {
-      HessianScalar& x = in[static_cast<std::size_t>(local[i])];
-      x.n = i + 1;
-      for (int k = 0; k <= i; ++k) x.v[k] = 0.0;
-      for (int k = 0; k < HessianScalar::at(i + 1, 0); ++k) x.h[k] = 0.0;
-      x.v[i] = 1.0;
-    }
-    eval(static_cast<const HessianScalar*>(in.data()), out.data());
-    // The weighted sums' Hessian (lower triangle over the lanes): s times that of the scaled
+    // The weighted sums' Hessian (lower triangle over the lanes), s times that of the scaled
     // outputs plus that of the others; the scaled outputs' gradient and value.
-    double sum[HessianScalar::kEntries], plain[HessianScalar::kEntries];
+    double sum[HessianScalar::kEntries];
     double grad[HessianScalar::kLanes];
-    const int entries = HessianScalar::at(lanes, 0);
-    for (int k = 0; k < entries; ++k) sum[k] = 0.0;
-    for (int i = 0; i < lanes; ++i) grad[i] = 0.0;
     double value = 0.0;
-    bool any_plain = false;
-    for (int r = 0; r < outputs; ++r) {
-      const double w = weights[r];
-      if (w == 0.0) continue;
-      const HessianScalar& o = out[static_cast<std::size_t>(r)];
-      const int n = std::min(o.n, lanes);
-      const int e = HessianScalar::at(n, 0);
-      if (r >= scale.outputs) {
-        if (!any_plain) {
-          for (int k = 0; k < entries; ++k) plain[k] = 0.0;
-          any_plain = true;
-        }
-        for (int k = 0; k < e; ++k) plain[k] += w * o.h[k];
-        continue;
-      }
-      value += w * o.a;
-      for (int k = 0; k < e; ++k) sum[k] += w * o.h[k];
-      if (scale.count > 0) {
-        for (int i = 0; i < n; ++i) grad[i] += w * o.v[i];
-      }
+    const int entries = HessianScalar::at(lanes, 0);
+    if (!(nb == 0 && positions.plan != nullptr &&
+          program_sums(globals, base, outputs, weights, eval, local, lanes, scale, *positions.plan,
+                       sum, grad, value))) {
+      jet_sums(globals, base, outputs, weights, eval, local, lanes, scale, sum, grad, value);
     }
     if (diagonal_a) g = value;
-    for (int k = 0; k < entries; ++k) sum[k] *= scale.product;
-    if (any_plain) {
-      for (int k = 0; k < entries; ++k) sum[k] += plain[k];
-    }
     if (nb == 0 && positions.list != nullptr && !positions.fresh && positions.distinct) {
       // One group on a kept plan: its positions in the order of the loops below, the lower
       // triangle by rows (the order of `sum`), then each free factor's lanes.
@@ -415,6 +413,131 @@ class HessianBlocks {
             scale.others[f] * grad[i], true, positions, values);
       }
     }
+  }
+
+  // One HessianJet evaluation with lanes on in[local[0 .. lanes)]: the weighted sums' Hessian
+  // (sum = s H(scaled outputs) + H(the others)), the scaled outputs' gradient (with factors)
+  // and value.
+  template <typename Eval>
+  static void jet_sums(const std::vector<int>& globals, const std::vector<double>& base,
+                       int outputs, const double* weights, Eval& eval, const int* local, int lanes,
+                       const Scale& scale, double* sum, double* grad, double& value) {
+    thread_local std::vector<HessianScalar> in, out;
+    in.resize(globals.size());
+    out.resize(static_cast<std::size_t>(outputs));
+    for (std::size_t k = 0; k < globals.size(); ++k) set_constant(in[k], base[k]);
+    for (int i = 0; i < lanes; ++i) {
+      HessianScalar& x = in[static_cast<std::size_t>(local[i])];
+      x.n = i + 1;
+      for (int k = 0; k <= i; ++k) x.v[k] = 0.0;
+      for (int k = 0; k < HessianScalar::at(i + 1, 0); ++k) x.h[k] = 0.0;
+      x.v[i] = 1.0;
+    }
+    eval(static_cast<const HessianScalar*>(in.data()), out.data());
+    double plain[HessianScalar::kEntries];
+    const int entries = HessianScalar::at(lanes, 0);
+    for (int k = 0; k < entries; ++k) sum[k] = 0.0;
+    for (int i = 0; i < lanes; ++i) grad[i] = 0.0;
+    value = 0.0;
+    bool any_plain = false;
+    for (int r = 0; r < outputs; ++r) {
+      const double w = weights[r];
+      if (w == 0.0) continue;
+      const HessianScalar& o = out[static_cast<std::size_t>(r)];
+      const int n = std::min(o.n, lanes);
+      const int e = HessianScalar::at(n, 0);
+      if (r >= scale.outputs) {
+        if (!any_plain) {
+          for (int k = 0; k < entries; ++k) plain[k] = 0.0;
+          any_plain = true;
+        }
+        for (int k = 0; k < e; ++k) plain[k] += w * o.h[k];
+        continue;
+      }
+      value += w * o.a;
+      for (int k = 0; k < e; ++k) sum[k] += w * o.h[k];
+      if (scale.count > 0) {
+        for (int i = 0; i < n; ++i) grad[i] += w * o.v[i];
+      }
+    }
+    for (int k = 0; k < entries; ++k) sum[k] *= scale.product;
+    if (any_plain) {
+      for (int k = 0; k < entries; ++k) sum[k] += plain[k];
+    }
+  }
+
+  // jet_sums' results from the plan's program (hessian_tape.h): traced at the plan's first
+  // call and again where a guard fails; checked against jet_sums at its 1st, 2nd, 4th, 8th,
+  // ... run (entries apart by more than 1e-8 of their scale leave the plan on HessianJet for
+  // good). False: use jet_sums (also for a call whose numbers the program finds not finite).
+  template <typename Eval>
+  bool program_sums(const std::vector<int>& globals, const std::vector<double>& base, int outputs,
+                    const double* weights, Eval& eval, const int* local, int lanes,
+                    const Scale& scale, Plan& plan, double* sum, double* grad, double& value) {
+    if (plan.jet_only || !programs_) return false;
+    const bool gradient = scale.count > 0;
+    const auto matches = [&](const HessianProgram& p) {
+      const HessianProgram::Shape& sh = p.shape();
+      return sh.outputs == outputs && sh.scaled == scale.outputs && sh.gradient == gradient &&
+             static_cast<int>(sh.lanes.size()) == lanes;
+    };
+    for (int attempt = 0; attempt < 2; ++attempt) {
+      if (plan.program == nullptr || !matches(*plan.program)) {
+        HessianProgram::Shape shape;
+        shape.inputs = static_cast<int>(globals.size());
+        shape.lanes.assign(local, local + lanes);
+        shape.outputs = outputs;
+        shape.scaled = scale.outputs;
+        shape.gradient = gradient;
+        plan.program = HessianProgram::trace(shape, base.data(), eval);
+        plan.runs = 0;
+        ++traces_;
+      }
+      const HessianProgram::Outcome outcome =
+          plan.program->run(base.data(), weights, scale.product, sum, grad, &value);
+      if (outcome == HessianProgram::Outcome::kGuardFailed) {
+        plan.program.reset();  // the branch differs here: trace again
+        continue;
+      }
+      // A number that is not finite: HessianJet leaves the outputs of weight 0 out (their
+      // infinite derivatives with them), the program multiplies them by 0.
+      if (outcome == HessianProgram::Outcome::kNotFinite) return false;
+      // Checked against HessianJet at its 1st, 2nd, 4th, 8th, ... run.
+      ++plan.runs;
+      if ((plan.runs & (plan.runs - 1)) != 0) return true;
+      double jet_sum[HessianScalar::kEntries], jet_grad[HessianScalar::kLanes], jet_value = 0.0;
+      jet_sums(globals, base, outputs, weights, eval, local, lanes, scale, jet_sum, jet_grad,
+               jet_value);
+      if (agree(sum, jet_sum, HessianScalar::at(lanes, 0)) &&
+          (!gradient || agree(grad, jet_grad, lanes)) && agree(&value, &jet_value, 1)) {
+        return true;
+      }
+      plan.program.reset();
+      plan.jet_only = true;
+      ++jet_only_;
+      return false;
+    }
+    return false;
+  }
+  // Whether a program's numbers are HessianJet's to 1e-8 of their scale (NaN only with NaN).
+  static bool agree(const double* a, const double* b, int count) {
+    double scale = 1.0;
+    for (int k = 0; k < count; ++k) {
+      if (std::isfinite(a[k])) scale = std::max(scale, std::abs(a[k]));
+      if (std::isfinite(b[k])) scale = std::max(scale, std::abs(b[k]));
+    }
+    for (int k = 0; k < count; ++k) {
+      if (std::isnan(a[k]) || std::isnan(b[k])) {
+        if (std::isnan(a[k]) != std::isnan(b[k])) return false;
+        continue;
+      }
+      if (std::isinf(a[k]) || std::isinf(b[k])) {
+        if (a[k] != b[k]) return false;
+        continue;
+      }
+      if (std::abs(a[k] - b[k]) > 1e-8 * scale) return false;
+    }
+    return true;
   }
 
   // Row-wise sorted columns and positions (a std::map lookup per entry was a few per cent of an
@@ -466,6 +589,8 @@ class HessianBlocks {
   bool index_ready_ = false;
   std::vector<int> row_begin_, index_cols_, index_positions_;
   long missed_ = 0;
+  long traces_ = 0, jet_only_ = 0;
+  bool programs_ = true;
 };
 
 }  // namespace fesd
