@@ -99,7 +99,7 @@ struct Flags {
   bool no_polish = false, stop_at_complementarity = false, continue_after_failure = false;
   bool first_from_zero_multipliers = false, neutral_guess = false, nosnoc_guess = false;
   bool no_newton = false;
-  bool probe_sparsity = false, no_mumps_amalgamation = false, jet_hessian = false;
+  bool probe_sparsity = false, no_mumps_amalgamation = false, jet_derivatives = false;
   std::string collocation_form = "integral";
   bool x_bounds_at_stage_points = false;
 };
@@ -146,14 +146,14 @@ bflow::OcpOptions ocp_options(const Flags& f) {
   o.probe_sparsity = f.probe_sparsity;
   o.collocation_form = bflow::parse_collocation_form(f.collocation_form);
   o.solver.mumps_amalgamation = !f.no_mumps_amalgamation;
-  o.solver.hessian_programs = !f.jet_hessian;
+  o.solver.derivative_programs = !f.jet_derivatives;
   return o;
 }
 
 bflow::FesdOptions fesd_options(const Flags& f, int steps) {
   bflow::FesdOptions o;
   o.solver.mumps_amalgamation = !f.no_mumps_amalgamation;
-  o.solver.hessian_programs = !f.jet_hessian;
+  o.solver.derivative_programs = !f.jet_derivatives;
   o.stages = f.collocation_stages;
   o.elements = f.elements;
   o.steps = steps;
@@ -462,9 +462,9 @@ int main(int argc, char** argv) {
   app.add_flag(
       "--no-mumps-amalgamation", f.no_mumps_amalgamation,
       "MUMPS without its small-front amalgamation (OcpOptions::solver.mumps_amalgamation)");
-  app.add_flag("--jet-hessian", f.jet_hessian,
-               "HessianJet at every Hessian evaluation instead of traced programs "
-               "(SolverOptions::hessian_programs false)");
+  app.add_flag("--jet-derivatives", f.jet_derivatives,
+               "Jets and HessianJet at every derivative evaluation instead of traced programs "
+               "(SolverOptions::derivative_programs false)");
   app.add_flag("--probe-sparsity", f.probe_sparsity,
                "only the Jacobian and Hessian entries found nonzero at random points declared to "
                "IPOPT (OcpOptions::probe_sparsity)");

@@ -633,7 +633,7 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
     setup.equilibration_fades = false;
     setup.exact_hessian = options.exact_hessian;
     setup.exact_hessian_scale = options.solver.exact_hessian_scale;
-    setup.hessian_programs = options.solver.hessian_programs;
+    setup.derivative_programs = options.solver.derivative_programs;
     Transcription nlp(tab, l, setup, nullptr);
     BFLOW_ASSERT(nlp.constraints() <= size.constraints);
     // Predicted sides: from c(x) where it is clearly nonzero, else the last element's.

@@ -264,6 +264,61 @@ void HessianProgram::Graph::guard(Test test, int x, int y, bool outcome) {
   impl->guards.push_back({test, x, y, outcome});
 }
 
+namespace {
+
+// The program of a graph's `roots`: the nodes they and the guards need, in order (operands
+// first), each a register (constants preset); inputs[k] the register of input node k (-1: not
+// read). Returns each node's register (-1: not in the program).
+std::vector<std::int32_t> emit(const HessianProgram::Graph::Impl& g, const std::vector<int>& roots,
+                               int input_count, std::vector<HessianProgram::Instruction>& code,
+                               std::vector<HessianProgram::Guard>& guards,
+                               std::vector<double>& registers, std::vector<std::int32_t>& inputs) {
+  std::vector<char> needed(g.nodes.size(), 0);
+  std::vector<int> stack;
+  const auto need = [&](int n) {
+    if (n >= 0 && !needed[static_cast<std::size_t>(n)]) {
+      needed[static_cast<std::size_t>(n)] = 1;
+      stack.push_back(n);
+    }
+  };
+  for (int n : roots) need(n);
+  for (const HessianProgram::Guard& guard : g.guards) {
+    need(guard.x);
+    need(guard.y);
+  }
+  while (!stack.empty()) {
+    const int n = stack.back();
+    stack.pop_back();
+    const Node& node = g.nodes[static_cast<std::size_t>(n)];
+    if (node.kind == Kind::kOperation) {
+      need(node.x);
+      need(node.y);
+    }
+  }
+  std::vector<std::int32_t> reg(g.nodes.size(), -1);
+  inputs.assign(static_cast<std::size_t>(input_count), -1);
+  for (std::size_t n = 0; n < g.nodes.size(); ++n) {
+    if (!needed[n]) continue;
+    const Node& node = g.nodes[n];
+    const auto r = static_cast<std::int32_t>(registers.size());
+    reg[n] = r;
+    registers.push_back(node.kind == Kind::kConstant ? node.c : 0.0);
+    if (node.kind == Kind::kInput) {
+      inputs[static_cast<std::size_t>(node.c)] = r;
+    } else if (node.kind == Kind::kOperation) {
+      code.push_back({node.op, r, reg[static_cast<std::size_t>(node.x)],
+                      node.y >= 0 ? reg[static_cast<std::size_t>(node.y)] : -1, node.c});
+    }
+  }
+  for (const HessianProgram::Guard& guard : g.guards) {
+    guards.push_back({guard.test, reg[static_cast<std::size_t>(guard.x)],
+                      guard.y >= 0 ? reg[static_cast<std::size_t>(guard.y)] : -1, guard.outcome});
+  }
+  return reg;
+}
+
+}  // namespace
+
 std::unique_ptr<HessianProgram> HessianProgram::derive(Graph& graph, const Shape& shape,
                                                        const std::vector<int>& outputs) {
   Graph::Impl& g = *graph.impl;
@@ -333,64 +388,19 @@ std::unique_ptr<HessianProgram> HessianProgram::derive(Graph& graph, const Shape
     }
   }
 
-  // The program: the nodes the results and guards need, in order.
-  std::vector<char> needed(g.nodes.size(), 0);
-  std::vector<int> stack;
-  const auto need = [&](int n) {
-    if (n >= 0 && !needed[static_cast<std::size_t>(n)]) {
-      needed[static_cast<std::size_t>(n)] = 1;
-      stack.push_back(n);
-    }
-  };
-  for (int n : hessian) need(n);
-  if (shape.gradient) {
-    for (int n : grad_s) need(n);
-  }
-  need(s);
-  for (const Guard& guard : g.guards) {
-    need(guard.x);
-    need(guard.y);
-  }
-  while (!stack.empty()) {
-    const int n = stack.back();
-    stack.pop_back();
-    const Node& node = g.nodes[static_cast<std::size_t>(n)];
-    if (node.kind == Kind::kOperation) {
-      need(node.x);
-      need(node.y);
-    }
-  }
   auto program = std::unique_ptr<HessianProgram>(new HessianProgram);
   HessianProgram& p = *program;
   p.shape_ = shape;
-  std::vector<std::int32_t> reg(g.nodes.size(), -1);
-  p.input_registers_.assign(static_cast<std::size_t>(shape.inputs), -1);
-  p.weight_registers_.assign(static_cast<std::size_t>(shape.outputs), -1);
-  for (std::size_t n = 0; n < g.nodes.size(); ++n) {
-    if (!needed[n]) continue;
-    const Node& node = g.nodes[n];
-    const auto r = static_cast<std::int32_t>(p.registers_.size());
-    reg[n] = r;
-    p.registers_.push_back(node.kind == Kind::kConstant ? node.c : 0.0);
-    if (node.kind == Kind::kInput) {
-      const int k = static_cast<int>(node.c);
-      if (k < shape.inputs) {
-        p.input_registers_[static_cast<std::size_t>(k)] = r;
-      } else if (k < shape.inputs + shape.outputs) {
-        p.weight_registers_[static_cast<std::size_t>(k - shape.inputs)] = r;
-      } else {
-        p.product_register_ = r;
-      }
-    } else if (node.kind == Kind::kOperation) {
-      p.code_.push_back({node.op, r, reg[static_cast<std::size_t>(node.x)],
-                         node.y >= 0 ? reg[static_cast<std::size_t>(node.y)] : -1, node.c});
-    }
-  }
-  for (const Guard& guard : g.guards) {
-    p.guards_.push_back({guard.test, reg[static_cast<std::size_t>(guard.x)],
-                         guard.y >= 0 ? reg[static_cast<std::size_t>(guard.y)] : -1,
-                         guard.outcome});
-  }
+  std::vector<int> roots = hessian;
+  if (shape.gradient) roots.insert(roots.end(), grad_s.begin(), grad_s.end());
+  roots.push_back(s);
+  std::vector<std::int32_t> inputs;
+  const std::vector<std::int32_t> reg =
+      emit(g, roots, shape.inputs + shape.outputs + 1, p.code_, p.guards_, p.registers_, inputs);
+  p.input_registers_.assign(inputs.begin(), inputs.begin() + shape.inputs);
+  p.weight_registers_.assign(inputs.begin() + shape.inputs,
+                             inputs.begin() + shape.inputs + shape.outputs);
+  p.product_register_ = inputs.back();
   for (int n : hessian) p.hessian_registers_.push_back(reg[static_cast<std::size_t>(n)]);
   if (shape.gradient) {
     for (int n : grad_s) p.gradient_registers_.push_back(reg[static_cast<std::size_t>(n)]);
@@ -399,17 +409,9 @@ std::unique_ptr<HessianProgram> HessianProgram::derive(Graph& graph, const Shape
   return program;
 }
 
-HessianProgram::Outcome HessianProgram::run(const double* in, const double* w, double product,
-                                            double* hessian, double* gradient, double* value) {
-  double* r = registers_.data();
-  for (std::size_t k = 0; k < input_registers_.size(); ++k) {
-    if (input_registers_[k] >= 0) r[input_registers_[k]] = in[k];
-  }
-  for (std::size_t k = 0; k < weight_registers_.size(); ++k) {
-    if (weight_registers_[k] >= 0) r[weight_registers_[k]] = w[k];
-  }
-  if (product_register_ >= 0) r[product_register_] = product;
-  for (const Instruction& i : code_) {
+bool HessianProgram::execute(const std::vector<Instruction>& code, const std::vector<Guard>& guards,
+                             double* r) {
+  for (const Instruction& i : code) {
     const double x = r[i.x];
     double out;
     switch (i.op) {
@@ -437,7 +439,7 @@ HessianProgram::Outcome HessianProgram::run(const double* in, const double* w, d
     }
     r[i.dst] = out;
   }
-  for (const Guard& g : guards_) {
+  for (const Guard& g : guards) {
     const double x = r[g.x];
     const double y = g.y >= 0 ? r[g.y] : 0.0;
     bool holds = false;
@@ -479,8 +481,22 @@ HessianProgram::Outcome HessianProgram::run(const double* in, const double* w, d
         holds = std::ceil(x) == y;
         break;
     }
-    if (holds != g.outcome) return Outcome::kGuardFailed;
+    if (holds != g.outcome) return false;
   }
+  return true;
+}
+
+HessianProgram::Outcome HessianProgram::run(const double* in, const double* w, double product,
+                                            double* hessian, double* gradient, double* value) {
+  double* r = registers_.data();
+  for (std::size_t k = 0; k < input_registers_.size(); ++k) {
+    if (input_registers_[k] >= 0) r[input_registers_[k]] = in[k];
+  }
+  for (std::size_t k = 0; k < weight_registers_.size(); ++k) {
+    if (weight_registers_[k] >= 0) r[weight_registers_[k]] = w[k];
+  }
+  if (product_register_ >= 0) r[product_register_] = product;
+  if (!execute(code_, guards_, r)) return Outcome::kGuardFailed;
   bool finite = std::isfinite(r[value_register_]);
   for (std::size_t k = 0; k < hessian_registers_.size(); ++k) {
     hessian[k] = r[hessian_registers_[k]];
@@ -492,6 +508,64 @@ HessianProgram::Outcome HessianProgram::run(const double* in, const double* w, d
   }
   *value = r[value_register_];
   return finite ? Outcome::kDone : Outcome::kNotFinite;
+}
+
+std::unique_ptr<JacobianProgram> JacobianProgram::derive(
+    HessianProgram::Graph& graph, int inputs, const std::vector<int>& outputs,
+    const std::vector<std::pair<int, int>>& entries) {
+  HessianProgram::Graph::Impl& g = *graph.impl;
+  // One forward sweep per input column the entries name, over the traced nodes.
+  std::vector<int> column_lane(static_cast<std::size_t>(inputs), -1);
+  std::vector<int> columns;
+  for (const auto& [row, col] : entries) {
+    BFLOW_ASSERT(row >= 0 && row < static_cast<int>(outputs.size()) && col >= 0 && col < inputs);
+    if (column_lane[static_cast<std::size_t>(col)] < 0) {
+      column_lane[static_cast<std::size_t>(col)] = static_cast<int>(columns.size());
+      columns.push_back(col);
+    }
+  }
+  const int zero = g.num(0.0), one = g.num(1.0);
+  const std::size_t traced = g.nodes.size();
+  std::vector<std::vector<int>> d(columns.size(), std::vector<int>(traced, zero));
+  for (std::size_t lane = 0; lane < columns.size(); ++lane) {
+    std::vector<int>& dl = d[lane];
+    for (std::size_t n = 0; n < traced; ++n) {
+      const Node node = g.nodes[n];
+      if (node.kind == Kind::kInput) {
+        dl[n] = static_cast<int>(node.c) == columns[lane] ? one : zero;
+      } else if (node.kind == Kind::kOperation) {
+        const int dx = dl[static_cast<std::size_t>(node.x)];
+        const int dy = node.y >= 0 ? dl[static_cast<std::size_t>(node.y)] : zero;
+        dl[n] = g.derivative(static_cast<int>(n), dx, dy);
+      }
+    }
+  }
+  std::vector<int> roots;
+  roots.reserve(entries.size());
+  for (const auto& [row, col] : entries) {
+    roots.push_back(d[static_cast<std::size_t>(column_lane[static_cast<std::size_t>(col)])]
+                     [static_cast<std::size_t>(outputs[static_cast<std::size_t>(row)])]);
+  }
+  auto program = std::unique_ptr<JacobianProgram>(new JacobianProgram);
+  JacobianProgram& p = *program;
+  const std::vector<std::int32_t> reg =
+      emit(g, roots, inputs, p.code_, p.guards_, p.registers_, p.input_registers_);
+  for (int n : roots) p.value_registers_.push_back(reg[static_cast<std::size_t>(n)]);
+  return program;
+}
+
+HessianProgram::Outcome JacobianProgram::run(const double* in, double* values) {
+  double* r = registers_.data();
+  for (std::size_t k = 0; k < input_registers_.size(); ++k) {
+    if (input_registers_[k] >= 0) r[input_registers_[k]] = in[k];
+  }
+  if (!HessianProgram::execute(code_, guards_, r)) return HessianProgram::Outcome::kGuardFailed;
+  bool finite = true;
+  for (std::size_t k = 0; k < value_registers_.size(); ++k) {
+    values[k] = r[value_registers_[k]];
+    finite = finite && std::isfinite(values[k]);
+  }
+  return finite ? HessianProgram::Outcome::kDone : HessianProgram::Outcome::kNotFinite;
 }
 
 }  // namespace fesd

@@ -745,9 +745,10 @@ class Transcription::Nlp final : public HomotopyNlp {
     for (int e = 0; e < l_.elements; ++e) {
       element_inputs(x, e, base);
       const int first = jac_start_[static_cast<std::size_t>(e)];
-      std::fill(values + first, values + jac_start_[static_cast<std::size_t>(e) + 1], 0.0);
       const SlotMap& map =
           slot_maps_[static_cast<std::size_t>(jac_map_[static_cast<std::size_t>(e)])];
+      if (program_jacobian(e, map, base, values + first)) continue;
+      std::fill(values + first, values + jac_start_[static_cast<std::size_t>(e) + 1], 0.0);
       JacobianSlots view{values + first, map.slot.data(), l_.local, left_out_values_.data()};
       fesd::element_jacobian_into(l_, p_.standard, base, view);
       for (int i = 0; i < map.left_out; ++i) {
@@ -879,22 +880,84 @@ class Transcription::Nlp final : public HomotopyNlp {
   struct SlotMap {
     std::vector<int> slot;
     int left_out = 0;
+    // (row, local input) of every slot, in slot order, then of every left-out candidate.
+    std::vector<std::pair<int, int>> entries;
+  };
+  // An element's Jacobian program (program_jacobian).
+  struct JacobianPlan {
+    std::unique_ptr<JacobianProgram> program;
+    long runs = 0;
+    bool jets_only = false;
   };
   SlotMap slot_map(const std::vector<int>& g) const {
     SlotMap map;
     map.slot.assign(static_cast<std::size_t>(l_.rows_per_element() * l_.local), -1);
     int next = 0;
+    std::vector<std::pair<int, int>> left_out;
     for (int r = 0; r < l_.rows_per_element(); ++r) {
       for (int c : jac_pattern_[static_cast<std::size_t>(r)]) {
-        if (g[static_cast<std::size_t>(c)] >= 0)
+        if (g[static_cast<std::size_t>(c)] >= 0) {
           map.slot[static_cast<std::size_t>(r * l_.local + c)] = next++;
+          map.entries.emplace_back(r, c);
+        }
       }
       for (int c : jac_left_out_[static_cast<std::size_t>(r)]) {
-        if (g[static_cast<std::size_t>(c)] >= 0)
+        if (g[static_cast<std::size_t>(c)] >= 0) {
           map.slot[static_cast<std::size_t>(r * l_.local + c)] = -2 - map.left_out++;
+          left_out.emplace_back(r, c);
+        }
       }
     }
+    map.entries.insert(map.entries.end(), left_out.begin(), left_out.end());
     return map;
+  }
+  // Element e's Jacobian entries into `into` (its range of IPOPT's values, in slot order) by
+  // the element's program (hessian_tape.h: element_residual traced, differentiated once), its
+  // left-out candidates checked; checked against element_jacobian_into at the program's 1st,
+  // 2nd, 4th, ... run. False: to be computed by element_jacobian_into (programs off, the
+  // element's program disagreed once, or a number not finite).
+  bool program_jacobian(int e, const SlotMap& map, const std::vector<double>& base, double* into) {
+    if (!p_.derivative_programs) return false;
+    JacobianPlan& plan = jac_programs_[static_cast<std::size_t>(e)];
+    if (plan.jets_only) return false;
+    const int total = static_cast<int>(map.entries.size());
+    const int pattern = total - map.left_out;
+    std::vector<double>& v = jac_program_values_;
+    v.resize(static_cast<std::size_t>(total));
+    const auto eval = [&](const auto* in, auto* out) {
+      element_residual(l_, p_.standard, in, out);
+    };
+    for (int attempt = 0; attempt < 2; ++attempt) {
+      if (plan.program == nullptr) {
+        plan.program =
+            JacobianProgram::trace(l_.local, l_.rows_per_element(), map.entries, base.data(), eval);
+        plan.runs = 0;
+      }
+      const HessianProgram::Outcome outcome = plan.program->run(base.data(), v.data());
+      if (outcome == HessianProgram::Outcome::kGuardFailed) {
+        plan.program.reset();  // the model branches otherwise here: trace again
+        continue;
+      }
+      if (outcome == HessianProgram::Outcome::kNotFinite) return false;
+      ++plan.runs;
+      if ((plan.runs & (plan.runs - 1)) == 0) {
+        std::vector<double>& jets = jac_check_values_;
+        jets.assign(static_cast<std::size_t>(total), 0.0);
+        JacobianSlots view{jets.data(), map.slot.data(), l_.local, jets.data() + pattern};
+        fesd::element_jacobian_into(l_, p_.standard, base, view);
+        if (!programs_agree(v.data(), jets.data(), total)) {
+          plan.program.reset();
+          plan.jets_only = true;
+          return false;
+        }
+      }
+      std::copy(v.begin(), v.begin() + pattern, into);
+      for (int i = pattern; i < total; ++i) {
+        if (v[static_cast<std::size_t>(i)] != 0.0) jac_missed_ = true;
+      }
+      return true;
+    }
+    return false;
   }
   // element_jacobian_into's view of IPOPT's values through a SlotMap.
   struct JacobianSlots {
@@ -954,6 +1017,8 @@ class Transcription::Nlp final : public HomotopyNlp {
     jac_start_.clear();
     jac_map_.clear();
     slot_maps_.clear();
+    jac_programs_.clear();
+    jac_programs_.resize(static_cast<std::size_t>(l_.elements));
     for (int e = 0; e < l_.elements; ++e) {
       const std::vector<int>& g = element_globals_[static_cast<std::size_t>(e)];
       jac_start_.push_back(static_cast<int>(jac_rows_.size()));
@@ -1005,7 +1070,7 @@ class Transcription::Nlp final : public HomotopyNlp {
       }
     }
     hessian_.clear();
-    hessian_.set_programs(p_.hessian_programs);
+    hessian_.set_programs(p_.derivative_programs);
     if (!p_.exact_hessian) return;
     pieces_ = element_hessian_pieces(l_);
     complementarity_hessian(l_, p_.standard, comp_);
@@ -1195,7 +1260,9 @@ class Transcription::Nlp final : public HomotopyNlp {
   std::vector<int> jac_start_;      // per element, where its Jacobian entries start (and end)
   std::vector<int> jac_map_;        // per element, its map in slot_maps_
   std::vector<SlotMap> slot_maps_;
-  std::vector<double> left_out_values_;  // an element's left-out candidates (zero between)
+  std::vector<double> left_out_values_;     // an element's left-out candidates (zero between)
+  std::vector<JacobianPlan> jac_programs_;  // per element
+  std::vector<double> jac_program_values_, jac_check_values_;
   std::vector<double> hessian_weights_;  // hessian_values' multipliers of an element
   std::vector<double> cost_weights_ = std::vector<double>(static_cast<std::size_t>(l_.s));
   static inline const std::vector<std::pair<int, int>> kDiagonal{{0, 0}};  // one term's pair

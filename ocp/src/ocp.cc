@@ -675,7 +675,7 @@ fesd::TranscriptionSetup transcription_setup(const OcpProblem& problem, const Oc
   setup.algebraic_guess = options.algebraic_guess;
   setup.exact_hessian = options.exact_hessian;
   setup.exact_hessian_scale = options.solver.exact_hessian_scale;
-  setup.hessian_programs = options.solver.hessian_programs;
+  setup.derivative_programs = options.solver.derivative_programs;
   setup.probe_sparsity = options.probe_sparsity;
   return setup;
 }

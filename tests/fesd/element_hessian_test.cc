@@ -202,6 +202,51 @@ TEST_P(ElementHessianTest, JacobianByPiecesIsTheDenseJetJacobian) {
   }
 }
 
+// The element's Jacobian as a program (fesd::JacobianProgram: element_residual traced at one
+// point, differentiated once) at three other points: the dense Jet Jacobian's every entry to
+// rounding (1e-14 of the largest), in both layouts of the element's end.
+TEST_P(ElementHessianTest, JacobianProgramIsTheDenseJetJacobianElsewhere) {
+  const Config c = GetParam();
+  const auto model = adapt_step(Coupled{});
+  const fesd::PointDcs dcs(model, c.formulation, c.lifting_depth);
+  const ButcherTableau tab = collocation_tableau(c.scheme, 2);
+  for (const bool apart : {false, true}) {
+    fesd::ElementShape l(dcs, 2, 2, tab, 1, true, apart, c.form);
+    if (c.point_pairs) l.cross = CrossComplementarity::kPointPairs;
+    if (c.point_sums) l.cross = CrossComplementarity::kPointSums;
+    std::vector<std::pair<int, int>> entries;
+    for (int r = 0; r < l.rows_per_element(); ++r) {
+      for (int col = 0; col < l.local; ++col) entries.emplace_back(r, col);
+    }
+    std::mt19937 gen(11);
+    std::uniform_real_distribution<double> uniform(0.1, 0.9);
+    std::vector<double> local(static_cast<std::size_t>(l.local));
+    for (double& v : local) v = uniform(gen);
+    auto eval = [&](const auto* in, auto* out) { fesd::element_residual(l, c.standard, in, out); };
+    const auto program =
+        fesd::JacobianProgram::trace(l.local, l.rows_per_element(), entries, local.data(), eval);
+    for (int point = 0; point < 3; ++point) {
+      for (double& v : local) v = uniform(gen);
+      Eigen::MatrixXd dense;
+      fesd::dense_jacobian(local, l.rows_per_element(), dense,
+                           [&](const JetChunk* in, JetChunk* out) {
+                             fesd::element_residual(l, c.standard, in, out);
+                           });
+      std::vector<double> values(entries.size());
+      ASSERT_EQ(program->run(local.data(), values.data()), fesd::HessianProgram::Outcome::kDone)
+          << c.name();
+      double worst = 0.0;
+      for (std::size_t k = 0; k < entries.size(); ++k) {
+        worst = std::max(worst, std::abs(values[k] - dense(entries[k].first, entries[k].second)));
+      }
+      EXPECT_LE(worst, 1e-14 * dense.cwiseAbs().maxCoeff()) << c.name() << " apart " << apart;
+      EXPECT_GT(dense.cwiseAbs().maxCoeff(), 0.1) << c.name();
+    }
+    // The entries that are identically zero or constant cost nothing per run.
+    EXPECT_LT(program->operations(), entries.size()) << c.name();
+  }
+}
+
 // The algebraic guesses that favour no side (AlgebraicGuess, fesd.h): in Stewart's formulation
 // [theta (n_f), lambda (n_f), mu] at theta = 1/n_f with lambda = 1, mu = 0 (kNeutral) or as
 // nosnoc's problem.py initialises them at its sigma_0 = 1, theta = lambda = 1/n_f and mu = 1

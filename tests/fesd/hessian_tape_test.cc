@@ -346,5 +346,29 @@ TEST(HessianProgram, HessianBlocksRunProgramsWithHessianJetsNumbers) {
   EXPECT_EQ(impure.jet_only_blocks(), 1);
 }
 
+// A Jacobian program: the entries asked for, in their order, at a point other than the trace's,
+// against closed forms; a branch is a guard there too.
+TEST(JacobianProgram, EntriesAtAnotherPointMatchTheirClosedForms) {
+  // f0 = x y + sin(z), f1 = exp(x) / y, f2 = |z| x
+  auto eval = [](const HessianJet* in, HessianJet* out) {
+    out[0] = in[0] * in[1] + sin(in[2]);
+    out[1] = exp(in[0]) / in[1];
+    out[2] = abs(in[2]) * in[0];
+  };
+  const std::vector<std::pair<int, int>> entries = {{0, 0}, {0, 1}, {0, 2}, {1, 0},
+                                                    {1, 1}, {2, 2}, {2, 0}, {1, 2}};
+  const std::vector<double> traced = {0.3, 0.8, 0.5};
+  const auto p = fesd::JacobianProgram::trace(3, 3, entries, traced.data(), eval);
+  const double x = -0.6, y = 1.7, z = 0.25;
+  const std::vector<double> in = {x, y, z};
+  std::vector<double> v(entries.size());
+  ASSERT_EQ(p->run(in.data(), v.data()), HessianProgram::Outcome::kDone);
+  const std::vector<double> expected = {y, x, std::cos(z), std::exp(x) / y, -std::exp(x) / (y * y),
+                                        x, z, 0.0};
+  for (std::size_t k = 0; k < expected.size(); ++k) EXPECT_NEAR(v[k], expected[k], 1e-15) << k;
+  const std::vector<double> other_side = {x, y, -z};
+  EXPECT_EQ(p->run(other_side.data(), v.data()), HessianProgram::Outcome::kGuardFailed);
+}
+
 }  // namespace
 }  // namespace bflow

@@ -393,7 +393,7 @@ TEST(TimeFreezingBall, ImpactEndIsRightOrNamedAsNotIsolated) {
 // 4.5e-4 in position for that (bound 1e-3); the velocity after the impact is right (measured
 // 4.6e-11 tangential, bound 5e-9; normal 2.9e-15 and 2.1e-13, bound 1e-12).
 // Where s lands inside IPOPT's tolerance follows the rounding of the homotopy's path: the
-// exact Hessian by HessianJet at every evaluation (SolverOptions::hessian_programs false) gives
+// exact Hessian by HessianJet at every evaluation (SolverOptions::derivative_programs false) gives
 // s - 1 = 2.2e-11 after 1066 iterations, by traced programs (the default) 1.9e-9 after 1098;
 // MUMPS's pivot tolerance 1e-7 or 1.0001e-6 instead of 1e-6 moves the normal velocity between
 // 1e-18 and 2.9e-15 and the states before the impact between 1.6e-15 and 9.1e-11 on both.

@@ -81,7 +81,7 @@ class HessianBlocks {
   long traces() const { return traces_; }
   long jet_only_blocks() const { return jet_only_; }
   // Whether the blocks of a kept plan run as programs (the default) or on HessianJet at every
-  // evaluation (SolverOptions::hessian_programs).
+  // evaluation (SolverOptions::derivative_programs).
   void set_programs(bool on) { programs_ = on; }
   void clear_missed() { missed_ = 0; }
   // One evaluation of the whole Hessian: the calls of add between these two use and keep the
@@ -508,8 +508,9 @@ class HessianBlocks {
       double jet_sum[HessianScalar::kEntries], jet_grad[HessianScalar::kLanes], jet_value = 0.0;
       jet_sums(globals, base, outputs, weights, eval, local, lanes, scale, jet_sum, jet_grad,
                jet_value);
-      if (agree(sum, jet_sum, HessianScalar::at(lanes, 0)) &&
-          (!gradient || agree(grad, jet_grad, lanes)) && agree(&value, &jet_value, 1)) {
+      if (programs_agree(sum, jet_sum, HessianScalar::at(lanes, 0)) &&
+          (!gradient || programs_agree(grad, jet_grad, lanes)) &&
+          programs_agree(&value, &jet_value, 1)) {
         return true;
       }
       plan.program.reset();
@@ -519,27 +520,6 @@ class HessianBlocks {
     }
     return false;
   }
-  // Whether a program's numbers are HessianJet's to 1e-8 of their scale (NaN only with NaN).
-  static bool agree(const double* a, const double* b, int count) {
-    double scale = 1.0;
-    for (int k = 0; k < count; ++k) {
-      if (std::isfinite(a[k])) scale = std::max(scale, std::abs(a[k]));
-      if (std::isfinite(b[k])) scale = std::max(scale, std::abs(b[k]));
-    }
-    for (int k = 0; k < count; ++k) {
-      if (std::isnan(a[k]) || std::isnan(b[k])) {
-        if (std::isnan(a[k]) != std::isnan(b[k])) return false;
-        continue;
-      }
-      if (std::isinf(a[k]) || std::isinf(b[k])) {
-        if (a[k] != b[k]) return false;
-        continue;
-      }
-      if (std::abs(a[k] - b[k]) > 1e-8 * scale) return false;
-    }
-    return true;
-  }
-
   // Row-wise sorted columns and positions (a std::map lookup per entry was a few per cent of an
   // IPOPT iteration).
   void build_index() {

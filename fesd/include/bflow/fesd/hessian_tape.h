@@ -23,6 +23,8 @@
 #ifndef BFLOW_FESD_HESSIAN_TAPE_H_
 #define BFLOW_FESD_HESSIAN_TAPE_H_
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -31,6 +33,30 @@
 
 namespace bflow {
 namespace fesd {
+
+/** Whether a program's numbers a[0..count) are those of the evaluation it replaces, b: apart by
+    at most 1e-8 of their scale (the largest finite magnitude, at least 1), infinities equal,
+    NaN only with NaN. A dropped dependence or a number kept from another point is off by
+    the size of a derivative; rounding, by about 1e-16 of it. */
+inline bool programs_agree(const double* a, const double* b, int count) {
+  double scale = 1.0;
+  for (int k = 0; k < count; ++k) {
+    if (std::isfinite(a[k])) scale = std::max(scale, std::abs(a[k]));
+    if (std::isfinite(b[k])) scale = std::max(scale, std::abs(b[k]));
+  }
+  for (int k = 0; k < count; ++k) {
+    if (std::isnan(a[k]) || std::isnan(b[k])) {
+      if (std::isnan(a[k]) != std::isnan(b[k])) return false;
+      continue;
+    }
+    if (std::isinf(a[k]) || std::isinf(b[k])) {
+      if (a[k] != b[k]) return false;
+      continue;
+    }
+    if (std::abs(a[k] - b[k]) > 1e-8 * scale) return false;
+  }
+  return true;
+}
 
 class HessianProgram {
  public:
@@ -69,8 +95,8 @@ class HessianProgram {
 
   // The recorder of a trace (HessianTape, hessian_jet.h); holds the expression graph.
   class Graph;
-
- private:
+  // A program's operation: register dst = op(register x[, register y]) (c: kPowC's exponent,
+  // kCPow's base), and a guard: test(register x[, register y]) must be `outcome`.
   struct Instruction {
     HessianTape::Op op;
     std::int32_t dst, x, y;
@@ -81,8 +107,14 @@ class HessianProgram {
     std::int32_t x, y;
     bool outcome;
   };
+
+ private:
+  friend class JacobianProgram;
   static std::unique_ptr<HessianProgram> derive(Graph& graph, const Shape& shape,
                                                 const std::vector<int>& outputs);
+  // Runs `code` on the registers r and checks `guards`: false when one fails.
+  static bool execute(const std::vector<Instruction>& code, const std::vector<Guard>& guards,
+                      double* r);
 
   Shape shape_;
   std::vector<Instruction> code_;
@@ -93,6 +125,37 @@ class HessianProgram {
   std::int32_t product_register_ = -1;
   std::vector<std::int32_t> hessian_registers_, gradient_registers_;
   std::int32_t value_register_ = -1;
+};
+
+// First derivatives the same way: entries (row r, input c) of the Jacobian of eval(in, out) at
+// any point, from one trace (element_residual's rows of an element: Transcription's
+// jacobian_values), each entry that is identically zero or constant costing nothing per run.
+class JacobianProgram {
+ public:
+  /** Traces eval at `base` (inputs in[0..inputs), outputs out[0..outputs)) for the entries
+      d out[entries[k].first] / d in[entries[k].second]. eval must read its inputs alone. */
+  template <typename Eval>
+  static std::unique_ptr<JacobianProgram> trace(int inputs, int outputs,
+                                                const std::vector<std::pair<int, int>>& entries,
+                                                const double* base, Eval& eval);
+  /** values[k] = entry k at `in`; kDone, kGuardFailed (to be traced again here) or kNotFinite
+      (values written, one of them infinite or NaN). */
+  HessianProgram::Outcome run(const double* in, double* values);
+  std::size_t operations() const { return code_.size(); }
+  std::size_t entries() const { return value_registers_.size(); }
+
+ private:
+  friend class HessianProgram;
+  using Instruction = HessianProgram::Instruction;
+  using Guard = HessianProgram::Guard;
+  static std::unique_ptr<JacobianProgram> derive(HessianProgram::Graph& graph, int inputs,
+                                                 const std::vector<int>& outputs,
+                                                 const std::vector<std::pair<int, int>>& entries);
+  std::vector<Instruction> code_;
+  std::vector<Guard> guards_;
+  std::vector<double> registers_;
+  std::vector<std::int32_t> input_registers_;
+  std::vector<std::int32_t> value_registers_;
 };
 
 // The graph a trace records into; a HessianTape so that HessianJet's operations reach it.
@@ -126,6 +189,24 @@ std::unique_ptr<HessianProgram> HessianProgram::trace(const Shape& shape, const 
     nodes[static_cast<std::size_t>(r)] = o.tape == &graph ? o.node : graph.constant(o.a);
   }
   return derive(graph, shape, nodes);
+}
+
+template <typename Eval>
+std::unique_ptr<JacobianProgram> JacobianProgram::trace(
+    int inputs, int outputs, const std::vector<std::pair<int, int>>& entries, const double* base,
+    Eval& eval) {
+  HessianProgram::Graph graph;
+  std::vector<HessianJet> in(static_cast<std::size_t>(inputs));
+  std::vector<HessianJet> out(static_cast<std::size_t>(outputs));
+  for (int k = 0; k < inputs; ++k)
+    in[static_cast<std::size_t>(k)] = HessianJet::traced(&graph, graph.input(k), base[k]);
+  eval(static_cast<const HessianJet*>(in.data()), out.data());
+  std::vector<int> nodes(static_cast<std::size_t>(outputs));
+  for (int r = 0; r < outputs; ++r) {
+    const HessianJet& o = out[static_cast<std::size_t>(r)];
+    nodes[static_cast<std::size_t>(r)] = o.tape == &graph ? o.node : graph.constant(o.a);
+  }
+  return derive(graph, inputs, nodes, entries);
 }
 
 }  // namespace fesd

@@ -57,15 +57,15 @@ struct SolverOptions {
   std::vector<std::pair<std::string, std::string>> ipopt_string_options;
   std::vector<std::pair<std::string, double>> ipopt_numeric_options;
   std::vector<std::pair<std::string, int>> ipopt_integer_options;
-  /** The exact Hessian's blocks (an element's field pieces and algebraic rows, the costs and
-      constraints) as programs (hessian_tape.h): each block's evaluation traced once at its
-      first point and differentiated symbolically, then run at every later evaluation, where
-      a branch its model takes otherwise (a comparison, abs, fmax, ...) traces it again. The
-      braking block's Hessian (Stewart, N = 20) took 0.44 instead of 1.03 million instructions
-      per IPOPT iteration. Every program is checked against HessianJet where it was traced and
-      at its 2nd, 4th, 8th, ... run; a block that disagrees stays on HessianJet. false:
-      HessianJet at every evaluation (the same numbers to rounding). */
-  bool hessian_programs = true;
+  /** The exact derivatives as programs (hessian_tape.h): each element's Jacobian rows and
+      each block of the exact Hessian (an element's field pieces and algebraic rows, the costs
+      and constraints) traced once at its first point and differentiated symbolically, then
+      run at every later evaluation, where a branch its model takes otherwise (a comparison,
+      abs, fmax, ...) traces it again. Every program is checked against the Jets it replaces
+      where it was traced and at its 2nd, 4th, 8th, ... run; one that disagrees is replaced by
+      them for good. false: Jets and HessianJet at every evaluation (the same numbers to
+      rounding). docs/ocp.md, "The derivatives as programs". */
+  bool derivative_programs = true;
   /** For testing derivative checks only: with exact Hessians, the Hessian handed to IPOPT is
       multiplied by this (1 in any real use), so a test can show that IPOPT's second-order
       derivative checker reports a wrong Hessian. */

@@ -163,8 +163,8 @@ struct TranscriptionSetup {
   bool probe_sparsity = false;
   /** Tests only: the Hessian handed to IPOPT is multiplied by this. */
   double exact_hessian_scale = 1.0;
-  /** SolverOptions::hessian_programs. */
-  bool hessian_programs = true;
+  /** SolverOptions::derivative_programs. */
+  bool derivative_programs = true;
 };
 
 class HomotopyNlp;
