@@ -314,6 +314,12 @@ void add_solver_options(CLI::App* command, SolverCommandOptions& s,
                    "for threads (default 1); \"blas\" in the JSON names the BLAS and the count")
       ->type_name("N")
       ->group(group);
+  command
+      ->add_flag("--jet-derivatives", s.jet_derivatives,
+                 "the Jacobian and exact Hessian by Jets at every evaluation instead of as "
+                 "programs traced once (the same numbers to rounding; docs/ocp.md, \"The "
+                 "derivatives as programs\")")
+      ->group(group);
 }
 
 int read_int(const std::string& text, const char* option) {

@@ -173,6 +173,8 @@ struct SolverCommandOptions {
   std::string linear_solver_library;
   /** --blas-threads: OpenBLAS's threads during the NLPs, >= 0 (0: OpenBLAS's own count). */
   int blas_threads = 1;
+  /** --jet-derivatives: SolverOptions::derivative_programs false (Jets at every evaluation). */
+  bool jet_derivatives = false;
 };
 
 /** `bflow fesd`: the options as given on the command line. run_fesd() checks every range and

@@ -170,6 +170,7 @@ std::string apply_solver_options(const SolverCommandOptions& s, Options& o) {
   o.solver.linear_solver = s.linear_solver;
   o.solver.linear_solver_library = s.linear_solver_library;
   o.solver.blas_threads = s.blas_threads;
+  o.solver.derivative_programs = !s.jet_derivatives;
   return "";
 }
 

@@ -212,6 +212,7 @@ int run_fesd(const FesdCommandOptions& options, std::ostream& out, std::ostream&
       j["ipopt"] = r.ipopt;
       j["linear_solver"] = r.linear_solver;
       j["blas"] = r.blas;
+      j["derivatives"] = r.derivatives;
       j["nlp_iterations"] = r.nlp_iterations;
       j["newton_steps"] = r.newton_steps;
       // Steps IPOPT accepted only at its acceptable level with complementarity above

@@ -711,6 +711,7 @@ int run_ocp(const OcpCommandOptions& options, std::ostream& out, std::ostream& e
           j["ipopt"] = r.ipopt;
           j["linear_solver"] = r.linear_solver;
           j["blas"] = r.blas;
+          j["derivatives"] = r.derivatives;
           j["ipopt_status"] = r.ipopt_status;
           j["kkt_error"] = std::isfinite(r.kkt_error) ? OrderedJson(r.kkt_error) : nullptr;
           j["notes"] = notes;

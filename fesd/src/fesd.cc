@@ -594,6 +594,23 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
   result.linear_solver =
       linear_solver_description(solver.linear_solver(), solver.linear_solver_library());
   result.blas = blas_description(options.solver.blas_threads);
+  // The derivatives' programs summed over the steps' transcriptions, in the result at each
+  // step's end (a step that returns early included).
+  fesd::DerivativeCounts derivative_counts;
+  result.derivatives =
+      fesd::describe_derivatives(options.solver.derivative_programs, derivative_counts);
+  struct CountDerivatives {
+    const Transcription& nlp;
+    fesd::DerivativeCounts& sum;
+    FesdResult& result;
+    bool programs;
+    ~CountDerivatives() {
+      const fesd::DerivativeCounts c = nlp.derivative_counts();
+      sum.traced += c.traced;
+      sum.on_jets += c.on_jets;
+      result.derivatives = fesd::describe_derivatives(programs, sum);
+    }
+  };
   Eigen::VectorXd x = x0;
   result.grid.push_back(0.0);
   std::vector<Eigen::VectorXd> states{x};
@@ -635,6 +652,8 @@ FesdResult fesd_simulate(const StepModel& model, const Eigen::Ref<const Eigen::V
     setup.exact_hessian_scale = options.solver.exact_hessian_scale;
     setup.derivative_programs = options.solver.derivative_programs;
     Transcription nlp(tab, l, setup, nullptr);
+    const CountDerivatives count_derivatives{nlp, derivative_counts, result,
+                                             options.solver.derivative_programs};
     BFLOW_ASSERT(nlp.constraints() <= size.constraints);
     // Predicted sides: from c(x) where it is clearly nonzero, else the last element's.
     bool solved_by_newton = false;

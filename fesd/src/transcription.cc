@@ -148,6 +148,9 @@ class Transcription::Nlp final : public HomotopyNlp {
     ensure_structure();
     return hessian_.size();
   }
+  DerivativeCounts derivative_counts() const {
+    return {hessian_.traces() + jac_traces_, hessian_.jet_only_blocks() + jac_on_jets_};
+  }
   // The structure IPOPT is given, built when first asked for (a step fesd_simulate solves by
   // Newton's method never needs it): probed (sparsity.h) unless the setup or an earlier miss
   // asks for every candidate.
@@ -932,6 +935,7 @@ class Transcription::Nlp final : public HomotopyNlp {
         plan.program =
             JacobianProgram::trace(l_.local, l_.rows_per_element(), map.entries, base.data(), eval);
         plan.runs = 0;
+        ++jac_traces_;
       }
       const HessianProgram::Outcome outcome = plan.program->run(base.data(), v.data());
       if (outcome == HessianProgram::Outcome::kGuardFailed) {
@@ -948,6 +952,7 @@ class Transcription::Nlp final : public HomotopyNlp {
         if (!programs_agree(v.data(), jets.data(), total)) {
           plan.program.reset();
           plan.jets_only = true;
+          ++jac_on_jets_;
           return false;
         }
       }
@@ -1262,6 +1267,7 @@ class Transcription::Nlp final : public HomotopyNlp {
   std::vector<SlotMap> slot_maps_;
   std::vector<double> left_out_values_;     // an element's left-out candidates (zero between)
   std::vector<JacobianPlan> jac_programs_;  // per element
+  long jac_traces_ = 0, jac_on_jets_ = 0;
   std::vector<double> jac_program_values_, jac_check_values_;
   std::vector<double> hessian_weights_;  // hessian_values' multipliers of an element
   std::vector<double> cost_weights_ = std::vector<double>(static_cast<std::size_t>(l_.s));
@@ -1308,6 +1314,16 @@ const TranscriptionLayout& Transcription::layout() const { return handle_->nlp->
 int Transcription::constraints() const { return handle_->nlp->constraints(); }
 std::size_t Transcription::jacobian_nonzeros() const { return handle_->nlp->jacobian_nonzeros(); }
 std::size_t Transcription::hessian_nonzeros() const { return handle_->nlp->hessian_nonzeros(); }
+DerivativeCounts Transcription::derivative_counts() const {
+  return handle_->nlp->derivative_counts();
+}
+
+std::string describe_derivatives(bool programs, const DerivativeCounts& counts) {
+  if (!programs) return "Jets (derivative_programs off)";
+  return "programs: " + std::to_string(counts.traced) + " traced, " +
+         (counts.on_jets == 0 ? std::string("none") : std::to_string(counts.on_jets)) +
+         " kept on Jets";
+}
 void Transcription::set_guess(const Eigen::MatrixXd& u, const ElementEnds& ends,
                               const std::vector<double>& lengths) {
   handle_->nlp->set_guess(u, ends, lengths);

@@ -1050,6 +1050,8 @@ OcpResult ocp_solve(const OcpModel& model, const OcpProblem& problem, const OcpO
   // The structure the last NLP was given (probe_sparsity: widened after a miss).
   result.jacobian_nonzeros = static_cast<int>(nlp.jacobian_nonzeros());
   result.hessian_nonzeros = static_cast<int>(nlp.hessian_nonzeros());
+  result.derivatives =
+      fesd::describe_derivatives(options.solver.derivative_programs, nlp.derivative_counts());
   result.cpu_per_iteration =
       result.ipopt_iterations > 0 ? result.cpu_seconds / result.ipopt_iterations : 0.0;
   return result;

@@ -100,7 +100,7 @@ def _set_option(obj, key: str, value, where: str) -> None:
 # (its `solver`, a bflow::SolverOptions, the same for fesd_simulate and ocp_solve). The keywords
 # name them flat; each is set in its group.
 _SOLVER_OPTIONS = ("linear_solver", "linear_solver_library", "blas_threads",
-                   "keep_freed_memory")
+                   "keep_freed_memory", "derivative_programs")
 _HOMOTOPY_OPTIONS = ("sigma_initial", "sigma_final", "sigma_factor", "superlinear",
                      "nlp_tolerance", "max_nlp_iterations", "relaxation",
                      "complementarity_tolerance", "intermediate_tolerance_factor", "warm_start",
@@ -561,8 +561,9 @@ def fesd_simulate(model, T: Optional[float] = None, x0=None, *,
     linear_solver_library (the HSL or PARDISO library file), blas_threads (OpenBLAS's threads
     while IPOPT solves, 1; 0: OpenBLAS's own count), keep_freed_memory (the process keeps
     the memory MUMPS frees between factorisations, on; glibc's malloc settings, kept for the
-    process once a solve has set them). ``progress=True`` prints one line per
-    integration step on stderr.
+    process once a solve has set them), derivative_programs (the Jacobian and exact Hessian as
+    programs traced once from the model, on; off: Jets at every evaluation, the same numbers
+    to rounding). ``progress=True`` prints one line per integration step on stderr.
 
     Returns a FesdResult: ok (the run reached T), status ("converged", "step failed", "invalid
     model"), message (why not ok, and notes), x_end, grid, states, step_sizes, switch_times,
@@ -659,7 +660,8 @@ def ocp_solve(model, N: Optional[int] = None, *, progress: bool = False,
     throughout; each step's ``mu_strategy`` says which ran, ``mu_init`` the mu it started
     from, which the monotone strategy reads). The solver: exact_hessian, linear_solver, linear_solver_library,
     blas_threads (OpenBLAS's threads while IPOPT solves, 1; 0: its own count),
-    keep_freed_memory (as for fesd_simulate). ``progress=True`` prints one line per NLP on stderr. The GIL is
+    keep_freed_memory and derivative_programs (as for fesd_simulate). ``progress=True`` prints
+    one line per NLP on stderr. The GIL is
     released while IPOPT runs; calls from several threads are safe, their NLPs taking turns
     (IPOPT solves run one at a time in a process). Ctrl-C stops the solve at the next IPOPT
     iteration and raises KeyboardInterrupt, the result of the last solved NLP (status

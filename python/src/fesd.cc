@@ -79,7 +79,8 @@ void bind_fesd(nb::module_& m) {
       .def_rw("linear_solver_library", &SolverOptions::linear_solver_library)
       .def_rw("mumps_amalgamation", &SolverOptions::mumps_amalgamation)
       .def_rw("blas_threads", &SolverOptions::blas_threads)
-      .def_rw("keep_freed_memory", &SolverOptions::keep_freed_memory);
+      .def_rw("keep_freed_memory", &SolverOptions::keep_freed_memory)
+      .def_rw("derivative_programs", &SolverOptions::derivative_programs);
 
   // The relaxation homotopy's schedule FesdOptions and OcpOptions share
   // (bflow/fesd/homotopy_options.h; OcpHomotopyOptions extends it).
@@ -148,6 +149,10 @@ void bind_fesd(nb::module_& m) {
       .def_ro("blas", &FesdResult::blas,
               "the BLAS under the linear solver and its threads during the NLPs, e.g. "
               "'OpenBLAS 0.3.28, 1 thread (libcasadi-tp-openblas.so.0)'")
+      .def_ro("derivatives", &FesdResult::derivatives,
+              "how the Jacobian and exact Hessian of the steps IPOPT solved were computed, "
+              "summed over the steps: 'programs: 180 traced, none kept on Jets' or 'Jets "
+              "(derivative_programs off)'")
       .def_ro("halved_steps", &FesdResult::halved_steps)
       .def_ro("newton_steps", &FesdResult::newton_steps)
       .def_ro("acceptable_only_steps", &FesdResult::acceptable_only_steps)

@@ -130,6 +130,9 @@ void bind_ocp(nb::module_& m) {
       .def_ro("blas", &OcpResult::blas,
               "the BLAS under the linear solver and its threads during the NLPs, e.g. "
               "'OpenBLAS 0.3.28, 1 thread (libcasadi-tp-openblas.so.0)'")
+      .def_ro("derivatives", &OcpResult::derivatives,
+              "how the Jacobian and exact Hessian were computed: 'programs: 180 traced, none "
+              "kept on Jets' or 'Jets (derivative_programs off)'")
       .def_ro("kkt_error", &OcpResult::kkt_error)
       .def_ro("polished", &OcpResult::polished)
       .def_ro("homotopy", &OcpResult::homotopy)

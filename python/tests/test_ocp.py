@@ -99,6 +99,28 @@ def test_turbo_car_reaches_the_exact_optimal_time():
     assert {s.mu_strategy for s in a.homotopy} == {"adaptive"}
 
 
+def test_derivative_programs_and_jets_reach_the_same_optimum_and_say_which_ran(cli):
+    """The Jacobian and exact Hessian as programs traced once (the default) or by Jets at every
+    evaluation (derivative_programs=False; the command's --jet-derivatives): the same optimal
+    time of the turbo car, and each result names how its derivatives were computed."""
+    exact = bflow.ocp_exact("turbo-car")
+    programs = bflow.ocp_solve("turbo-car", N=5)
+    jets = bflow.ocp_solve("turbo-car", N=5, derivative_programs=False)
+    assert programs.ok and jets.ok
+    assert programs.T == pytest.approx(exact["T"], abs=1e-9)
+    assert jets.T == pytest.approx(exact["T"], abs=1e-9)
+    traced = re.fullmatch(r"programs: (\d+) traced, none kept on Jets", programs.derivatives)
+    assert traced and int(traced.group(1)) > 0, programs.derivatives
+    assert jets.derivatives == "Jets (derivative_programs off)"
+    command = json.loads(subprocess.run(
+        [cli, "ocp", "--example", "turbo-car", "--N", "5", "--quiet", "--compact",
+         "--jet-derivatives"], capture_output=True, text=True, check=True).stdout)
+    assert command["derivatives"] == jets.derivatives
+    assert command["T"] == pytest.approx(exact["T"], abs=1e-9)
+    simulated = bflow.fesd_simulate("crossing")
+    assert simulated.derivatives.startswith("programs: ")
+
+
 def test_derivative_form_reaches_the_same_optimal_time_with_a_sparser_jacobian():
     exact = bflow.ocp_exact("turbo-car")
     integral = bflow.ocp_solve("turbo-car", N=5)

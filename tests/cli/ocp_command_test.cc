@@ -812,6 +812,22 @@ TEST(OcpCommandTest, MonotoneMuDownToNamesEachNlpsStrategy) {
   EXPECT_NEAR(adaptive.json["T"].get<double>(), 40.0 / 3.0, 1e-8);
 }
 
+// --jet-derivatives: the Jacobian and exact Hessian by Jets at every evaluation; the JSON's
+// "derivatives" names which ran (the default: programs, how many traced, none kept on Jets),
+// and both reach the turbo car's exact time.
+TEST(OcpCommandTest, JetDerivativesAreNamedAndReachTheSameOptimum) {
+  const Outcome programs = command_line({"ocp", "--example", "turbo-car", "--N", "5", "--quiet"});
+  const Outcome jets =
+      command_line({"ocp", "--example", "turbo-car", "--N", "5", "--quiet", "--jet-derivatives"});
+  ASSERT_EQ(programs.code, kExitOk) << programs.err;
+  ASSERT_EQ(jets.code, kExitOk) << jets.err;
+  const std::string named = programs.json["derivatives"].get<std::string>();
+  EXPECT_THAT(named, ::testing::MatchesRegex("programs: [0-9]+ traced, none kept on Jets"));
+  EXPECT_EQ(jets.json["derivatives"], "Jets (derivative_programs off)");
+  EXPECT_NEAR(programs.json["T"].get<double>(), 40.0 / 3.0, 1e-8);
+  EXPECT_NEAR(jets.json["T"].get<double>(), 40.0 / 3.0, 1e-8);
+}
+
 // --linear-solver: an unknown name, and without libhsl.so an HSL solver, are refused before the
 // solve (exit code 2, one line, no JSON, no progress line); mumps named is the default (the same
 // run to the last bit), and the JSON says which solver ran.

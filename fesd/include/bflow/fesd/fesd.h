@@ -183,6 +183,9 @@ struct FesdResult {
   /** The BLAS under the linear solver and its threads during the NLPs: "OpenBLAS 0.3.28, 1
       thread (libcasadi-tp-openblas.so.0)" (blas_description, linear_solver.h; blas_threads). */
   std::string blas;
+  /** How the Jacobian and exact Hessian of the steps solved by IPOPT were computed
+      (SolverOptions::derivative_programs), summed over the steps: as OcpResult::derivatives. */
+  std::string derivatives;
   /** Integration steps whose homotopy failed and that were replaced by their two halves (at
       most four times in a row); the grid then has more elements than N_sim N_FE. */
   int halved_steps = 0;

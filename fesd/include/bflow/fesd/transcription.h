@@ -167,6 +167,17 @@ struct TranscriptionSetup {
   bool derivative_programs = true;
 };
 
+/** What SolverOptions::derivative_programs did in one transcription: the Hessian's blocks and
+    the elements' Jacobian rows traced into programs (again where a branch went the other way),
+    and those kept on Jets after their program disagreed with the Jets at a check. */
+struct DerivativeCounts {
+  long traced = 0;
+  long on_jets = 0;
+};
+/** "programs: 180 traced, none kept on Jets", or "Jets (derivative_programs off)": the
+    results' `derivatives`. */
+std::string describe_derivatives(bool programs, const DerivativeCounts& counts);
+
 class HomotopyNlp;
 
 /** One transcription: its unknowns at the current point, the relaxed NLP at sigma (given to
@@ -187,6 +198,8 @@ class Transcription {
       probed structure, TranscriptionSetup::probe_sparsity). */
   std::size_t jacobian_nonzeros() const;
   std::size_t hessian_nonzeros() const;
+  /** The derivatives' programs so far (SolverOptions::derivative_programs). */
+  DerivativeCounts derivative_counts() const;
 
   /** The states at each element's start and end (x_n, x_{n+1}), for set_guess. */
   using ElementEnds = std::function<std::pair<Eigen::VectorXd, Eigen::VectorXd>(int element)>;

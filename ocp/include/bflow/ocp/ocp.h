@@ -558,6 +558,11 @@ struct OcpResult {
   /** The BLAS under the linear solver and its threads during the NLPs: "OpenBLAS 0.3.28, 1
       thread (libcasadi-tp-openblas.so.0)" (blas_description, linear_solver.h; blas_threads). */
   std::string blas;
+  /** How the Jacobian and exact Hessian were computed (SolverOptions::derivative_programs):
+      "programs: 180 traced, none kept on Jets" (blocks and elements traced, again where a
+      branch went the other way; those whose program disagreed with the Jets, computed by Jets
+      from then on), or "Jets (derivative_programs off)". */
+  std::string derivatives;
   /** The result is the polished solution (active set fixed, every product zero). */
   bool polished = false;
   std::vector<OcpHomotopyStep> homotopy;
