@@ -186,6 +186,11 @@ struct HessianProgram::Graph::Impl {
   int neg(int x) { return make(Op::kNeg, x); }
   int num(double c) { return constant(c); }
 
+  // Extends d (each node's derivative along one input, as a node) over the nodes
+  // [d.size(), end), in order: input `lane_input`'s is 1, the other inputs' and the constants'
+  // 0, an operation's its rule on its operands'. The nodes it creates lie beyond `end`.
+  void sweep(std::vector<int>& d, std::size_t end, int lane_input);
+
   // The derivative of node n along a direction, from its operands' derivatives dx, dy: the
   // first derivatives of HessianJet's functions (hessian_jet.h), as nodes.
   int derivative(int n, int dx, int dy) {
@@ -251,6 +256,22 @@ struct HessianProgram::Graph::Impl {
     return num(0.0);
   }
 };
+
+void HessianProgram::Graph::Impl::sweep(std::vector<int>& d, std::size_t end, int lane_input) {
+  const int zero = num(0.0), one = num(1.0);
+  const std::size_t begin = d.size();
+  d.resize(end, zero);
+  for (std::size_t n = begin; n < end; ++n) {
+    const Node node = nodes[n];
+    if (node.kind == Kind::kInput) {
+      d[n] = static_cast<int>(node.c) == lane_input ? one : zero;
+    } else if (node.kind == Kind::kOperation) {
+      const int dx = d[static_cast<std::size_t>(node.x)];
+      const int dy = node.y >= 0 ? d[static_cast<std::size_t>(node.y)] : zero;
+      d[n] = derivative(static_cast<int>(n), dx, dy);
+    }
+  }
+}
 
 HessianProgram::Graph::Graph() : impl(std::make_unique<Impl>()) {}
 HessianProgram::Graph::~Graph() = default;
@@ -344,28 +365,9 @@ std::unique_ptr<HessianProgram> HessianProgram::derive(Graph& graph, const Shape
 
   // Forward derivatives along each lane over the graph's nodes (in order, operands first):
   // d[i][n] = d node n / d lane i, for the nodes that exist when the sweep starts.
-  std::vector<int> lane_of(static_cast<std::size_t>(shape.inputs), -1);
-  for (int i = 0; i < lanes; ++i)
-    lane_of[static_cast<std::size_t>(shape.lanes[static_cast<std::size_t>(i)])] = i;
-  const int zero = g.num(0.0), one = g.num(1.0);
   std::vector<std::vector<int>> d(static_cast<std::size_t>(lanes));
   const auto sweep = [&](int i, std::size_t end) {
-    std::vector<int>& di = d[static_cast<std::size_t>(i)];
-    const std::size_t begin = di.size();
-    di.resize(end, zero);
-    for (std::size_t n = begin; n < end; ++n) {
-      const Node node = g.nodes[n];
-      if (node.kind == Kind::kConstant) {
-        di[n] = zero;
-      } else if (node.kind == Kind::kInput) {
-        const int k = static_cast<int>(node.c);
-        di[n] = k < shape.inputs && lane_of[static_cast<std::size_t>(k)] == i ? one : zero;
-      } else {
-        const int dx = di[static_cast<std::size_t>(node.x)];
-        const int dy = node.y >= 0 ? di[static_cast<std::size_t>(node.y)] : zero;
-        di[n] = g.derivative(static_cast<int>(n), dx, dy);
-      }
-    }
+    g.sweep(d[static_cast<std::size_t>(i)], end, shape.lanes[static_cast<std::size_t>(i)]);
   };
   const std::size_t first = g.nodes.size();
   for (int i = 0; i < lanes; ++i) sweep(i, first);
@@ -486,27 +488,36 @@ bool HessianProgram::execute(const std::vector<Instruction>& code, const std::ve
   return true;
 }
 
+namespace {
+
+// Writes values[k] into register to[k] (-1: not read).
+void load(const std::vector<std::int32_t>& to, const double* values, double* r) {
+  for (std::size_t k = 0; k < to.size(); ++k) {
+    if (to[k] >= 0) r[to[k]] = values[k];
+  }
+}
+// out[k] = register from[k]; whether every one is finite.
+bool gather(const std::vector<std::int32_t>& from, const double* r, double* out) {
+  bool finite = true;
+  for (std::size_t k = 0; k < from.size(); ++k) {
+    out[k] = r[from[k]];
+    finite = finite && std::isfinite(out[k]);
+  }
+  return finite;
+}
+
+}  // namespace
+
 HessianProgram::Outcome HessianProgram::run(const double* in, const double* w, double product,
                                             double* hessian, double* gradient, double* value) {
   double* r = registers_.data();
-  for (std::size_t k = 0; k < input_registers_.size(); ++k) {
-    if (input_registers_[k] >= 0) r[input_registers_[k]] = in[k];
-  }
-  for (std::size_t k = 0; k < weight_registers_.size(); ++k) {
-    if (weight_registers_[k] >= 0) r[weight_registers_[k]] = w[k];
-  }
+  load(input_registers_, in, r);
+  load(weight_registers_, w, r);
   if (product_register_ >= 0) r[product_register_] = product;
   if (!execute(code_, guards_, r)) return Outcome::kGuardFailed;
-  bool finite = std::isfinite(r[value_register_]);
-  for (std::size_t k = 0; k < hessian_registers_.size(); ++k) {
-    hessian[k] = r[hessian_registers_[k]];
-    finite = finite && std::isfinite(hessian[k]);
-  }
-  for (std::size_t k = 0; k < gradient_registers_.size(); ++k) {
-    gradient[k] = r[gradient_registers_[k]];
-    finite = finite && std::isfinite(gradient[k]);
-  }
   *value = r[value_register_];
+  const bool finite = gather(hessian_registers_, r, hessian) &
+                      gather(gradient_registers_, r, gradient) & std::isfinite(*value);
   return finite ? Outcome::kDone : Outcome::kNotFinite;
 }
 
@@ -524,22 +535,9 @@ std::unique_ptr<JacobianProgram> JacobianProgram::derive(
       columns.push_back(col);
     }
   }
-  const int zero = g.num(0.0), one = g.num(1.0);
   const std::size_t traced = g.nodes.size();
-  std::vector<std::vector<int>> d(columns.size(), std::vector<int>(traced, zero));
-  for (std::size_t lane = 0; lane < columns.size(); ++lane) {
-    std::vector<int>& dl = d[lane];
-    for (std::size_t n = 0; n < traced; ++n) {
-      const Node node = g.nodes[n];
-      if (node.kind == Kind::kInput) {
-        dl[n] = static_cast<int>(node.c) == columns[lane] ? one : zero;
-      } else if (node.kind == Kind::kOperation) {
-        const int dx = dl[static_cast<std::size_t>(node.x)];
-        const int dy = node.y >= 0 ? dl[static_cast<std::size_t>(node.y)] : zero;
-        dl[n] = g.derivative(static_cast<int>(n), dx, dy);
-      }
-    }
-  }
+  std::vector<std::vector<int>> d(columns.size());
+  for (std::size_t lane = 0; lane < columns.size(); ++lane) g.sweep(d[lane], traced, columns[lane]);
   std::vector<int> roots;
   roots.reserve(entries.size());
   for (const auto& [row, col] : entries) {
@@ -556,16 +554,10 @@ std::unique_ptr<JacobianProgram> JacobianProgram::derive(
 
 HessianProgram::Outcome JacobianProgram::run(const double* in, double* values) {
   double* r = registers_.data();
-  for (std::size_t k = 0; k < input_registers_.size(); ++k) {
-    if (input_registers_[k] >= 0) r[input_registers_[k]] = in[k];
-  }
+  load(input_registers_, in, r);
   if (!HessianProgram::execute(code_, guards_, r)) return HessianProgram::Outcome::kGuardFailed;
-  bool finite = true;
-  for (std::size_t k = 0; k < value_registers_.size(); ++k) {
-    values[k] = r[value_registers_[k]];
-    finite = finite && std::isfinite(values[k]);
-  }
-  return finite ? HessianProgram::Outcome::kDone : HessianProgram::Outcome::kNotFinite;
+  return gather(value_registers_, r, values) ? HessianProgram::Outcome::kDone
+                                             : HessianProgram::Outcome::kNotFinite;
 }
 
 }  // namespace fesd
