@@ -169,6 +169,16 @@ TEST_P(ElementHessianTest, PiecesMatchCentralDifferencesOfTheExactGradient) {
               c.name().c_str(), n, blocks.size(), worst, scale);
 }
 
+// The element of a configuration as the Jacobian tests take it: its end apart or not, the
+// configuration's cross complementarity.
+fesd::ElementShape element_of(const Config& c, const fesd::PointDcs& dcs, const ButcherTableau& tab,
+                              bool apart) {
+  fesd::ElementShape l(dcs, 2, 2, tab, 1, true, apart, c.form);
+  if (c.point_pairs) l.cross = CrossComplementarity::kPointPairs;
+  if (c.point_sums) l.cross = CrossComplementarity::kPointSums;
+  return l;
+}
+
 // The element's Jacobian by its pieces (fesd::element_jacobian: narrow Jets per stage and point,
 // closed forms for the rest) is the dense Jet Jacobian of element_residual entry for entry, with
 // the same residual, in both layouts of a Radau IIA element's end (the last stage, or unknowns
@@ -179,9 +189,7 @@ TEST_P(ElementHessianTest, JacobianByPiecesIsTheDenseJetJacobian) {
   const fesd::PointDcs dcs(model, c.formulation, c.lifting_depth);
   const ButcherTableau tab = collocation_tableau(c.scheme, 2);
   for (const bool apart : {false, true}) {
-    fesd::ElementShape l(dcs, 2, 2, tab, 1, true, apart, c.form);
-    if (c.point_pairs) l.cross = CrossComplementarity::kPointPairs;
-    if (c.point_sums) l.cross = CrossComplementarity::kPointSums;
+    const fesd::ElementShape l = element_of(c, dcs, tab, apart);
     EXPECT_EQ(l.shared_end, !apart && c.scheme == CollocationScheme::kRadauIIA) << c.name();
     std::mt19937 gen(5);
     std::uniform_real_distribution<double> uniform(0.1, 0.9);
@@ -211,9 +219,7 @@ TEST_P(ElementHessianTest, JacobianProgramIsTheDenseJetJacobianElsewhere) {
   const fesd::PointDcs dcs(model, c.formulation, c.lifting_depth);
   const ButcherTableau tab = collocation_tableau(c.scheme, 2);
   for (const bool apart : {false, true}) {
-    fesd::ElementShape l(dcs, 2, 2, tab, 1, true, apart, c.form);
-    if (c.point_pairs) l.cross = CrossComplementarity::kPointPairs;
-    if (c.point_sums) l.cross = CrossComplementarity::kPointSums;
+    const fesd::ElementShape l = element_of(c, dcs, tab, apart);
     std::vector<std::pair<int, int>> entries;
     for (int r = 0; r < l.rows_per_element(); ++r) {
       for (int col = 0; col < l.local; ++col) entries.emplace_back(r, col);

@@ -167,6 +167,10 @@ TEST(OcpDerivativePrograms, ProgramsAndJetsReachTheSameOptima) {
     ASSERT_EQ(a.status, OcpStatus::kSolved) << a.message;
     ASSERT_EQ(b.status, OcpStatus::kSolved) << b.message;
     EXPECT_NEAR(a.objective, b.objective, 1e-9);
+    // Every program agrees with the Jets at its checks (Stewart's to rounding, not to the bit):
+    // none is put back on the Jets.
+    EXPECT_NE(a.derivatives.find("traced, none kept on Jets"), std::string::npos) << a.derivatives;
+    EXPECT_EQ(b.derivatives, "Jets (derivative_programs off)");
     EXPECT_NEAR(a.objective - BrakingBlock::optimal_cost(), 1.128e-2, 5e-5);
     const OcpResult car_a = solve_car(10, programs), car_b = solve_car(10, jets);
     ASSERT_EQ(car_a.status, OcpStatus::kSolved) << car_a.message;
