@@ -516,8 +516,10 @@ HessianProgram::Outcome HessianProgram::run(const double* in, const double* w, d
   if (product_register_ >= 0) r[product_register_] = product;
   if (!execute(code_, guards_, r)) return Outcome::kGuardFailed;
   *value = r[value_register_];
-  const bool finite = gather(hessian_registers_, r, hessian) &
-                      gather(gradient_registers_, r, gradient) & std::isfinite(*value);
+  // Every output written, then whether all are finite.
+  const bool hessian_finite = gather(hessian_registers_, r, hessian);
+  const bool gradient_finite = gather(gradient_registers_, r, gradient);
+  const bool finite = hessian_finite && gradient_finite && std::isfinite(*value);
   return finite ? Outcome::kDone : Outcome::kNotFinite;
 }
 
