@@ -843,6 +843,13 @@ def _errors(row, r, ref, simultaneous, directions, prefix=""):
         row[prefix + "error"] = _relative(r["jacobian"], ref["jacobian"])
 
 
+# What peers.py's --problems and --tools may name (a tool's rows: every method of it; "jump": the
+# jump alone; "reference-heyoka": the long double cross-check of the reference).
+SUBSETS = {"problems": list(fp.PROBLEMS),
+           "tools": ["bflow", "bflow-python", "heyoka", "diffrax", "scipy", "hybrid-tools",
+                     "reference-heyoka", "jump"]}
+
+
 def run(ctx):
     ctx.flow_program = os.path.join(os.path.dirname(ctx.bflow), "peer_flow")
     versions = _versions(sys.executable)
@@ -850,6 +857,12 @@ def run(ctx):
     problems = ["chain", "ball", "biped-tilt", "biped", "three"]
     if ctx.quick:
         problems = ["chain", "ball", "three"]
+    if getattr(ctx, "problems", None):
+        problems = [p for p in problems if p in ctx.problems] or list(ctx.problems)
+    chosen = getattr(ctx, "tools", None)
+
+    def wanted(tool):
+        return chosen is None or tool in chosen
     rows = []
     for name in problems:
         p = fp.PROBLEMS[name]
@@ -865,13 +878,17 @@ def run(ctx):
             log(f"  the reference of {name}: {ref.get('message')}")
             continue
         x0 = ref["x0"]
-        log(f"flow: {name}: the cross-check, heyoka in long double")
-        heyoka_ref = _spawn({"tool": "reference-heyoka", "problem": name, "x0": x0,
-                             "directions": directions}, ctx)
+        heyoka_ref = None
+        if wanted("reference-heyoka"):
+            log(f"flow: {name}: the cross-check, heyoka in long double")
+            heyoka_ref = _spawn({"tool": "reference-heyoka", "problem": name, "x0": x0,
+                                 "directions": directions}, ctx)
         ref_row = _reference_row(name, ref, heyoka_ref, versions, ctx, simultaneous)
         rows.append(ref_row)
         check = ref_row.get("cross_check")
         for tool, label, extra in _tools(simultaneous, ctx.quick):
+            if not wanted(tool):
+                continue
             extra = dict(extra)
             job = {"tool": tool, "problem": name, "x0": x0,
                    "tolerances": extra.pop("tolerances", tolerances),
@@ -909,9 +926,10 @@ def run(ctx):
                                 prefix="heyoka_reference_")
                     check_row(row, ref_row)
                 rows.append(row)
-    import flow_jump
-    ctx.jump_program = os.path.join(os.path.dirname(ctx.bflow), "peer_jump")
-    rows += flow_jump.run(ctx)
+    if wanted("jump"):
+        import flow_jump
+        ctx.jump_program = os.path.join(os.path.dirname(ctx.bflow), "peer_jump")
+        rows += flow_jump.run(ctx)
     for r in rows:
         r.setdefault("comparison", "flow")
     return rows

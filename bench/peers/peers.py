@@ -1,7 +1,8 @@
 """Runs bflow beside other tools on the same problems (scripts/peers runs this in its virtual
 environment; docs/peers.md explains the comparisons).
 
-  peers.py --bflow BUILD/bench/peer_problems [--quick] [--repeat K] [--report-only] [NAME ...]
+  peers.py --bflow BUILD/bench/peer_problems [--quick] [--repeat K] [--report-only]
+           [--problems P,...] [--tools T,...] [NAME ...]
 
 A comparison is a module of this directory named in COMPARISONS, with
   run(ctx) -> list of rows (dicts: problem, tool, version, settings, cpu_s, wall_s, iterations,
@@ -46,6 +47,10 @@ def main():
     parser.add_argument("--timeout", type=float, default=900.0, help="seconds per run")
     parser.add_argument("--report-only", action="store_true",
                         help="rebuild docs/peers.md's sections and plots from the stored JSON")
+    parser.add_argument("--problems", default=None,
+                        help="only these problems, comma-separated (results in out/peers/)")
+    parser.add_argument("--tools", default=None,
+                        help="only these tools, comma-separated (results in out/peers/)")
     args = parser.parse_args()
     names = args.names or list(COMPARISONS)
     unknown = [n for n in names if n not in COMPARISONS]
@@ -58,13 +63,16 @@ def main():
 
     ctx = Context()
     ctx.quick = args.quick
+    ctx.problems = args.problems.split(",") if args.problems else None
+    ctx.tools = args.tools.split(",") if args.tools else None
+    subset = args.quick or ctx.problems is not None or ctx.tools is not None
     ctx.repeat = args.repeat or (1 if args.quick else 3)
     ctx.timeout = args.timeout
     ctx.bflow = args.bflow
-    ctx.plots = not args.quick
+    ctx.plots = not subset
     build_dir = args.build_dir or (os.path.dirname(os.path.dirname(args.bflow))
                                    if args.bflow else None)
-    results = os.path.join(common.ROOT, "out" if args.quick else "bench/results", "peers")
+    results = os.path.join(common.ROOT, "out" if subset else "bench/results", "peers")
     stored = {}
     if args.report_only:
         # Every stored file is read before any section is rewritten.
@@ -81,6 +89,14 @@ def main():
                              "object whose \"rows\" is a list of objects)")
     for name in names:
         module = importlib.import_module(COMPARISONS[name])
+        for kind, chosen in (("problems", ctx.problems), ("tools", ctx.tools)):
+            known = getattr(module, "SUBSETS", {}).get(kind)
+            if chosen is not None and known is None:
+                parser.error(f"--{kind}: the {name} comparison runs as a whole")
+            unknown = [c for c in chosen or [] if c not in known]
+            if unknown:
+                parser.error(f"--{kind}: {', '.join(unknown)} not in the {name} comparison; "
+                             f"known: {', '.join(known)}")
         path = os.path.join(results, f"{name}.json")
         if args.report_only:
             data = stored[name]
@@ -101,7 +117,7 @@ def main():
                 json.dump(data, f, indent=1)
             common.log(f"peers: {name} took {data['minutes']} min; wrote {path}")
         text = module.report(data, ctx)
-        if args.quick:
+        if subset:
             print(text)
         else:
             common.replace_section(name, text)
