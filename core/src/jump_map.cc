@@ -60,6 +60,8 @@ Eigen::MatrixXd working_normals(const Eigen::Ref<const Eigen::MatrixXd>& eta,
     shifts[static_cast<std::size_t>(j)] = internal::rescale_row(working.row(j));
     internal::normalize_row(unit.row(j));
   }
+  // One nonzero row has rank one (its singular value is 1 once normalised): no SVD.
+  if (n == 1) return working;
   const Eigen::VectorXd s = Eigen::JacobiSVD<Eigen::MatrixXd>(unit).singularValues();
   if (!(s[n - 1] > JumpMap::kRankTolerance * s[0])) {
     throw InvalidArgument(

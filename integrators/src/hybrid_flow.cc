@@ -459,8 +459,12 @@ Event make_event(const SegmentModel& model, const SegmentResult& segment, Signs 
   };
   try {
     if (n <= JumpMap::kMaxEnumeratedSurfaces) {
-      Eigen::MatrixXd table(d, Eigen::Index{1} << n);
-      for (Eigen::Index w = 0; w < table.cols(); ++w) {
+      // The word of no flip is F before the crossing, the word of every flip F after it.
+      const Eigen::Index words = Eigen::Index{1} << n;
+      Eigen::MatrixXd table(d, words);
+      table.col(0) = f_before;
+      table.col(words - 1) = f_after;
+      for (Eigen::Index w = 1; w + 1 < words; ++w) {
         model.field(rho.data(), full_sides(Signs(n, static_cast<std::uint64_t>(w))),
                     table.col(w).data());
       }
