@@ -384,6 +384,12 @@ class WithoutSurfaces final : public SegmentModel {
   void field(const bflow::JetChunk* x, bflow::Signs, bflow::JetChunk* xdot) const override {
     inner_.field(x, off_, xdot);
   }
+  void field(const bflow::Jet12* x, bflow::Signs, bflow::Jet12* xdot) const override {
+    inner_.field(x, off_, xdot);
+  }
+  void field(const bflow::Jet16* x, bflow::Signs, bflow::Jet16* xdot) const override {
+    inner_.field(x, off_, xdot);
+  }
   void field_tangents(const Eigen::Ref<const Eigen::VectorXd>& x, bflow::Signs,
                       const Eigen::Ref<const Eigen::MatrixXd>& v, Eigen::Ref<Eigen::VectorXd> f,
                       Eigen::Ref<Eigen::MatrixXd> fv) const override {

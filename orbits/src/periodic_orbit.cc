@@ -51,6 +51,12 @@ class SectionModel final : public SegmentModel {
   void field(const JetChunk* x, Signs b, JetChunk* xdot) const override {
     base_.field(x, strip(b), xdot);
   }
+  void field(const Jet12* x, Signs b, Jet12* xdot) const override {
+    base_.field(x, strip(b), xdot);
+  }
+  void field(const Jet16* x, Signs b, Jet16* xdot) const override {
+    base_.field(x, strip(b), xdot);
+  }
   void field_tangents(const Eigen::Ref<const VectorXd>& x, Signs b,
                       const Eigen::Ref<const MatrixXd>& v, Eigen::Ref<VectorXd> f,
                       Eigen::Ref<MatrixXd> fv) const override {

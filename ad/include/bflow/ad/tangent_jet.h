@@ -19,11 +19,20 @@ using Jet2 = TangentJet<2>;
 using Jet4 = TangentJet<4>;
 using Jet6 = TangentJet<6>;
 using JetChunk = TangentJet<kTangentChunk>;
+/** The flow integrators' wider chunks (bflow/integrators/segment.h): a flow's k tangents run in
+    one pass of the state when k <= kFlowChunk, so the state, its field's values and the step
+    control are computed once for all of them (the full Jacobian of a model of up to 16
+    states). */
+inline constexpr int kFlowChunk = 16;
+using Jet12 = TangentJet<12>;
+using Jet16 = TangentJet<kFlowChunk>;
 
 /** The narrowest compiled Jet width for k directions (1 <= k <= kTangentChunk). */
 constexpr int tangent_width(long k) {
   return k <= 1 ? 1 : k <= 2 ? 2 : k <= 4 ? 4 : k <= 6 ? 6 : 8;
 }
+/** The same for the flow integrators' widths, 1 <= k <= kFlowChunk: also 12 and 16. */
+constexpr int flow_tangent_width(long k) { return k <= 8 ? tangent_width(k) : k <= 12 ? 12 : 16; }
 
 }  // namespace bflow
 

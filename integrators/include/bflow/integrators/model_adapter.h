@@ -28,6 +28,8 @@ class ModelAdapter final : public SegmentModel {
   void field(const JetChunk* x, Signs b, JetChunk* xdot) const override {
     model_.field(x, b, xdot);
   }
+  void field(const Jet12* x, Signs b, Jet12* xdot) const override { model_.field(x, b, xdot); }
+  void field(const Jet16* x, Signs b, Jet16* xdot) const override { model_.field(x, b, xdot); }
   void field_tangents(const Eigen::Ref<const Eigen::VectorXd>& x, Signs b,
                       const Eigen::Ref<const Eigen::MatrixXd>& v, Eigen::Ref<Eigen::VectorXd> f,
                       Eigen::Ref<Eigen::MatrixXd> fv) const override {

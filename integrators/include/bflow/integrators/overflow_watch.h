@@ -67,6 +67,8 @@ class OverflowWatch final : public SegmentModel {
   void field(const Jet4* x, Signs b, Jet4* xdot) const override { watch(x, b, xdot); }
   void field(const Jet6* x, Signs b, Jet6* xdot) const override { watch(x, b, xdot); }
   void field(const JetChunk* x, Signs b, JetChunk* xdot) const override { watch(x, b, xdot); }
+  void field(const Jet12* x, Signs b, Jet12* xdot) const override { watch(x, b, xdot); }
+  void field(const Jet16* x, Signs b, Jet16* xdot) const override { watch(x, b, xdot); }
   void field_tangents(const Eigen::Ref<const Eigen::VectorXd>& x, Signs b,
                       const Eigen::Ref<const Eigen::MatrixXd>& v, Eigen::Ref<Eigen::VectorXd> f,
                       Eigen::Ref<Eigen::MatrixXd> fv) const override {

@@ -40,6 +40,8 @@ class SegmentModel {
   virtual void field(const Jet4* x, Signs b, Jet4* xdot) const = 0;
   virtual void field(const Jet6* x, Signs b, Jet6* xdot) const = 0;
   virtual void field(const JetChunk* x, Signs b, JetChunk* xdot) const = 0;
+  virtual void field(const Jet12* x, Signs b, Jet12* xdot) const = 0;
+  virtual void field(const Jet16* x, Signs b, Jet16* xdot) const = 0;
   /** f = F_b(x) and FV = DF_b(x) V for a d x k block V, by Jets in chunks (no differences). */
   virtual void field_tangents(const Eigen::Ref<const Eigen::VectorXd>& x, Signs b,
                               const Eigen::Ref<const Eigen::MatrixXd>& v,
