@@ -260,9 +260,17 @@ class Dp853Stages {
 
 }  // namespace
 
+struct Dop853Integrator::Steppers : explicit_rk::StepperCache<Dp853Stages> {};
+
+Dop853Integrator::Dop853Integrator() : steppers_(std::make_unique<Steppers>()) {}
+Dop853Integrator::~Dop853Integrator() = default;
+Dop853Integrator::Dop853Integrator(Dop853Integrator&&) noexcept = default;
+Dop853Integrator& Dop853Integrator::operator=(Dop853Integrator&&) noexcept = default;
+
 SegmentResult Dop853Integrator::integrate(const SegmentModel& model, const SegmentRequest& request,
                                           const IntegratorOptions& options) {
-  return explicit_rk::integrate_chunks<Dp853Stages>(model, request, options);
+  if (!steppers_) steppers_ = std::make_unique<Steppers>();  // a moved-from object
+  return explicit_rk::integrate_chunks<Dp853Stages>(model, request, options, *steppers_);
 }
 
 }  // namespace bflow

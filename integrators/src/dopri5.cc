@@ -122,9 +122,17 @@ SegmentResult dopri5_segment(const SegmentModel& model, Signs sides, double t0, 
 }
 }  // namespace internal
 
+struct Dopri5Integrator::Steppers : explicit_rk::StepperCache<Dp54Stages> {};
+
+Dopri5Integrator::Dopri5Integrator() : steppers_(std::make_unique<Steppers>()) {}
+Dopri5Integrator::~Dopri5Integrator() = default;
+Dopri5Integrator::Dopri5Integrator(Dopri5Integrator&&) noexcept = default;
+Dopri5Integrator& Dopri5Integrator::operator=(Dopri5Integrator&&) noexcept = default;
+
 SegmentResult Dopri5Integrator::integrate(const SegmentModel& model, const SegmentRequest& request,
                                           const IntegratorOptions& options) {
-  return explicit_rk::integrate_chunks<Dp54Stages>(model, request, options);
+  if (!steppers_) steppers_ = std::make_unique<Steppers>();  // a moved-from object
+  return explicit_rk::integrate_chunks<Dp54Stages>(model, request, options, *steppers_);
 }
 
 #define BFLOW_DOPRI5_INSTANTIATE(T)                                                                \
@@ -137,6 +145,8 @@ BFLOW_DOPRI5_INSTANTIATE(Jet2)
 BFLOW_DOPRI5_INSTANTIATE(Jet4)
 BFLOW_DOPRI5_INSTANTIATE(Jet6)
 BFLOW_DOPRI5_INSTANTIATE(JetChunk)
+BFLOW_DOPRI5_INSTANTIATE(Jet12)
+BFLOW_DOPRI5_INSTANTIATE(Jet16)
 #undef BFLOW_DOPRI5_INSTANTIATE
 
 }  // namespace bflow

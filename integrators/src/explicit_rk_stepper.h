@@ -17,7 +17,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <string>
+#include <tuple>
 #include <type_traits>
 #include <utility>
 #include <vector>
@@ -96,9 +98,9 @@ template <typename T, template <typename> class Method>
 class Stepper {
  public:
   Stepper(const SegmentModel& model, Signs sides, const IntegratorOptions& options)
-      : model_(model),
+      : model_(&model),
         sides_(sides),
-        options_(options),
+        options_(&options),
         d_(model.states()),
         n_(model.surfaces()),
         method_(d_),
@@ -119,6 +121,17 @@ class Stepper {
         field_(d_),
         ratios_(d_),
         armed_(n_) {}
+
+  /** Whether this stepper's storage fits `model` (the same d and n). */
+  bool fits(const SegmentModel& model) const {
+    return model.states() == d_ && model.surfaces() == n_;
+  }
+  /** The next segment's model, sides and options, in the storage of the last (fits()). */
+  void bind(const SegmentModel& model, Signs sides, const IntegratorOptions& options) {
+    model_ = &model;
+    sides_ = sides;
+    options_ = &options;
+  }
 
   SegmentResult run(double t0, double t_end, std::vector<T>& x, bool watch) {
     SegmentResult result;
@@ -143,8 +156,8 @@ class Stepper {
     if (watch && n_ > 0) surface_g_and_rates(x, method_.first(), g_, rate_);
     // The estimate can be tiny when x0 is near zero; steps then grow by up to 5x each. One that
     // is not a positive number (a field of 1e300 makes its ratios 0/0) starts at the floor.
-    const double first_floor = 10 * options_.min_step * std::max(1.0, std::abs(t0));
-    double h = options_.initial_step;
+    const double first_floor = 10 * options_->min_step * std::max(1.0, std::abs(t0));
+    double h = options_->initial_step;
     if (!(h > 0.0)) {
       const double estimate = initial_step(x, t0, t_end);
       h = estimate > first_floor ? estimate : first_floor;
@@ -154,26 +167,26 @@ class Stepper {
     // in a row by the step size, which each one divides by at least 1 / 0.9 down to its floor
     // (the tests against the floor are written to hold for a NaN step as well).
     while (true) {
-      h = std::min(h, options_.max_step);
+      h = std::min(h, options_->max_step);
       // Within 1% of the end, stretch the step to land on it (no sliver of a last step).
       const bool last = t + 1.01 * h >= t_end;
       if (last) h = t_end - t;
-      if (result.steps >= options_.max_steps) {
+      if (result.steps >= options_->max_steps) {
         return fail(result, IntegrationStatus::kTooManySteps, t, x,
-                    label() + ": max_steps = " + std::to_string(options_.max_steps) +
+                    label() + ": max_steps = " + std::to_string(options_->max_steps) +
                         " steps taken, stopped at t = " + format_number(t) +
                         " before t_end = " + format_number(t_end));
       }
-      if (result.rejected_steps >= options_.max_steps) {
+      if (result.rejected_steps >= options_->max_steps) {
         return fail(result, IntegrationStatus::kTooManySteps, t, x,
-                    label() + ": max_steps = " + std::to_string(options_.max_steps) +
+                    label() + ": max_steps = " + std::to_string(options_->max_steps) +
                         " rejected steps (and " + std::to_string(result.steps) +
                         " accepted), stopped at t = " + format_number(t) +
                         " before t_end = " + format_number(t_end));
       }
       if (!attempt(x, h, t, result)) return result;
       const double error = error_norm(x);
-      const double floor = options_.min_step * std::max(1.0, std::abs(t));
+      const double floor = options_->min_step * std::max(1.0, std::abs(t));
       if (std::isnan(error)) {
         // A non-finite trial state: retry smaller, as a rejection.
         ++result.rejected_steps;
@@ -193,7 +206,7 @@ class Stepper {
         if (!(h > floor)) {
           return fail(result, IntegrationStatus::kStepSizeUnderflow, t, x,
                       label() + ": step size " + format_number(h) + " underflows at t = " +
-                          format_number(t) + " (min_step " + format_number(options_.min_step) +
+                          format_number(t) + " (min_step " + format_number(options_->min_step) +
                           " relative to max(1, |t|)): the error estimate " + format_number(error) +
                           " does not fall as the step shrinks");
         }
@@ -239,7 +252,7 @@ class Stepper {
 
  private:
   bool field(const std::vector<T>& x, std::vector<T>& dx, double t, SegmentResult& result) {
-    model_.field(x.data(), sides_, dx.data());
+    model_->field(x.data(), sides_, dx.data());
     ++result.field_evaluations;
     (void)t;
     return true;
@@ -260,7 +273,7 @@ class Stepper {
   }
 
   double scale(double a, double b) const {
-    return options_.absolute_tolerance() + options_.rtol * std::max(std::abs(a), std::abs(b));
+    return options_->absolute_tolerance() + options_->rtol * std::max(std::abs(a), std::abs(b));
   }
 
   double initial_step(const std::vector<T>& x, double t0, double t_end) {
@@ -279,7 +292,7 @@ class Stepper {
     // estimate; the caller starts from its floor.
     if (!(h0 > 0.0) || !std::isfinite(h0)) return 0.0;
     for (int i = 0; i < d_; ++i) stage_[i] = x[i] + h0 * method_.first()[i];
-    model_.field(stage_.data(), sides_, scratch_.data());
+    model_->field(stage_.data(), sides_, scratch_.data());
     double size2 = 0;
     for (int i = 0; i < d_; ++i) {
       size2 += std::pow(value_of(scratch_[i] - method_.first()[i]) / scale(value_of(x[i]), 0.0), 2);
@@ -307,7 +320,7 @@ class Stepper {
   // range (a tiny atol), never a spurious one from squaring a large ratio.
   double error_norm(const std::vector<T>& x) {
     double sum = 0;
-    const bool tangents = options_.tangents_in_error_norm;
+    const bool tangents = options_->tangents_in_error_norm;
     if (tangents) tangent_norm_.clear();
     for (int i = 0; i < d_; ++i) {
       if (!all_finite(next_[i]) || !all_finite(method_.last()[i])) return NAN;
@@ -332,7 +345,7 @@ class Stepper {
       state = std::isfinite(largest) ? largest * std::sqrt(sum / d_) : largest;
     }
     if (!tangents) return state;
-    return std::max(state, tangent_norm_.error(options_.rtol, options_.absolute_tolerance()));
+    return std::max(state, tangent_norm_.error(options_->rtol, options_->absolute_tolerance()));
   }
 
   // x(t + theta h) on the dense output of the last accepted step.
@@ -353,7 +366,7 @@ class Stepper {
   void prepare_dense(const std::vector<T>& x, double h) {
     method_.prepare_dense(x, h, last_t_, stage_,
                           [&](const std::vector<T>& in, std::vector<T>& out, double) {
-                            model_.field(in.data(), sides_, out.data());
+                            model_->field(in.data(), sides_, out.data());
                             ++result_->field_evaluations;
                           });
   }
@@ -365,7 +378,7 @@ class Stepper {
   }
 
   void signed_surfaces(std::vector<double>& g) {
-    model_.surface_values(values_.data(), h_values_.data());
+    model_->surface_values(values_.data(), h_values_.data());
     for (int j = 0; j < n_; ++j) g[j] = sides_.plus(j) ? h_values_[j] : -h_values_[j];
   }
 
@@ -382,7 +395,7 @@ class Stepper {
       values_[i] = value_of(x[i]);
       velocity_[i] = value_of(f[i]);
     }
-    model_.surface_rates(values_.data(), velocity_.data(), h_values_.data(), probe_.data());
+    model_->surface_rates(values_.data(), velocity_.data(), h_values_.data(), probe_.data());
     for (int j = 0; j < n_; ++j) {
       const double s = sides_.plus(j) ? 1.0 : -1.0;
       g[j] = s * h_values_[j];
@@ -528,10 +541,10 @@ class Stepper {
   // normals (Jets): the quantity the driver's transversality test is made of.
   double exact_rate(const std::vector<T>& x, double h, int j, double theta) {
     dense_values(x, h, theta);
-    model_.field(values_.data(), sides_, field_.data());
+    model_->field(values_.data(), sides_, field_.data());
     ++result_->field_evaluations;
     const Eigen::Map<const Eigen::VectorXd> state(values_.data(), d_);
-    const Eigen::MatrixXd normals = model_.surface_normals(state);
+    const Eigen::MatrixXd normals = model_->surface_normals(state);
     const double rate = normals.row(j).dot(Eigen::Map<const Eigen::VectorXd>(field_.data(), d_));
     return sides_.plus(j) ? rate : -rate;
   }
@@ -559,11 +572,11 @@ class Stepper {
   double miss_band(const std::vector<T>& x, double h, int j, double theta) {
     dense_values(x, h, theta);
     const Eigen::Map<const Eigen::VectorXd> state(values_.data(), d_);
-    const Eigen::MatrixXd normals = model_.surface_normals(state);
-    const double atol = options_.absolute_tolerance();
+    const Eigen::MatrixXd normals = model_->surface_normals(state);
+    const double atol = options_->absolute_tolerance();
     double band = 0.0;
     for (int i = 0; i < d_; ++i) {
-      band += std::abs(normals(j, i)) * (atol + options_.rtol * std::abs(values_[i]));
+      band += std::abs(normals(j, i)) * (atol + options_->rtol * std::abs(values_[i]));
     }
     return kBandFactor * band;
   }
@@ -666,9 +679,9 @@ class Stepper {
   // A near miss is a minimum g_min > 0 below kBandFactor tolerance units (miss_band()).
   static constexpr double kBandFactor = 8.0;
 
-  const SegmentModel& model_;
-  const Signs sides_;
-  const IntegratorOptions& options_;
+  const SegmentModel* model_;
+  Signs sides_;
+  const IntegratorOptions* options_;
   const int d_;
   const int n_;
   using Stages = Method<T>;
@@ -701,6 +714,31 @@ SegmentResult rk_segment(const SegmentModel& model, Signs sides, double t0, doub
   *x_out = std::move(x);
   return result;
 }
+
+// The steppers an integrator object keeps between the segments it integrates, one per Jet width
+// met: a run of many short segments (a bouncing ball, a gait) builds its stage vectors once, not
+// once a segment. A stepper is rebuilt when the model's d or n changes. Not shared between
+// threads (an integrator object is used by one thread at a time: integrate() is not const).
+template <template <typename> class Method>
+class StepperCache {
+ public:
+  template <typename T>
+  Stepper<T, Method>& get(const SegmentModel& model, Signs sides,
+                          const IntegratorOptions& options) {
+    auto& slot = std::get<std::unique_ptr<Stepper<T, Method>>>(slots_);
+    if (slot && slot->fits(model)) {
+      slot->bind(model, sides, options);
+    } else {
+      slot = std::make_unique<Stepper<T, Method>>(model, sides, options);
+    }
+    return *slot;
+  }
+
+ private:
+  template <typename... Ts>
+  using Slots = std::tuple<std::unique_ptr<Stepper<Ts, Method>>...>;
+  Slots<double, Jet1, Jet2, Jet4, Jet6, JetChunk, Jet12, Jet16> slots_;
+};
 
 inline void check_request(const std::string& name, const SegmentModel& model,
                           const SegmentRequest& request, const IntegratorOptions& options) {
@@ -747,7 +785,7 @@ inline void check_request(const std::string& name, const SegmentModel& model,
 template <typename T, template <typename> class Method>
 SegmentResult run_chunk(const SegmentModel& model, const SegmentRequest& request,
                         const IntegratorOptions& options, double t_end, Eigen::Index first,
-                        int width, bool watch, Eigen::MatrixXd* v) {
+                        int width, bool watch, Eigen::MatrixXd* v, StepperCache<Method>& cache) {
   const int d = model.states();
   std::vector<T> x(static_cast<std::size_t>(d));
   for (int i = 0; i < d; ++i) {
@@ -758,16 +796,15 @@ SegmentResult run_chunk(const SegmentModel& model, const SegmentRequest& request
       for (int c = 0; c < width; ++c) x[i].v[c] = request.v0(i, first + c);
     }
   }
-  std::vector<T> x_end;
   SegmentResult result =
-      rk_segment<T, Method>(model, request.sides, request.t0, t_end, x, options, &x_end, watch);
+      cache.template get<T>(model, request.sides, options).run(request.t0, t_end, x, watch);
   result.x.resize(d);
   for (int i = 0; i < d; ++i) {
     if constexpr (std::is_same_v<T, double>) {
-      result.x[i] = x_end[i];
+      result.x[i] = x[i];
     } else {
-      result.x[i] = x_end[i].a;
-      for (int c = 0; c < width; ++c) (*v)(i, first + c) = x_end[i].v[c];
+      result.x[i] = x[i].a;
+      for (int c = 0; c < width; ++c) (*v)(i, first + c) = x[i].v[c];
     }
   }
   return result;
@@ -776,39 +813,51 @@ SegmentResult run_chunk(const SegmentModel& model, const SegmentRequest& request
 // A whole segment for a method: the state alone, or k tangents in chunks.
 template <template <typename> class Method>
 SegmentResult integrate_chunks(const SegmentModel& model, const SegmentRequest& request,
-                               const IntegratorOptions& options) {
+                               const IntegratorOptions& options, StepperCache<Method>& cache) {
   check_request(Method<double>::kName, model, request, options);
   const Eigen::Index k = request.v0.cols();
   Eigen::MatrixXd v(model.states(), k);
   if (k == 0) {
     SegmentResult result =
-        run_chunk<double, Method>(model, request, options, request.t_end, 0, 0, true, &v);
+        run_chunk<double, Method>(model, request, options, request.t_end, 0, 0, true, &v, cache);
     result.v = v;
     return result;
   }
   // The first chunk finds where the segment ends; the others integrate to exactly there.
   SegmentResult result;
-  for (Eigen::Index first = 0; first < k; first += kTangentChunk) {
-    const int width = static_cast<int>(std::min<Eigen::Index>(kTangentChunk, k - first));
+  for (Eigen::Index first = 0; first < k; first += kFlowChunk) {
+    const int width = static_cast<int>(std::min<Eigen::Index>(kFlowChunk, k - first));
     const bool watch = first == 0;
     const double t_end = watch ? request.t_end : result.t;
     SegmentResult chunk;
-    switch (tangent_width(width)) {
+    switch (flow_tangent_width(width)) {
       case 1:
-        chunk = run_chunk<Jet1, Method>(model, request, options, t_end, first, width, watch, &v);
+        chunk =
+            run_chunk<Jet1, Method>(model, request, options, t_end, first, width, watch, &v, cache);
         break;
       case 2:
-        chunk = run_chunk<Jet2, Method>(model, request, options, t_end, first, width, watch, &v);
+        chunk =
+            run_chunk<Jet2, Method>(model, request, options, t_end, first, width, watch, &v, cache);
         break;
       case 4:
-        chunk = run_chunk<Jet4, Method>(model, request, options, t_end, first, width, watch, &v);
+        chunk =
+            run_chunk<Jet4, Method>(model, request, options, t_end, first, width, watch, &v, cache);
         break;
       case 6:
-        chunk = run_chunk<Jet6, Method>(model, request, options, t_end, first, width, watch, &v);
+        chunk =
+            run_chunk<Jet6, Method>(model, request, options, t_end, first, width, watch, &v, cache);
+        break;
+      case 8:
+        chunk = run_chunk<JetChunk, Method>(model, request, options, t_end, first, width, watch, &v,
+                                            cache);
+        break;
+      case 12:
+        chunk = run_chunk<Jet12, Method>(model, request, options, t_end, first, width, watch, &v,
+                                         cache);
         break;
       default:
-        chunk =
-            run_chunk<JetChunk, Method>(model, request, options, t_end, first, width, watch, &v);
+        chunk = run_chunk<Jet16, Method>(model, request, options, t_end, first, width, watch, &v,
+                                         cache);
         break;
     }
     if (watch) {

@@ -253,9 +253,9 @@ struct Nonlinear {
   void surfaces(const T*, T*) const {}
 };
 
-// k directions run in chunks of up to eight, each in the narrowest Jet width (1, 2, 4, 6, 8):
-// with the state alone in the error norm every chunk takes the first chunk's steps, so each
-// column equals the same column integrated alone (Jet lanes are independent), for any k.
+// k directions run in chunks of up to sixteen, each in the narrowest Jet width (1, 2, 4, 6, 8,
+// 12, 16): with the state alone in the error norm every chunk takes the first chunk's steps, so
+// each column equals the same column integrated alone (Jet lanes are independent), for any k.
 TEST(Dopri5Test, EveryChunkWidthGivesTheTangentsOfSingleDirections) {
   const auto model = adapt(Nonlinear{});
   const Eigen::Vector3d x0(0.4, -0.3, 0.8);
@@ -264,7 +264,7 @@ TEST(Dopri5Test, EveryChunkWidthGivesTheTangentsOfSingleDirections) {
   o.atol = 1e-11;
   o.tangents_in_error_norm = false;  // with the tangents, a chunk's steps depend on its directions
   Dopri5Integrator integrator;
-  for (int k : {1, 2, 3, 4, 5, 6, 7, 8, 9, 13, 17}) {
+  for (int k : {1, 2, 3, 4, 5, 6, 7, 8, 9, 12, 13, 16, 17, 33}) {
     const Eigen::MatrixXd v0 = Eigen::MatrixXd::Random(3, k);
     const SegmentResult block = integrator.integrate(model, {Signs(0), 0.0, 2.0, x0, v0}, o);
     ASSERT_EQ(block.status, IntegrationStatus::kReachedEnd) << block.message;
@@ -277,6 +277,69 @@ TEST(Dopri5Test, EveryChunkWidthGivesTheTangentsOfSingleDirections) {
           << "k = " << k << ", column " << c;
     }
   }
+}
+
+// A falling point mass that hits the floor h = -y (side + below it): two states, one surface.
+struct Drop {
+  static constexpr int kStates = 2;
+  static constexpr int kSurfaces = 1;
+  template <typename T>
+  void field(const T* x, Signs b, T* xdot) const {
+    xdot[0] = x[1];
+    xdot[1] = b.plus(0) ? T(-9.81) - 400.0 * x[0] - 4.0 * x[1] : T(-9.81);
+  }
+  template <typename T>
+  void surfaces(const T* x, T* h) const {
+    h[0] = -x[0];
+  }
+};
+
+// An integrator object keeps its steppers between segments (one per Jet width, rebuilt when d or
+// n changes): whatever it integrated before, each segment is exactly what a new object gives.
+template <typename Integrator>
+void expect_reuse_changes_nothing() {
+  const auto nonlinear = adapt(Nonlinear{});
+  const auto drop = adapt(Drop{});
+  IntegratorOptions o;
+  o.rtol = 1e-9;
+  struct Case {
+    const SegmentModel* model;
+    SegmentRequest request;
+  };
+  const Eigen::Vector3d x3(0.4, -0.3, 0.8);
+  const Eigen::Vector2d x2(1.0, 0.0);
+  const std::vector<Case> cases = {
+      {&nonlinear, {Signs(0), 0.0, 2.0, x3, Eigen::MatrixXd::Identity(3, 3)}},
+      {&drop, {Signs(1), 0.0, 2.0, x2, Eigen::MatrixXd::Identity(2, 2)}},
+      {&nonlinear, {Signs(0), 0.5, 1.5, x3, Eigen::MatrixXd::Random(3, 12)}},
+      {&drop, {Signs(1), 0.0, 2.0, x2, Eigen::MatrixXd(2, 0)}},
+      {&drop, {Signs(1), 0.0, 2.0, 0.5 * x2, Eigen::MatrixXd::Identity(2, 2)}},
+      {&nonlinear, {Signs(0), 0.0, 2.0, -x3, Eigen::MatrixXd::Identity(3, 3)}},
+  };
+  Integrator kept;
+  for (std::size_t c = 0; c < cases.size(); ++c) {
+    const SegmentResult again = kept.integrate(*cases[c].model, cases[c].request, o);
+    Integrator fresh;
+    const SegmentResult alone = fresh.integrate(*cases[c].model, cases[c].request, o);
+    EXPECT_EQ(again.status, alone.status) << "case " << c;
+    EXPECT_EQ(again.steps, alone.steps) << "case " << c;
+    EXPECT_EQ(again.rejected_steps, alone.rejected_steps) << "case " << c;
+    EXPECT_EQ(again.t, alone.t) << "case " << c;
+    EXPECT_EQ(again.x, alone.x) << "case " << c;
+    EXPECT_EQ(again.v, alone.v) << "case " << c;
+    EXPECT_EQ(again.crossed, alone.crossed) << "case " << c;
+  }
+  // The drop from x2 crosses its floor within the segment: the cases cover a crossing.
+  Integrator fresh;
+  EXPECT_EQ(fresh.integrate(drop, cases[1].request, o).status, IntegrationStatus::kCrossing);
+}
+
+TEST(Dopri5Test, AKeptIntegratorGivesWhatANewOneGives) {
+  expect_reuse_changes_nothing<Dopri5Integrator>();
+}
+
+TEST(Dop853Test, AKeptIntegratorGivesWhatANewOneGives) {
+  expect_reuse_changes_nothing<Dop853Integrator>();
 }
 
 // From x0 = 0 the linear system's state stays exactly 0, so the state's error estimate is 0 and a

@@ -18,6 +18,8 @@
 #ifndef BFLOW_INTEGRATORS_DOP853_H_
 #define BFLOW_INTEGRATORS_DOP853_H_
 
+#include <memory>
+
 #include "bflow/integrators/segment.h"
 
 namespace bflow {
@@ -30,6 +32,17 @@ class Dop853Integrator final : public SegmentIntegrator {
       messages start with "dop853:". */
   SegmentResult integrate(const SegmentModel& model, const SegmentRequest& request,
                           const IntegratorOptions& options) override;
+
+  Dop853Integrator();
+  ~Dop853Integrator() override;
+  Dop853Integrator(Dop853Integrator&&) noexcept;
+  Dop853Integrator& operator=(Dop853Integrator&&) noexcept;
+
+ private:
+  // The steppers kept between segments (their stage vectors, one per tangent width met): a run
+  // of many short segments allocates them once. One object per thread.
+  struct Steppers;
+  std::unique_ptr<Steppers> steppers_;
 };
 
 }  // namespace bflow

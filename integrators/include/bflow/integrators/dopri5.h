@@ -42,6 +42,8 @@
 #ifndef BFLOW_INTEGRATORS_DOPRI5_H_
 #define BFLOW_INTEGRATORS_DOPRI5_H_
 
+#include <memory>
+
 #include "bflow/integrators/segment.h"
 
 namespace bflow {
@@ -59,6 +61,17 @@ class Dopri5Integrator final : public SegmentIntegrator {
       max_steps is below 1. */
   SegmentResult integrate(const SegmentModel& model, const SegmentRequest& request,
                           const IntegratorOptions& options) override;
+
+  Dopri5Integrator();
+  ~Dopri5Integrator() override;
+  Dopri5Integrator(Dopri5Integrator&&) noexcept;
+  Dopri5Integrator& operator=(Dopri5Integrator&&) noexcept;
+
+ private:
+  // The steppers kept between segments (their stage vectors, one per tangent width met): a run
+  // of many short segments allocates them once. One object per thread.
+  struct Steppers;
+  std::unique_ptr<Steppers> steppers_;
 };
 
 namespace internal {
