@@ -185,7 +185,7 @@ ordered_json run(const Flags& f, const Model& model) {
   j["problem"] = f.problem;
   j["d"] = d;
   j["t"] = f.t;
-  j["backend"] = bflow::to_string(options.backend);
+  j["backend"] = bflow::to_string(r.backend);  // for --backend auto, the one it chose
   j["rtol"] = f.rtol;
   j["atol"] = options.integrator.absolute_tolerance();
   j["status"] = r.ok() ? "solved" : bflow::to_string(r.status);
@@ -301,7 +301,8 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"chain", "ball", "biped", "three"}));
   app.add_option("--x0", f.x0, "the start, d numbers separated by commas")->required();
   app.add_option("--t", f.t, "final time, > 0")->required();
-  app.add_option("--backend", f.backend, "dopri5, cvodes-adams or cvodes-bdf");
+  app.add_option("--backend", f.backend,
+                 "auto (the default's choice), dopri5, dop853, cvodes-adams or cvodes-bdf");
   app.add_option("--rtol", f.rtol, "relative tolerance");
   app.add_option("--atol", f.atol, "absolute tolerance (default 1e-2 rtol)");
   app.add_option("--directions", f.directions,

@@ -9,7 +9,8 @@ every tolerance of the row, and prints one JSON object. The problems are flow_pr
 How each tool gets the derivative (each the way its documentation shows), every tool with each
 of its methods, the tables taking each tool's fastest at every error:
   bflow     bench/peer_flow: simulate() with the d unit vectors (or the test directions) as
-            tangents, dopri5 (the default), dop853 and CVODES Adams (forward sensitivities with
+            tangents, dopri5, dop853, the defaults (backend auto: dopri5 or dop853 by the
+            tolerance and the model, bflow::choose_backend) and CVODES Adams (forward sensitivities with
             root-finding); the jumps by the saltation matrix or Algorithm 2.1, automatic
             grouping and the default error control (the defaults); one untimed run first.
             From Python (bflow-python): the same call, bflow.simulate, in a Python process
@@ -754,6 +755,7 @@ def _tools(simultaneous, quick):
     low = QUICK_TOLERANCES if quick else SCIPY_RK45_TOLERANCES
     tools = [("bflow", "bflow dopri5", {"backend": "dopri5"}),
              ("bflow", "bflow dop853", {"backend": "dop853"}),
+             ("bflow", "bflow defaults (auto)", {"backend": "auto"}),
              ("bflow", "bflow CVODES Adams", {"backend": "cvodes-adams"}),
              ("bflow-python", "bflow from Python (SymPy model), dopri5", {"backend": "dopri5"}),
              ("bflow-python", "bflow from Python (SymPy model), dop853", {"backend": "dop853"}),
@@ -996,6 +998,7 @@ RATIO_COLUMNS = [
     ("bflow from Python (dopri5, dop853)",
      [("bflow from Python (SymPy model), dopri5", "dopri5", "cpu_s"),
       ("bflow from Python (SymPy model), dop853", "dop853", "cpu_s")]),
+    ("bflow defaults (auto)", [("bflow defaults (auto)", None, "cpu_s")]),
     ("bflow CVODES Adams", [("bflow CVODES Adams", None, "cpu_s")]),
     ("heyoka, its integration", [("heyoka", None, "integration_cpu_s")]),
     ("heyoka, whole run", [("heyoka", None, "cpu_s")]),
@@ -1062,8 +1065,10 @@ def report(data, ctx):
                "Runge-Kutta backends at each error, diffrax's and SciPy's the fastest of their "
                "methods, named in the cell; heyoka's integration is the CPU time inside its "
                "`propagate_until` calls, its whole run adds the Python that re-sets it and "
-               "applies the saltation matrices; \"not reached\": no solved tolerance of the tool "
-               "got there; > 1: bflow is faster).\n")
+               "applies the saltation matrices; bflow's defaults (backend auto, no backend named) "
+               "over its fastest backend says what a user who names none pays, >= 1; "
+               "\"not reached\": no solved tolerance of the tool got there; > 1: bflow is "
+               "faster).\n")
     out.append(common.table(header, table, ["---", "---:"] + ["---:"] * (len(header) - 2)))
     out.append(f"\nA row is `wrong crossings` when the surfaces it crossed (each surface's count) "
                f"differ from the reference's, `x(T) off` when its x(T) is farther from the "
@@ -1174,6 +1179,7 @@ def _piece_table(name, ref, flow_rows):
 
 
 STYLE = {"bflow dopri5": ("C0", "o-"), "bflow dop853": ("C4", "P-"),
+         "bflow defaults (auto)": ("C8", "x--"),
          "bflow from Python (SymPy model), dopri5": ("C9", "*:"),
          "bflow from Python (SymPy model), dop853": ("C9", "h:"),
          "hybrid-tools": ("C5", "X"),

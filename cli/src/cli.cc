@@ -119,7 +119,8 @@ constexpr const char* kFlowFooter =
            feet touch together at t = 0.3194; default --t 0.6.
 
 Output, one JSON object (numbers print in the shortest form that reads back exactly):
-  "scene", "params", "integrator", "rtol", "atol", "grouping", "t", "x0"
+  "scene", "params", "integrator" (as asked), "rtol", "atol", "grouping", "t", "x0"
+  "backend"     the integrator that ran (for --integrator auto, the one it chose)
   "x_t"         phi_t(x0)
   "events"      [{"t", "surfaces" (crossed together), "crossing_times" (located, per surface),
                   "spread", "window" (grouping), "gap" (to the nearest crossing not grouped,
@@ -450,7 +451,8 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
                      "With --grouping window: crossings closer than T in time are one event")
         ->type_name("T");
     flow->add_option("--integrator", flow_options.integrator,
-                     "dopri5, dop853, cvodes-bdf or cvodes-adams")
+                     "auto (dopri5 at loose tolerances on small models with surfaces, else dop853: "
+                     "bflow::choose_backend), dopri5, dop853, cvodes-bdf or cvodes-adams")
         ->type_name("NAME")
         ->capture_default_str();
     flow->add_option("--max-steps", flow_options.max_steps,
@@ -774,7 +776,8 @@ int run_cli(int argc, const char* const* argv, std::istream& in, std::ostream& o
         ->type_name("T");
     sweep
         ->add_option("--integrator", sweep_options.flow.integrator,
-                     "dopri5, dop853, cvodes-bdf or cvodes-adams")
+                     "auto (dopri5 at loose tolerances on small models with surfaces, else dop853: "
+                     "bflow::choose_backend), dopri5, dop853, cvodes-bdf or cvodes-adams")
         ->type_name("NAME")
         ->capture_default_str();
     sweep

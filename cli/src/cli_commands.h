@@ -85,8 +85,8 @@ struct FlowCommandOptions {
   std::vector<std::string> dx;
   std::optional<std::string> rtol;
   std::optional<std::string> atol;
-  /** "dopri5", "dop853", "cvodes-bdf" or "cvodes-adams" (bflow::parse_backend). */
-  std::string integrator = "dopri5";
+  /** "auto", "dopri5", "dop853", "cvodes-bdf" or "cvodes-adams" (bflow::parse_backend). */
+  std::string integrator = "auto";
   /** "auto", "window" or "none" (bflow::parse_grouping); default auto. */
   std::optional<std::string> grouping;
   /** With --grouping window: the window in time, >= 0 (FlowOptions::simultaneity_window). */

@@ -212,7 +212,9 @@ int demo_biped(const DemoOptions& options, std::ostream& out, std::ostream& /*er
                    params.m, params.J, params.g, params.leg_length, params.psi, params.kappa,
                    params.beta)
       << "  phi_t from x0 = " << short_vector_text(x0) << " to t = " << kFinalTime << '\n'
-      << "  dopri5, rtol 1e-10, atol 1e-12; the B-derivative from one run of flow_derivative()\n";
+      << "  " << to_string(choose_backend(flow.backend, kRtol, model.states(), model.surfaces()))
+      << " (the automatic choice), rtol 1e-10, atol 1e-12; the B-derivative from one run of\n"
+         "  flow_derivative()\n";
 
   FlowResult trajectory;
   const FlowDerivative derivative = flow_derivative(model, x0, kFinalTime, flow, &trajectory);

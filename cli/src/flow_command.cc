@@ -133,6 +133,7 @@ Evaluation evaluate_watched(const SegmentModel& model, const OverflowWatch& watc
   result["x0"] = vector_json(x0);
   // A run without tangents first: an early stop is reported with what was reached.
   const FlowResult plain = simulate(watched, x0, request.t, request.flow);
+  result["backend"] = to_string(plain.backend);  // what --integrator auto chose, or the one named
   if (!plain.ok()) {
     result["status"] = to_string(plain.status);
     result["message"] = plain.message;

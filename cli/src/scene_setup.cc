@@ -303,8 +303,9 @@ SceneSetup parse_scene_setup(const FlowCommandOptions& options) {
   try {
     request.flow.backend = parse_backend(options.integrator);
   } catch (const InvalidArgument&) {
-    fail("--integrator", "integrator " + quote(options.integrator) +
-                             " is unknown; choose dopri5, dop853, cvodes-bdf or cvodes-adams");
+    fail("--integrator",
+         "integrator " + quote(options.integrator) +
+             " is unknown; choose auto, dopri5, dop853, cvodes-bdf or cvodes-adams");
   }
   if (options.grouping) {
     try {

@@ -14,12 +14,20 @@
 namespace bflow {
 
 Backend parse_backend(const std::string& name) {
+  if (name == "auto") return Backend::kAutomatic;
   if (name == "dopri5") return Backend::kDopri5;
   if (name == "dop853") return Backend::kDop853;
   if (name == "cvodes-bdf") return Backend::kCvodesBdf;
   if (name == "cvodes-adams") return Backend::kCvodesAdams;
   throw InvalidArgument("integrator \"" + name +
-                        "\" is unknown; choose dopri5, dop853, cvodes-bdf or cvodes-adams");
+                        "\" is unknown; choose auto, dopri5, dop853, cvodes-bdf or cvodes-adams");
+}
+
+Backend choose_backend(Backend backend, double rtol, int states, int surfaces) {
+  if (backend != Backend::kAutomatic) return backend;
+  const bool high_order =
+      rtol <= kAutomaticHighOrderRtol || states >= kAutomaticHighOrderStates || surfaces == 0;
+  return high_order ? Backend::kDop853 : Backend::kDopri5;
 }
 
 Grouping parse_grouping(const std::string& name) {
@@ -51,6 +59,8 @@ const char* to_string(Backend backend) {
       return "cvodes-bdf";
     case Backend::kCvodesAdams:
       return "cvodes-adams";
+    case Backend::kAutomatic:
+      return "auto";
   }
   return "unknown";
 }
@@ -580,7 +590,8 @@ FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd
   }
   FlowResult result;
   result.sides = starting_sides(model, x0, options);
-  std::unique_ptr<SegmentIntegrator> integrator = make_integrator(options.backend);
+  result.backend = choose_backend(options.backend, options.integrator.rtol, d, model.surfaces());
+  std::unique_ptr<SegmentIntegrator> integrator = make_integrator(result.backend);
   SegmentRequest request;
   request.sides = result.sides;
   request.t0 = 0.0;
@@ -713,6 +724,10 @@ std::unique_ptr<SegmentIntegrator> make_integrator(Backend backend) {
       return std::make_unique<CvodesIntegrator>(CvodesMethod::kBdf);
     case Backend::kCvodesAdams:
       return std::make_unique<CvodesIntegrator>(CvodesMethod::kAdams);
+    case Backend::kAutomatic:
+      throw InvalidArgument(
+          "make_integrator: \"auto\" names no backend until the tolerance and the model are "
+          "known; resolve it with choose_backend(backend, rtol, states, surfaces)");
   }
   throw InvalidArgument(std::string("integrator ") + to_string(backend) + " is unknown");
 }

@@ -257,7 +257,9 @@ _OPTION_NAMES = ("rtol", "atol", "max_step", "max_steps", "backend", "grouping",
 
 def flow_options(base=None, **options) -> "_bflow.FlowOptions":
     """FlowOptions from keyword arguments: rtol (1e-8), atol (1e-2 rtol), max_step, max_steps,
-    backend ("dopri5", "dop853", "cvodes-bdf", "cvodes-adams"), grouping ("auto", "none",
+    backend ("auto", the default: dopri5 at rtol > 3e-8 on a model with surfaces and fewer than
+    8 states, else dop853; or "dopri5", "dop853", "cvodes-bdf", "cvodes-adams"; the result's
+    ``backend`` names the one that ran), grouping ("auto", "none",
     "window"), grouping_safety, window, near_simultaneity_band, grazing_threshold, max_events,
     initial_sides (a sign word). ``base``: FlowOptions to start from (default: the defaults)."""
     o = _bflow.FlowOptions() if base is None else base
@@ -332,8 +334,9 @@ class FlowDerivative:
 
     @property
     def backend(self) -> str:
-        """The integrator that ran ("dopri5", "dop853", "cvodes-bdf", "cvodes-adams")."""
-        return self.options.backend
+        """The integrator that ran ("dopri5", "dop853", "cvodes-bdf", "cvodes-adams"): the one
+        named in the options, or the one backend "auto" (the default) chose."""
+        return self.trajectory.backend
 
     @property
     def dim(self) -> int:

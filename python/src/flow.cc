@@ -238,6 +238,9 @@ void bind_flow(nb::module_& m) {
       .def_ro("notices", &FlowResult::notices)
       .def_ro("steps", &FlowResult::steps)
       .def_ro("field_evaluations", &FlowResult::field_evaluations)
+      .def_prop_ro(
+          "backend", [](const FlowResult& r) { return std::string(to_string(r.backend)); },
+          "the integrator that ran (for backend \"auto\", the one it chose)")
       .def_prop_ro("ok", &FlowResult::ok);
 
   nb::class_<FlowPiece>(m, "FlowPiece")

@@ -28,9 +28,10 @@ TEST(FiniteDifferencesTest, OneSidedConvergesAtAKinkAndCentralDoesNot) {
   const fd::Report report = fd::compare(model, rho_minus, 1.0, dx, b, options);
   ASSERT_EQ(report.rows.size(), 9u);
   // The flow is piecewise affine here: one-sided differences are exact up to rounding,
-  // eps |x| / alpha, so 1e-6 at the worst (alpha = 1e-10).
+  // c eps |x| / alpha, c the integrator's rounding per unit (about 1 for dopri5, up to 13 for
+  // dop853, the defaults' choice at rtol 1e-8: measured 1.6e-6 at alpha = 1e-10), so 5e-6.
   for (const fd::ReportRow& row : report.rows) {
-    EXPECT_LE(row.one_sided_error, 1e-6) << "alpha " << row.alpha;
+    EXPECT_LE(row.one_sided_error, 5e-6) << "alpha " << row.alpha;
     // Central differences give (B(dx) - B(-dx)) / 2, off by |B(dx) + B(-dx)| / 2 = 0.13.
     EXPECT_GT(row.central_error, 0.1) << "alpha " << row.alpha;
   }

@@ -300,7 +300,9 @@ TEST(GroupingRangeTest, ANearSimultaneityBandBeyondTheRange) {
   EXPECT_NEAR(r.events[0].automatic_window, plane_window(options, 0.0, 1.25, 0.5), 4 * kEps * 1600);
   EXPECT_NEAR(r.events[1].automatic_window, plane_window(options, 0.0, 1.25, 2000.5),
               4 * kEps * 1600);
-  EXPECT_NEAR(r.events[0].gap, 2000.0, 2e-12);  // 4 ulps of 2000
+  // dop853 (the defaults' choice) rounds a constant field's increment by up to ~13 eps a step:
+  // measured 6.8e-12, 15 ulps of 2000.
+  EXPECT_NEAR(r.events[0].gap, 2000.0, 2e-11);
   const double widest = std::max(r.events[0].automatic_window, r.events[1].automatic_window);
   ASSERT_EQ(r.notices.size(), 1u);
   EXPECT_EQ(r.notices[0].band, 100 * widest);

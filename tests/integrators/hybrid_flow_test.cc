@@ -1,7 +1,9 @@
 #include "bflow/integrators/hybrid_flow.h"
 
 #include <cmath>
+#include <cstdio>
 #include <random>
+#include <tuple>
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -216,6 +218,57 @@ TEST(HybridFlowTest, TheEventLimitIsAStatus) {
   EXPECT_EQ(r.status, IntegrationStatus::kTooManyEvents);
   EXPECT_THAT(r.message, HasSubstr("6 events by t = "));
   EXPECT_THAT(r.message, HasSubstr("Zeno"));
+}
+
+// Backend "auto" (the default): dopri5 at loose tolerances on a small model with surfaces, dop853
+// at tight ones, with many states or without surfaces; the run reports its choice and is the run
+// of the backend it names.
+TEST(HybridFlowTest, TheAutomaticBackendIsChosenByToleranceAndSizeAndReported) {
+  EXPECT_EQ(FlowOptions{}.backend, Backend::kAutomatic);
+  EXPECT_EQ(parse_backend("auto"), Backend::kAutomatic);
+  EXPECT_STREQ(to_string(Backend::kAutomatic), "auto");
+  EXPECT_EQ(choose_backend(Backend::kAutomatic, 1e-6, 6, 2), Backend::kDopri5);
+  EXPECT_EQ(choose_backend(Backend::kAutomatic, 1e-7, 7, 2), Backend::kDopri5);
+  EXPECT_EQ(choose_backend(Backend::kAutomatic, 3.01e-8, 7, 2), Backend::kDopri5);
+  EXPECT_EQ(choose_backend(Backend::kAutomatic, 3e-8, 6, 2), Backend::kDop853);
+  EXPECT_EQ(choose_backend(Backend::kAutomatic, 1e-4, 8, 2), Backend::kDop853);
+  EXPECT_EQ(choose_backend(Backend::kAutomatic, 1e-4, 2, 0), Backend::kDop853);
+  for (Backend named : {Backend::kDopri5, Backend::kDop853, Backend::kCvodesAdams}) {
+    EXPECT_EQ(choose_backend(named, 1e-12, 100, 0), named);
+    EXPECT_EQ(choose_backend(named, 1e-3, 2, 3), named);
+  }
+  EXPECT_THAT(message_of([] { make_integrator(Backend::kAutomatic); }),
+              HasSubstr("choose_backend(backend, rtol, states, surfaces)"));
+
+  // x'' = -100 x with the surface x = 0 (a continuous field: the saltation matrix is the
+  // identity): x(t) = 0.1 cos(10 t), and dx(T)/dx0 = [[c, s/10], [-10 s, c]], c = cos(10 T),
+  // s = sin(10 T); T = 1 crosses three times.
+  const auto model = adapt(Oscillator{});
+  const Eigen::Vector2d x0(0.1, 0.0);
+  const double t = 1.0;
+  Eigen::Matrix2d exact;
+  exact << std::cos(10 * t), std::sin(10 * t) / 10, -10 * std::sin(10 * t), std::cos(10 * t);
+  for (const auto& [rtol, expected, bound] :
+       {std::tuple{1e-5, Backend::kDopri5, 3e-6}, std::tuple{1e-8, Backend::kDop853, 1.5e-8}}) {
+    FlowOptions automatic;
+    automatic.integrator.rtol = rtol;
+    const FlowResult chosen = simulate(model, x0, t, Eigen::Matrix2d::Identity(), automatic);
+    ASSERT_TRUE(chosen.ok()) << chosen.message;
+    EXPECT_EQ(chosen.backend, expected) << "rtol " << rtol;
+    EXPECT_EQ(chosen.events.size(), 3u);
+    FlowOptions named = automatic;
+    named.backend = expected;
+    const FlowResult same = simulate(model, x0, t, Eigen::Matrix2d::Identity(), named);
+    EXPECT_EQ(same.backend, expected);
+    EXPECT_EQ(same.x, chosen.x);
+    EXPECT_EQ(same.v, chosen.v);
+    EXPECT_EQ(same.steps, chosen.steps);
+    // The defaults' derivative against the closed form, relative to its largest entry (10):
+    // measured 9.9e-7 (0.1 rtol) and 5e-9 (0.5 rtol); the bounds are three times that.
+    const double error = (chosen.v - exact).cwiseAbs().maxCoeff() / 10.0;
+    std::printf("auto at rtol %g (%s): derivative error %.3g\n", rtol, to_string(expected), error);
+    EXPECT_LE(error, bound) << "rtol " << rtol;
+  }
 }
 
 }  // namespace

@@ -124,11 +124,13 @@ TEST_F(PwconstSweep, EverySampleAgreesWithTheExactFlowAndItsOneSidedDifferences)
     // x_1 moves at 1.5 while negative, so it reaches its plane before t = 0.6; x_0 always does.
     // Plane j is crossed where the constant speed 1.5 (Delta = -0.5 b on both sides' words
     // before it) takes x0[j] to 0: t_j = -x0[j] / 1.5. Event location by the integrator's
-    // interpolant is exact up to rounding here (at most 1.1e-16 measured).
+    // interpolant is exact up to rounding here: at most 1.1e-16 measured with dopri5, 3.1e-15
+    // with dop853 (the defaults' choice at rtol 1e-8), whose weights sum to 1 through terms of
+    // up to 5.8 in magnitude, so each step rounds a constant field's increment by ~13 eps.
     int crossed = 0;
     for (const EventRecord& e : r.events) {
       for (const int j : e.surfaces) {
-        EXPECT_NEAR(e.t, -x0[j] / 1.5, 1e-15) << r.index << " surface " << j;
+        EXPECT_NEAR(e.t, -x0[j] / 1.5, 8e-15) << r.index << " surface " << j;
       }
       crossed += e.group_size();
     }

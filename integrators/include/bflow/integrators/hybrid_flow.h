@@ -2,7 +2,7 @@
 // B-derivative of the flow ([B] (2.10), Theorem 5.3).
 //
 //   auto model = bflow::adapt(MyModel{});
-//   bflow::FlowOptions options;                               // dopri5, rtol 1e-8, ...
+//   bflow::FlowOptions options;                               // auto backend, rtol 1e-8, ...
 //   bflow::FlowResult plain = bflow::simulate(model, x0, 0.6, options);        // no tangents
 //   bflow::FlowResult some = bflow::simulate(model, x0, 0.6, directions, options);  // k tangents
 //   bflow::FlowDerivative full = bflow::flow_derivative(model, x0, 0.6, options);   // any later
@@ -81,11 +81,34 @@
 
 namespace bflow {
 
-enum class Backend { kDopri5, kCvodesBdf, kCvodesAdams, kDop853 };
+/** The integrator between events. kAutomatic (the default) picks dopri5 or dop853 for each run
+    by choose_backend(); FlowResult::backend names the one that ran. */
+enum class Backend { kDopri5, kCvodesBdf, kCvodesAdams, kDop853, kAutomatic };
 
-/** Parses "dopri5", "dop853", "cvodes-bdf", "cvodes-adams". @throws InvalidArgument otherwise. */
+/** Parses "auto", "dopri5", "dop853", "cvodes-bdf", "cvodes-adams".
+    @throws InvalidArgument otherwise. */
 Backend parse_backend(const std::string& name);
 const char* to_string(Backend backend);
+
+/** The relative tolerance at and below which kAutomatic takes dop853 for a model with surfaces
+    and fewer than kAutomaticHighOrderStates states. */
+inline constexpr double kAutomaticHighOrderRtol = 3e-8;
+/** From this many states on, kAutomatic takes dop853 at every tolerance. */
+inline constexpr int kAutomaticHighOrderStates = 8;
+
+/** The backend a run with `backend` uses for a model of `states` states and `surfaces` surfaces
+    at relative tolerance `rtol`: `backend` itself unless it is kAutomatic; then dop853 (order 8)
+    when rtol <= kAutomaticHighOrderRtol, when states >= kAutomaticHighOrderStates or when the
+    model has no surface, else dopri5 (order 5). Why (docs/flow.md, "Which backend"): at loose
+    tolerances on small models with events, most of a run is the per-step and per-event work
+    (locating crossings, the jump), where dopri5's 6 stages and free dense output beat
+    dop853's 12 stages and 3 dense-output stages; with tighter tolerances, more states or long
+    smooth segments, dop853's order takes fewer steps. Measured on the peer problems (CPU per run
+    at equal rtol, bench/peer_flow, docs/flow.md "Which backend"): the 12-state chain is 1.15x
+    to 1.8x faster on dop853 from rtol 1e-4 to 1e-8; the ball and the 6-state bipeds are up to
+    1.6x faster on dopri5 from 1e-4 to 1e-7 (the ball 1.06x slower at 1e-7), and dop853 is as
+    fast or faster from 1e-8. */
+Backend choose_backend(Backend backend, double rtol, int states, int surfaces);
 
 /** How the driver decides that crossings of different surfaces are one event (see the header
     comment for the rule and what it guarantees). */
@@ -101,7 +124,8 @@ const char* to_string(Grouping grouping);
 
 struct FlowOptions {
   IntegratorOptions integrator;
-  Backend backend = Backend::kDopri5;
+  /** kAutomatic: dopri5 or dop853 by choose_backend(); FlowResult::backend says which. */
+  Backend backend = Backend::kAutomatic;
   Grouping grouping = Grouping::kAutomatic;
   /** kAutomatic: the window is this many times the crossing-time uncertainty, > 0. */
   double grouping_safety = 10.0;
@@ -165,6 +189,9 @@ struct FlowResult {
   std::vector<FlowNotice> notices;
   long steps = 0;
   long field_evaluations = 0;
+  /** The backend that ran: FlowOptions::backend, or for kAutomatic the one choose_backend()
+      picked (never kAutomatic). */
+  Backend backend = Backend::kDopri5;
   bool ok() const { return status == IntegrationStatus::kReachedEnd; }
 };
 
@@ -182,7 +209,8 @@ FlowDerivative flow_derivative(const SegmentModel& model,
                                const Eigen::Ref<const Eigen::VectorXd>& x0, double t_final,
                                const FlowOptions& options = {}, FlowResult* trajectory = nullptr);
 
-/** A backend for `backend`. */
+/** A backend for `backend`. @throws InvalidArgument for kAutomatic, which names no backend
+    before the run's tolerance and model are known (choose_backend()). */
 std::unique_ptr<SegmentIntegrator> make_integrator(Backend backend);
 
 }  // namespace bflow

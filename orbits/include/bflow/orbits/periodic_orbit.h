@@ -201,8 +201,10 @@ enum class OrbitStability { kStable, kUnstable, kUndecided };
 /** "stable", "unstable", "undecided". */
 const char* to_string(OrbitStability stability);
 
-/** FlowOptions with the tolerances an orbit needs by default: rtol 1e-10, atol 1e-12, and the
-    tangents in the error norm (the return map's derivative held to the tolerance as well). */
+/** FlowOptions with the tolerances an orbit needs by default: rtol 1e-10, atol 1e-12, the
+    tangents in the error norm (the return map's derivative held to the tolerance as well), and
+    dopri5, whose return-map derivative is the tighter one on the hopping orbits at this
+    tolerance (periodic_orbit.cc). */
 FlowOptions default_orbit_flow_options();
 
 /** One Newton step, for progress reports. */
