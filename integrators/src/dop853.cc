@@ -138,7 +138,8 @@ class Dp853Stages {
   explicit Dp853Stages(int d)
       : d_(d),
         k_(16, std::vector<T>(static_cast<std::size_t>(d))),
-        dense_(4, std::vector<T>(static_cast<std::size_t>(d))) {}
+        dense_(4, std::vector<T>(static_cast<std::size_t>(d))),
+        high_(static_cast<std::size_t>(d)) {}
   std::vector<T>& first() { return k_[0]; }
   const std::vector<T>& last() const { return k_[12]; }
 
@@ -155,7 +156,8 @@ class Dp853Stages {
   }
   void accept() { k_[0].swap(k_[12]); }
   // gamma = |e5| / sqrt(|e5|^2 + 0.01 |e3|^2) over the scaled components (values only), so that
-  // error(i) = h gamma e5_i and the RMS of error(i) / scale_i is DOP853's error norm.
+  // error_value(i) = h gamma e5_i and the RMS of error_value(i) / scale_i is DOP853's error
+  // norm. Keeps each component's e5 for error_value().
   template <typename Scale>
   void prepare_error(double, const Scale& scale) {
     double sum5 = 0.0, sum3 = 0.0;
@@ -166,23 +168,19 @@ class Dp853Stages {
         high += dp853::kE5[r] * k;
         low += dp853::kE3[r] * k;
       }
+      high_[static_cast<std::size_t>(i)] = high;
       const double s = scale(i);
       sum5 += (high / s) * (high / s);
       sum3 += (low / s) * (low / s);
     }
     gamma_ = sum5 == 0.0 && sum3 == 0.0 ? 0.0 : std::sqrt(sum5 / (sum5 + 0.01 * sum3));
   }
-  T error(int i, double h) const {
-    T sum = dp853::kE5[0] * k_[0][i];
-    for (int r = 1; r < 13; ++r) {
-      if (dp853::kE5[r] != 0.0) sum += dp853::kE5[r] * k_[r][i];
-    }
-    return (h * gamma_) * sum;
+  double error_value(int i, double h) const {
+    return (h * gamma_) * high_[static_cast<std::size_t>(i)];
   }
   // The tangents' estimate is damped per direction from their own e5 and e3 (TangentNorm), not
   // by gamma_, which the state sets.
-  void add_tangent_error(int i, double h, const T&, const T& x0, const T& x1,
-                         TangentNorm<T>& norm) const {
+  void add_tangent_error(int i, double h, const T& x0, const T& x1, TangentNorm<T>& norm) const {
     T high = dp853::kE5[0] * k_[0][i];
     T low = dp853::kE3[0] * k_[0][i];
     for (int r = 1; r < 13; ++r) {
@@ -254,6 +252,7 @@ class Dp853Stages {
   int d_;
   std::vector<std::vector<T>> k_;      // k_0 ... k_11, k_12 = F(next), k_13 ... k_15 dense output
   std::vector<std::vector<T>> dense_;  // F3 ... F6 of the dense output, set by prepare_dense()
+  std::vector<double> high_;           // e5 of each component's value, set by prepare_error()
   double gamma_ = 1.0;
   bool dense_ready_ = false;
 };

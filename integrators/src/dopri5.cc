@@ -74,14 +74,16 @@ class Dp54Stages {
   void accept() { k1_.swap(k7_); }
   template <typename Scale>
   void prepare_error(double, const Scale&) {}
-  /** The local error estimate of component i. */
-  T error(int i, double h) const {
-    return h * (e1 * k1_[i] + e3 * k3_[i] + e4 * k4_[i] + e5 * k5_[i] + e6 * k6_[i] + e7 * k7_[i]);
+  /** The local error estimate of component i's value. */
+  double error_value(int i, double h) const {
+    return h * (e1 * value_of(k1_[i]) + e3 * value_of(k3_[i]) + e4 * value_of(k4_[i]) +
+                e5 * value_of(k5_[i]) + e6 * value_of(k6_[i]) + e7 * value_of(k7_[i]));
   }
-  /** Component i's share of the tangents' error norm, given its error(i, h). */
-  void add_tangent_error(int, double, const T& error, const T& x0, const T& x1,
-                         TangentNorm<T>& norm) const {
-    norm.add(error, x0, x1);
+  /** Component i's share of the tangents' error norm: its tangent parts' estimate. */
+  void add_tangent_error(int i, double h, const T& x0, const T& x1, TangentNorm<T>& norm) const {
+    norm.add(
+        h * (e1 * k1_[i] + e3 * k3_[i] + e4 * k4_[i] + e5 * k5_[i] + e6 * k6_[i] + e7 * k7_[i]), x0,
+        x1);
   }
   template <typename Field>
   void prepare_dense(const std::vector<T>&, double, double, std::vector<T>&, Field&&) {}

@@ -6,9 +6,10 @@
 //
 // A Method<T> provides: kName, kExponent (1 / (order of the error estimate + 1)); first() (F at
 // the step's start, filled by the stepper) and last() (F at the trial step's end); attempt(x, h,
-// t, stage, next, field); accept(); prepare_error(h, scale) then error(i, h) (component i's
-// local error estimate, whose values the state's RMS norm uses) and add_tangent_error(i, h,
-// error, x0, x1, norm) (its share of the tangents' norm); prepare_dense(x, h, t, stage, field)
+// t, stage, next, field); accept(); prepare_error(h, scale) then error_value(i, h) (the local
+// error estimate of component i's value, for the state's RMS norm) and add_tangent_error(i, h,
+// x0, x1, norm) (its tangent parts' share of the tangents' norm; not called without tangents,
+// so a tangent estimate is computed only where it is used); prepare_dense(x, h, t, stage, field)
 // then dense(i, x, next, h, theta) and dense_value(...) (values only).
 // Private to integrators/src.
 #ifndef BFLOW_INTEGRATORS_SRC_EXPLICIT_RK_STEPPER_H_
@@ -328,10 +329,11 @@ class Stepper {
     method_.prepare_error(last_h_,
                           [&](int i) { return scale(value_of(x[i]), value_of(next_[i])); });
     for (int i = 0; i < d_; ++i) {
-      const T err = method_.error(i, last_h_);
-      ratios_[i] = value_of(err) / scale(value_of(x[i]), value_of(next_[i]));
-      sum += std::pow(ratios_[i], 2);
-      if (tangents) method_.add_tangent_error(i, last_h_, err, x[i], next_[i], tangent_norm_);
+      ratios_[i] = method_.error_value(i, last_h_) / scale(value_of(x[i]), value_of(next_[i]));
+      sum += ratios_[i] * ratios_[i];
+      if constexpr (!std::is_same_v<T, double>) {
+        if (tangents) method_.add_tangent_error(i, last_h_, x[i], next_[i], tangent_norm_);
+      }
     }
     double state = std::sqrt(sum / d_);
     if (!std::isfinite(state)) {
