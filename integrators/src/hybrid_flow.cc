@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <memory>
 #include <string>
 
 #include "bflow/core/errors.h"
@@ -565,6 +566,46 @@ std::string note_neighbours(FlowResult& result, const FlowOptions& options) {
   return {};
 }
 
+// The Runge-Kutta integrators a thread keeps between runs, with their steppers' storage: a
+// caller that simulates many short runs (a sweep's samples, the peers' timing loop, a Newton
+// iteration on a return map) builds its stage vectors once per thread, not once per run. A kept
+// integrator gives what a new one gives (every segment rebinds the model, its sides and the
+// options; tests/integrators/integrator_test.cc). A run that starts while the thread's own is
+// in use (a model whose field simulates) gets a new one. CVODES is built per run.
+class IntegratorLease {
+ public:
+  explicit IntegratorLease(Backend backend) {
+    const int slot = backend == Backend::kDopri5 ? 0 : backend == Backend::kDop853 ? 1 : -1;
+    if (slot >= 0 && !kept_.busy[slot]) {
+      std::unique_ptr<SegmentIntegrator>& integrator = kept_.integrators[slot];
+      if (!integrator) integrator = make_integrator(backend);
+      kept_.busy[slot] = true;
+      slot_ = slot;
+      integrator_ = integrator.get();
+    } else {
+      own_ = make_integrator(backend);
+      integrator_ = own_.get();
+    }
+  }
+  ~IntegratorLease() {
+    if (slot_ >= 0) kept_.busy[slot_] = false;
+  }
+  IntegratorLease(const IntegratorLease&) = delete;
+  IntegratorLease& operator=(const IntegratorLease&) = delete;
+  SegmentIntegrator* operator->() const { return integrator_; }
+
+ private:
+  struct Kept {
+    std::unique_ptr<SegmentIntegrator> integrators[2];  // dopri5, dop853
+    bool busy[2] = {false, false};
+  };
+  static thread_local Kept kept_;
+  std::unique_ptr<SegmentIntegrator> own_;
+  SegmentIntegrator* integrator_ = nullptr;
+  int slot_ = -1;
+};
+thread_local IntegratorLease::Kept IntegratorLease::kept_;
+
 FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd>& x0,
                double t_final, const Eigen::MatrixXd* directions, const FlowOptions& options,
                FlowDerivative* derivative) {
@@ -591,7 +632,7 @@ FlowResult run(const SegmentModel& model, const Eigen::Ref<const Eigen::VectorXd
   FlowResult result;
   result.sides = starting_sides(model, x0, options);
   result.backend = choose_backend(options.backend, options.integrator.rtol, d, model.surfaces());
-  std::unique_ptr<SegmentIntegrator> integrator = make_integrator(result.backend);
+  const IntegratorLease integrator(result.backend);
   SegmentRequest request;
   request.sides = result.sides;
   request.t0 = 0.0;

@@ -24,8 +24,9 @@
 
 namespace bflow {
 
-/** DOP853 backend. k tangent directions are carried in chunks of at most eight, each by the
-    narrowest compiled Jet that holds it (segment.h: widths 1, 2, 4, 6, 8). */
+/** DOP853 backend. k tangent directions are carried in chunks of at most kFlowChunk = 16, each
+    by the narrowest compiled Jet that holds it (widths 1, 2, 4, 6, 8, 12, 16; bflow/ad/
+    tangent_jet.h). */
 class Dop853Integrator final : public SegmentIntegrator {
  public:
   /** As Dopri5Integrator::integrate (dopri5.h), with the same guarantees and @throws;

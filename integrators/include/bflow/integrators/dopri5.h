@@ -48,8 +48,9 @@
 
 namespace bflow {
 
-/** Dormand-Prince 5(4) backend. k tangent directions are carried in chunks of at most eight,
-    each by the narrowest compiled Jet that holds it (segment.h: widths 1, 2, 4, 6, 8). */
+/** Dormand-Prince 5(4) backend. k tangent directions are carried in chunks of at most
+    kFlowChunk = 16, each by the narrowest compiled Jet that holds it (widths 1, 2, 4, 6, 8, 12,
+    16; bflow/ad/tangent_jet.h). */
 class Dopri5Integrator final : public SegmentIntegrator {
  public:
   /** Integrates one segment (segment.h). Ends within max_steps accepted and max_steps rejected
